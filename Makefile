@@ -1,0 +1,41 @@
+# Two entry points: `make demo` (embedded defaults) and `make test` (the whole suite twice:
+# embedded defaults, then PostgreSQL + Redis). Both create the venv they need.
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+PG_URL ?= postgresql://postgres@127.0.0.1:5432/test
+REDIS_URL ?= redis://127.0.0.1:6379/15
+ARGS ?=
+
+.PHONY: demo test test-embedded test-production lint openapi clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet -e '.[dev]'
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/indoorpos demo $(ARGS)
+
+test: test-embedded test-production
+
+test-embedded: $(STAMP)
+	env -u INDOORPOS_DATABASE_URL -u INDOORPOS_REDIS_URL $(BIN)/pytest -q
+
+test-production: $(STAMP)
+	INDOORPOS_DATABASE_URL=$(PG_URL) INDOORPOS_REDIS_URL=$(REDIS_URL) \
+	INDOORPOS_TEST_REQUIRE_REDIS=1 $(BIN)/pytest -q
+
+lint: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+	$(BIN)/mypy
+	$(BIN)/lint-imports
+
+openapi: $(STAMP)
+	$(BIN)/indoorpos openapi
+
+clean:
+	rm -rf $(VENV) .indoorpos .mypy_cache .ruff_cache .pytest_cache

@@ -1,0 +1,68 @@
+"""Error responses: every 4xx names the field it is about.
+
+Body: ``{"detail": [{"loc": [...], "msg": ..., "type": ...}], "message": "field: text"}``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+
+from server.services.errors import ServiceError
+
+
+def _field(loc: tuple[Any, ...] | list[Any]) -> str:
+    parts = [str(p) for p in loc if p not in ("body", "query", "path", "header")]
+    return ".".join(parts) or "body"
+
+
+# pydantic puts the tag of a tagged-union member into the location ("events", 1, "step",
+# "length_m"); clients think of it as events.1.length_m
+EVENT_TAGS = frozenset({"step", "wifi", "ble", "mag"})
+
+
+def _clean_loc(loc: tuple[Any, ...] | list[Any]) -> list[Any]:
+    out: list[Any] = []
+    for item in loc:
+        if item in EVENT_TAGS and out and isinstance(out[-1], int):
+            continue
+        out.append(item)
+    return out
+
+
+def validation_detail(errors: list[Any]) -> dict[str, Any]:
+    detail = []
+    for err in errors:
+        loc = _clean_loc(err.get("loc", ()))
+        if err.get("type") == "union_tag_invalid":
+            loc.append("type")
+        detail.append({"loc": loc, "msg": err.get("msg", "invalid"), "type": err.get("type")})
+    message = "; ".join(f"{_field(d['loc'])}: {d['msg']}" for d in detail[:5])
+    return {"detail": detail, "message": message}
+
+
+def service_detail(exc: ServiceError) -> dict[str, Any]:
+    field = exc.field or "request"
+    return {
+        "detail": [{"loc": field.split("."), "msg": exc.message, "type": type(exc).__name__}],
+        "message": f"{field}: {exc.message}",
+    }
+
+
+async def _on_validation(_request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, RequestValidationError)
+    return JSONResponse(validation_detail(list(exc.errors())), status_code=422)
+
+
+async def _on_service(_request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, ServiceError)
+    headers = {"WWW-Authenticate": "Bearer"} if exc.status == 401 else None
+    return JSONResponse(service_detail(exc), status_code=exc.status, headers=headers)
+
+
+def install(app: FastAPI) -> None:
+    app.add_exception_handler(RequestValidationError, _on_validation)
+    app.add_exception_handler(ServiceError, _on_service)

@@ -1,0 +1,25 @@
+"""Liveness and readiness probes."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter
+from fastapi.responses import JSONResponse
+
+from server.api.deps import RuntimeDep
+from server.services.runtime import check_ready
+
+router = APIRouter(tags=["health"])
+
+
+@router.get("/healthz")
+async def healthz() -> dict[str, str]:
+    return {"status": "ok"}
+
+
+@router.get("/readyz")
+async def readyz(rt: RuntimeDep) -> JSONResponse:
+    try:
+        await check_ready(rt)
+    except Exception as exc:  # any failure of a backing store means "not ready"
+        return JSONResponse({"status": "unavailable", "reason": str(exc)[:200]}, status_code=503)
+    return JSONResponse({"status": "ok"})

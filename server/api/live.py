@@ -1,0 +1,110 @@
+"""WebSocket ``/v1/sessions/{id}/live``: every new fix of the session, as it is made.
+
+The token comes as ``?token=`` (browsers cannot set headers on a socket) or as a bearer
+header. Messages out: ``{"type": "fix", "seq", "fix"}``, ``{"type": "batch_result", ...}``
+for batches sent over the socket, ``{"type": "error", "status", "detail", "message"}``.
+Fan-out goes through the session store's pub/sub, so any replica can serve the socket.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from typing import Annotated, Any
+
+import anyio
+import orjson
+from fastapi import APIRouter, Depends, Query, WebSocket, WebSocketDisconnect
+from pydantic import ValidationError
+
+from server.api import schemas as sc
+from server.api.convert import to_events
+from server.api.deps import get_ws_runtime
+from server.api.errors import service_detail, validation_detail
+from server.services import sessions
+from server.services.errors import ServiceError, Unauthorized
+from server.services.runtime import Runtime
+
+router = APIRouter(prefix="/v1/sessions", tags=["sessions"])
+
+CLOSE_CODES = {401: 4401, 403: 4403, 404: 4404}
+
+
+class _Socket:
+    """Serialises sends from the forwarder and the reader onto one socket."""
+
+    def __init__(self, ws: WebSocket) -> None:
+        self.ws = ws
+        self.lock = anyio.Lock()
+
+    async def send(self, message: dict[str, Any]) -> None:
+        async with self.lock:
+            await self.ws.send_text(orjson.dumps(message).decode())
+
+
+def _token(ws: WebSocket, query_token: str | None) -> str:
+    if query_token:
+        return query_token
+    header = ws.headers.get("authorization", "")
+    if header.lower().startswith("bearer "):
+        return header[7:].strip()
+    raise Unauthorized("missing token (query parameter or bearer header)", field="token")
+
+
+@router.websocket("/{session_id}/live")
+async def live(
+    websocket: WebSocket,
+    session_id: str,
+    rt: Annotated[Runtime, Depends(get_ws_runtime)],
+    token: Annotated[str | None, Query()] = None,
+) -> None:
+    await websocket.accept()
+    sock = _Socket(websocket)
+    try:
+        secret = _token(websocket, token)
+        await sessions.authorize(rt, session_id, secret)
+    except ServiceError as exc:
+        await sock.send({"type": "error", "status": exc.status, **service_detail(exc)})
+        await websocket.close(code=CLOSE_CODES.get(exc.status, 1008))
+        return
+    async with sessions.follow(rt, session_id) as messages, anyio.create_task_group() as tg:
+
+        async def forward() -> None:
+            async for message in messages:
+                if message.get("closed"):
+                    break
+                for fix in message["fixes"]:
+                    await sock.send({"type": "fix", "seq": message["seq"], "fix": fix})
+            tg.cancel_scope.cancel()
+            await websocket.close(code=1000)
+
+        tg.start_soon(forward)
+        with contextlib.suppress(WebSocketDisconnect):
+            await _read(sock, rt, session_id, secret)
+        tg.cancel_scope.cancel()
+
+
+async def _read(sock: _Socket, rt: Runtime, session_id: str, secret: str) -> None:
+    while True:
+        text = await sock.ws.receive_text()
+        try:
+            batch = sc.LiveBatch.model_validate_json(text)
+        except ValidationError as exc:
+            errors = [dict(e) for e in exc.errors()]
+            await sock.send({"type": "error", "status": 422, **validation_detail(errors)})
+            continue
+        try:
+            result = await sessions.apply_batch(
+                rt, session_id, secret, batch.seq, to_events(batch.events)
+            )
+        except ServiceError as exc:
+            await sock.send({"type": "error", "status": exc.status, **service_detail(exc)})
+            continue
+        await sock.send(
+            {
+                "type": "batch_result",
+                "session_id": session_id,
+                "seq": result.seq,
+                "replayed": result.replayed,
+                "fixes": result.fixes,
+            }
+        )

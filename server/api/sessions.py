@@ -1,0 +1,56 @@
+"""Device routes: positioning sessions and their batches."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Response, status
+
+from server.api import schemas as sc
+from server.api.convert import to_events
+from server.api.deps import BearerDep, RuntimeDep
+from server.services import sessions
+
+router = APIRouter(prefix="/v1/sessions", tags=["sessions"])
+
+
+@router.post("", status_code=status.HTTP_201_CREATED)
+async def create_session(body: sc.SessionCreate, rt: RuntimeDep) -> sc.SessionCreated:
+    created = await sessions.create_session(rt, body.site_id, body.engine)
+    return sc.SessionCreated(
+        id=created.id,
+        token=created.token,
+        site_id=created.site_id,
+        engine=created.engine,
+        idle_timeout_s=created.idle_timeout_s,
+    )
+
+
+@router.post("/{session_id}/batches")
+async def post_batch(
+    session_id: str, body: sc.BatchIn, rt: RuntimeDep, token: BearerDep
+) -> sc.BatchOut:
+    result = await sessions.apply_batch(rt, session_id, token, body.seq, to_events(body.events))
+    return sc.BatchOut(
+        session_id=session_id,
+        seq=result.seq,
+        replayed=result.replayed,
+        fixes=[sc.FixOut.model_validate(f) for f in result.fixes],
+    )
+
+
+@router.get("/{session_id}")
+async def get_session(session_id: str, rt: RuntimeDep, token: BearerDep) -> sc.SessionRead:
+    info = await sessions.get_session(rt, session_id, token)
+    return sc.SessionRead(
+        id=info.id,
+        site_id=info.site_id,
+        engine=info.engine,
+        last_seq=info.last_seq,
+        last_fix=sc.FixOut.model_validate(info.last_fix) if info.last_fix else None,
+        idle_timeout_s=info.idle_timeout_s,
+    )
+
+
+@router.delete("/{session_id}", status_code=status.HTTP_204_NO_CONTENT)
+async def end_session(session_id: str, rt: RuntimeDep, token: BearerDep) -> Response:
+    await sessions.end_session(rt, session_id, token)
+    return Response(status_code=status.HTTP_204_NO_CONTENT)

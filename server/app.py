@@ -1,0 +1,49 @@
+"""The FastAPI application factory."""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+
+import anyio
+from fastapi import FastAPI
+from fastapi.routing import APIRoute
+
+from server.api import admin, errors, health, live, locate, sessions
+from server.config import Settings, get_settings
+from server.services.runtime import open_runtime
+from server.storage import db
+
+DESCRIPTION = (
+    "Indoor positioning service. Phones post batches of steps, sensor samples and "
+    "WiFi/BLE scans; the server fuses them into fixes per session and pushes them live."
+)
+
+
+def _operation_id(route: APIRoute) -> str:
+    return f"{route.tags[0]}-{route.name}" if route.tags else route.name
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    settings = settings or get_settings()
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        if settings.resolved_database_url.startswith("sqlite"):
+            # embedded mode keeps itself migrated; the production shape runs `indoorpos migrate`
+            await anyio.to_thread.run_sync(db.migrate, settings.resolved_database_url)
+        async with open_runtime(settings) as runtime:
+            app.state.runtime = runtime
+            yield
+
+    app = FastAPI(
+        title="indoorpos",
+        version="0.1.0",
+        description=DESCRIPTION,
+        lifespan=lifespan,
+        generate_unique_id_function=_operation_id,
+    )
+    errors.install(app)
+    for module in (health, admin, sessions, live, locate):
+        app.include_router(module.router)
+    return app

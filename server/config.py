@@ -1,0 +1,70 @@
+"""Service settings, read from the environment with the prefix ``INDOORPOS_``.
+
+With nothing set the service runs embedded: a SQLite file under ``data_dir``, the
+in-memory session store and the worker as an in-process task. Setting
+``INDOORPOS_DATABASE_URL`` (a plain ``postgresql://user@host:port/db``) and
+``INDOORPOS_REDIS_URL`` (``redis://host:port/db``) switches to the production shape.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+
+from pydantic import Field, SecretStr, field_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class Settings(BaseSettings):
+    model_config = SettingsConfigDict(env_prefix="INDOORPOS_", extra="ignore")
+
+    data_dir: Path = Field(Path(".indoorpos"), description="where the embedded SQLite file lives")
+    database_url: str | None = Field(None, description="postgresql://... or sqlite:///...")
+    redis_url: str | None = Field(None, description="redis://host:port/db")
+    admin_key: SecretStr | None = Field(
+        None, description="admin API key; keys made by `indoorpos keys create` work too"
+    )
+    session_idle_s: int = Field(1800, ge=10, description="sessions expire after this idle time")
+    seq_wait_s: float = Field(
+        2.0, ge=0, le=30, description="how long a batch waits for its predecessor seq"
+    )
+    replay_window: int = Field(
+        16, ge=1, le=256, description="recent batch replies kept for retried seqs"
+    )
+    embedded_worker: bool = Field(True, description="run the worker inside the api process")
+    map_cache_size: int = Field(32, ge=1, description="site map sets kept in memory")
+
+    @field_validator("database_url")
+    @classmethod
+    def _known_scheme(cls, v: str | None) -> str | None:
+        if v is None or v == "":
+            return None
+        scheme = v.split("://", 1)[0].split("+", 1)[0]
+        if scheme not in {"postgresql", "postgres", "sqlite"}:
+            raise ValueError(f"unsupported database scheme {scheme!r}: use postgresql or sqlite")
+        return v
+
+    @field_validator("redis_url")
+    @classmethod
+    def _redis_scheme(cls, v: str | None) -> str | None:
+        if v is None or v == "":
+            return None
+        if not v.startswith(("redis://", "rediss://", "unix://")):
+            raise ValueError("redis_url must start with redis://, rediss:// or unix://")
+        return v
+
+    @property
+    def resolved_database_url(self) -> str:
+        """The configured database URL, or the embedded SQLite file."""
+        if self.database_url:
+            return self.database_url
+        return f"sqlite:///{(self.data_dir / 'indoorpos.db').as_posix()}"
+
+    @property
+    def embedded(self) -> bool:
+        return self.database_url is None and self.redis_url is None
+
+
+@lru_cache(maxsize=1)
+def get_settings() -> Settings:
+    return Settings()

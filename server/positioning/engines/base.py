@@ -1,0 +1,56 @@
+"""What every fusion engine looks like.
+
+An engine is a pure function ``run(state, events, maps, params, rng) -> (state, fixes)``
+plus the means to create and serialise its state. State objects are frozen dataclasses
+that turn into a flat ``dict[str, numpy.ndarray]`` and back, so the storage layer can
+write them as typed raw bytes (never pickle, never JSON).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+
+from server.positioning.events import Event, Fix
+from server.positioning.fingerprint import RadioMap
+
+
+@dataclass(frozen=True, slots=True)
+class FloorRef:
+    """One floor of a site; engines refer to floors by index into ``SiteMaps.floors``."""
+
+    building_id: str
+    floor_id: str
+    level: int
+
+
+@dataclass(frozen=True)
+class SiteMaps:
+    """Everything an engine may read about a site: its floors and its maps."""
+
+    floors: tuple[FloorRef, ...]
+    radio: RadioMap | None
+    version: str  # changes whenever any map of the site changes
+
+
+class EngineState(Protocol):
+    def to_arrays(self) -> dict[str, np.ndarray]: ...
+
+
+Arrays = Mapping[str, np.ndarray]
+
+
+@dataclass(frozen=True)
+class EngineSpec:
+    """The registry entry of one engine."""
+
+    name: str
+    params_type: type[Any]
+    initial_state: Callable[[Any], Any]
+    from_arrays: Callable[[Arrays], Any]
+    run: Callable[[Any, Sequence[Event], SiteMaps, Any, np.random.Generator], tuple[Any, list[Fix]]]
+    # event kinds the engine reads; others are accepted but ignored by it
+    uses: frozenset[str]

@@ -1,0 +1,84 @@
+"""The event model every engine consumes and the fix every engine produces.
+
+Frames and units follow the service design: per building a local metric frame (x east,
+y north, metres), floors by index into the site's floor list, headings in radians
+clockwise from north (the y axis), RSS in dBm, magnetic field in µT, timestamps in
+milliseconds since the epoch from the phone clock.
+
+These are plain frozen dataclasses so the same values come out of the batch API, of the
+dataset importers and of the simulator, and engines can be tested without any server.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass(frozen=True, slots=True)
+class StepEvent:
+    """A step detected on the phone."""
+
+    t_ms: int
+    length_m: float
+    heading_rad: float  # clockwise from north
+    confidence: float = 1.0
+
+
+@dataclass(frozen=True, slots=True)
+class RadioReading:
+    """One emitter heard in a scan: ``emitter`` is the WiFi BSSID or the BLE beacon id."""
+
+    emitter: str
+    rssi_dbm: float
+
+
+@dataclass(frozen=True, slots=True)
+class WifiEvent:
+    t_ms: int
+    readings: tuple[RadioReading, ...]
+
+
+@dataclass(frozen=True, slots=True)
+class BleEvent:
+    t_ms: int
+    readings: tuple[RadioReading, ...]
+
+
+@dataclass(frozen=True, slots=True)
+class MagEvent:
+    """Magnetometer reading: a vector in the phone frame, or only its magnitude."""
+
+    t_ms: int
+    field_ut: tuple[float, float, float] | None = None
+    magnitude_ut: float | None = None
+
+
+Event = StepEvent | WifiEvent | BleEvent | MagEvent
+
+
+@dataclass(frozen=True, slots=True)
+class Fix:
+    """A position estimate.
+
+    ``cov`` is the 2x2 position covariance in m² flattened row-major
+    (xx, xy, yx, yy); ``floor`` is the index into the site's floor list.
+    """
+
+    t_ms: int
+    x_m: float
+    y_m: float
+    floor: int
+    heading_rad: float | None
+    cov: tuple[float, float, float, float]
+    source: str  # what produced it: "step", "wifi", "ble"
+    diagnostics: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def uncertainty_m(self) -> float:
+        """Root of the mean of the position variances: a 1-σ radius in metres."""
+        return float(((self.cov[0] + self.cov[3]) / 2.0) ** 0.5)
+
+
+def radio_key(kind: str, emitter: str) -> str:
+    """The column key of an emitter in a radio map: ``"wifi:<bssid>"`` or ``"ble:<id>"``."""
+    return f"{kind}:{emitter.lower()}"

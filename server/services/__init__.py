@@ -1,0 +1,1 @@
+"""Use-cases: load state, run the core, persist and publish. Services own transactions."""

@@ -1,0 +1,172 @@
+"""Radio maps: survey points in, a new version out; site map sets cached in memory by version."""
+
+from __future__ import annotations
+
+import time
+from collections import OrderedDict
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import anyio
+import numpy as np
+from sqlalchemy.ext.asyncio import AsyncSession
+
+from server.positioning.engines.base import FloorRef, SiteMaps
+from server.positioning.events import radio_key
+from server.positioning.fingerprint import MISSING_DBM, RadioMap
+from server.positioning.mapping.gridding import build_radio_map
+from server.positioning.mapping.matrices import merge_radio_maps, readings_matrix
+from server.services.errors import Invalid, NotFound
+from server.storage import repositories as repo
+from server.storage.models import RadioMapVersion
+
+# A dense survey (points every metre or two) keeps its resolution with 1 m cells; points
+# closer than that are merged into one reference point at their mean position.
+SURVEY_CELL_M = 1.0
+# How long a process trusts its cached map set before asking SQL for a newer version.
+VERSION_CHECK_S = 2.0
+
+
+@dataclass(frozen=True)
+class SurveyPointData:
+    x_m: float
+    y_m: float
+    floor_level: int
+    t_ms: int | None
+    wifi: Sequence[tuple[str, float]]
+    ble: Sequence[tuple[str, float]]
+    mag_ut: tuple[float, float, float] | None
+
+
+class MapCache:
+    """Site map sets per process, keyed by site and refreshed when a version changes."""
+
+    def __init__(self, size: int) -> None:
+        self._size = size
+        self._entries: OrderedDict[str, tuple[float, SiteMaps]] = OrderedDict()
+        self._locks: dict[str, anyio.Lock] = {}
+
+    def invalidate(self, site_id: str) -> None:
+        self._entries.pop(site_id, None)
+
+    async def get(self, s: AsyncSession, site_id: str) -> SiteMaps:
+        now = time.monotonic()
+        entry = self._entries.get(site_id)
+        if entry is not None and now - entry[0] < VERSION_CHECK_S:
+            self._entries.move_to_end(site_id)
+            return entry[1]
+        lock = self._locks.setdefault(site_id, anyio.Lock())
+        async with lock:
+            entry = self._entries.get(site_id)
+            if entry is not None and time.monotonic() - entry[0] < VERSION_CHECK_S:
+                return entry[1]
+            maps = await _load_site_maps(s, site_id, entry[1] if entry else None)
+            self._entries[site_id] = (time.monotonic(), maps)
+            self._entries.move_to_end(site_id)
+            while len(self._entries) > self._size:
+                self._entries.popitem(last=False)
+            return maps
+
+
+async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None) -> SiteMaps:
+    floors = await repo.list_site_floors(s, site_id)
+    refs = tuple(FloorRef(b.id, f.id, f.level) for f, b in floors)
+    building_ids = list(dict.fromkeys(b.id for _, b in floors))
+    latest = [m for b in building_ids if (m := await repo.latest_radio_map(s, b)) is not None]
+    version = "|".join([f.floor_id for f in refs] + [m.id for m in latest])
+    if cached is not None and cached.version == version:
+        return cached
+    floor_index = {f.floor_id: i for i, f in enumerate(refs)}
+    parts = []
+    for row in latest:
+        arrays = await repo.load_radio_map(s, row.id, MISSING_DBM)
+        parts.append(
+            RadioMap(
+                rp_xy=arrays.rp_xy,
+                rp_floor=np.array([floor_index[f] for f in arrays.rp_floor_id], dtype=np.int32),
+                mean_dbm=arrays.mean_dbm,
+                var_db2=arrays.var_db2,
+                count=arrays.count,
+                emitters=tuple(radio_key(kind, key) for kind, key in arrays.emitters),
+            )
+        )
+    return SiteMaps(floors=refs, radio=merge_radio_maps(parts), version=version)
+
+
+async def site_maps(s: AsyncSession, cache: MapCache, site_id: str) -> SiteMaps:
+    if await repo.get_site(s, site_id) is None:
+        raise NotFound(f"site {site_id} not found", field="site_id")
+    return await cache.get(s, site_id)
+
+
+async def add_survey(
+    s: AsyncSession, building_id: str, points: Sequence[SurveyPointData]
+) -> RadioMapVersion:
+    """Store labelled fingerprints and build the building's next radio map version from every
+    survey point it has (see ``gridding.build_radio_map`` for the gridding rules)."""
+    building = await repo.get_building(s, building_id)
+    if building is None:
+        raise NotFound(f"building {building_id} not found", field="building_id")
+    floor_by_level = {f.level: f for f in await repo.list_floors(s, building_id)}
+    for i, p in enumerate(points):
+        if p.floor_level not in floor_by_level:
+            raise Invalid(
+                f"floor level {p.floor_level} does not exist in building {building_id}",
+                field=f"points.{i}.floor",
+            )
+    await repo.add_survey_points(
+        s,
+        [
+            {
+                "building_id": building_id,
+                "floor_id": floor_by_level[p.floor_level].id,
+                "x_m": p.x_m,
+                "y_m": p.y_m,
+                "t_ms": p.t_ms,
+                "readings": {
+                    "wifi": [[k.lower(), v] for k, v in p.wifi],
+                    "ble": [[k.lower(), v] for k, v in p.ble],
+                    "mag_ut": list(p.mag_ut) if p.mag_ut else None,
+                },
+            }
+            for p in points
+        ],
+    )
+    return await rebuild_radio_map(s, building_id)
+
+
+async def list_radio_maps(s: AsyncSession, building_id: str) -> Sequence[RadioMapVersion]:
+    if await repo.get_building(s, building_id) is None:
+        raise NotFound(f"building {building_id} not found", field="building_id")
+    return await repo.list_radio_maps(s, building_id)
+
+
+async def rebuild_radio_map(s: AsyncSession, building_id: str) -> RadioMapVersion:
+    stored = await repo.list_survey_points(s, building_id)
+    floor_ids = sorted({p.floor_id for p in stored})
+    floor_index = {f: i for i, f in enumerate(floor_ids)}
+    scans = [
+        [(radio_key("wifi", k), float(v)) for k, v in p.readings.get("wifi", [])]
+        + [(radio_key("ble", k), float(v)) for k, v in p.readings.get("ble", [])]
+        for p in stored
+    ]
+    emitters, rssi = readings_matrix(scans)
+    xy = np.array([(p.x_m, p.y_m) for p in stored], dtype=np.float64).reshape(-1, 2)
+    floor = np.array([floor_index[p.floor_id] for p in stored], dtype=np.int64)
+    radio = await anyio.to_thread.run_sync(
+        lambda: build_radio_map(xy, floor, rssi, emitters, cell_m=SURVEY_CELL_M)
+    )
+    kinds_keys = [tuple(key.split(":", 1)) for key in radio.emitters]
+    ids = await repo.ensure_emitters(s, building_id, [(k, v) for k, v in kinds_keys])
+    return await repo.save_radio_map(
+        s,
+        building_id,
+        cell_m=SURVEY_CELL_M,
+        n_survey_points=len(stored),
+        rp_floor_id=[floor_ids[i] for i in radio.rp_floor.tolist()],
+        rp_xy=radio.rp_xy,
+        emitter_ids=[ids[(k, v)] for k, v in kinds_keys],
+        mean_dbm=radio.mean_dbm,
+        var_db2=radio.var_db2,
+        count=radio.count,
+    )

@@ -1,0 +1,297 @@
+"""Positioning sessions: create, apply a batch of events exactly once, read, end, follow live.
+
+A session is one record in the session store: immutable meta (site, engine, token digest,
+RNG entropy) and a state blob holding the engine state, the last applied ``seq``, the
+replies of the last few batches (so a retried ``seq`` gets the same answer) and the last
+fix. Writes are compare-and-set on the record's version, so two replicas applying batches
+to one session at once never overwrite each other: the loser re-reads and re-applies.
+
+Batches apply strictly in ``seq`` order (1, 2, 3, ...). A batch that arrives before its
+predecessor waits up to ``seq_wait_s`` for it, then is refused with 409.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import hmac
+import secrets
+import time
+import uuid
+from collections.abc import AsyncIterator, Sequence
+from contextlib import asynccontextmanager
+from dataclasses import dataclass
+from typing import Any
+
+import anyio
+import numpy as np
+import orjson
+
+from server.positioning.engines import ENGINES, get_engine
+from server.positioning.engines.base import EngineSpec, SiteMaps
+from server.positioning.events import Event, Fix
+from server.services.errors import Conflict, Forbidden, Invalid, NotFound
+from server.services.maps import site_maps
+from server.services.runtime import Runtime
+from server.storage.codec import array_to_str, decode_arrays, encode_arrays, str_to_array
+from server.storage.session_store import StoredSession
+
+ENGINE_PREFIX = "engine/"
+SEQ_POLL_S = 0.01
+
+
+@dataclass(frozen=True)
+class SessionMeta:
+    site_id: str
+    engine: str
+    token_digest: str
+    entropy: int
+
+    def to_bytes(self) -> bytes:
+        return encode_arrays(
+            {
+                "site_id": str_to_array(self.site_id),
+                "engine": str_to_array(self.engine),
+                "token_digest": str_to_array(self.token_digest),
+                "entropy": np.frombuffer(self.entropy.to_bytes(16, "little"), dtype=np.uint8),
+            }
+        )
+
+    @classmethod
+    def from_bytes(cls, data: bytes) -> SessionMeta:
+        a = decode_arrays(data)
+        return cls(
+            site_id=array_to_str(a["site_id"]),
+            engine=array_to_str(a["engine"]),
+            token_digest=array_to_str(a["token_digest"]),
+            entropy=int.from_bytes(a["entropy"].tobytes(), "little"),
+        )
+
+
+@dataclass(frozen=True)
+class Reply:
+    seq: int
+    digest: bytes
+    body: bytes  # JSON list of fixes as sent on the wire
+
+
+@dataclass(frozen=True)
+class SessionState:
+    last_seq: int
+    engine_state: Any
+    replies: tuple[Reply, ...]
+    last_fix: bytes  # JSON of the newest fix, b"" before the first
+
+    def to_bytes(self) -> bytes:
+        arrays: dict[str, np.ndarray] = {
+            "last_seq": np.array(self.last_seq, dtype=np.int64),
+            "last_fix": np.frombuffer(self.last_fix, dtype=np.uint8),
+            "replies/seq": np.array([r.seq for r in self.replies], dtype=np.int64),
+            "replies/digest": np.frombuffer(
+                b"".join(r.digest for r in self.replies), dtype=np.uint8
+            ),
+            "replies/offsets": np.cumsum([0] + [len(r.body) for r in self.replies]).astype(
+                np.int64
+            ),
+            "replies/body": np.frombuffer(b"".join(r.body for r in self.replies), dtype=np.uint8),
+        }
+        for name, value in self.engine_state.to_arrays().items():
+            arrays[ENGINE_PREFIX + name] = value
+        return encode_arrays(arrays)
+
+    @classmethod
+    def from_bytes(cls, data: bytes, spec: EngineSpec) -> SessionState:
+        a = decode_arrays(data)
+        offsets = a["replies/offsets"].tolist()
+        body = a["replies/body"].tobytes()
+        digests = a["replies/digest"].tobytes()
+        replies = tuple(
+            Reply(
+                seq=int(seq),
+                digest=digests[32 * i : 32 * (i + 1)],
+                body=body[offsets[i] : offsets[i + 1]],
+            )
+            for i, seq in enumerate(a["replies/seq"].tolist())
+        )
+        engine_arrays = {
+            k[len(ENGINE_PREFIX) :]: v for k, v in a.items() if k.startswith(ENGINE_PREFIX)
+        }
+        return cls(
+            last_seq=int(a["last_seq"]),
+            engine_state=spec.from_arrays(engine_arrays),
+            replies=replies,
+            last_fix=a["last_fix"].tobytes(),
+        )
+
+
+@dataclass(frozen=True)
+class CreatedSession:
+    id: str
+    token: str
+    site_id: str
+    engine: str
+    idle_timeout_s: int
+
+
+@dataclass(frozen=True)
+class BatchResult:
+    seq: int
+    replayed: bool
+    fixes: list[dict[str, Any]]
+
+
+@dataclass(frozen=True)
+class SessionInfo:
+    id: str
+    site_id: str
+    engine: str
+    last_seq: int
+    last_fix: dict[str, Any] | None
+    idle_timeout_s: int
+
+
+def _digest(secret: str) -> str:
+    return hashlib.sha256(secret.encode()).hexdigest()
+
+
+def events_digest(events: Sequence[Event]) -> bytes:
+    """A fingerprint of a batch's content, to tell a true retry from a reused ``seq``."""
+    return hashlib.sha256(repr(tuple(events)).encode()).digest()
+
+
+def fix_to_wire(fix: Fix, maps: SiteMaps, engine: str) -> dict[str, Any]:
+    ref = maps.floors[fix.floor] if 0 <= fix.floor < len(maps.floors) else None
+    return {
+        "t": fix.t_ms,
+        "x_m": fix.x_m,
+        "y_m": fix.y_m,
+        "floor": ref.level if ref else None,
+        "building_id": ref.building_id if ref else None,
+        "floor_id": ref.floor_id if ref else None,
+        "heading_rad": fix.heading_rad,
+        "cov_m2": list(fix.cov),
+        "uncertainty_m": fix.uncertainty_m,
+        "source": fix.source,
+        "engine": engine,
+        "diagnostics": fix.diagnostics,
+    }
+
+
+async def create_session(rt: Runtime, site_id: str, engine: str) -> CreatedSession:
+    if engine not in ENGINES:
+        known = ", ".join(sorted(ENGINES))
+        raise Invalid(f"unknown engine {engine!r}; known engines: {known}", field="engine")
+    async with rt.transaction() as s:
+        await site_maps(s, rt.maps, site_id)
+    spec = get_engine(engine)
+    token = secrets.token_urlsafe(32)
+    session_id = uuid.uuid4().hex
+    meta = SessionMeta(site_id, engine, _digest(token), secrets.randbits(128))
+    state = SessionState(0, spec.initial_state(spec.params_type()), (), b"")
+    ttl = rt.settings.session_idle_s
+    await rt.store.create(session_id, meta.to_bytes(), state.to_bytes(), ttl)
+    return CreatedSession(session_id, token, site_id, engine, ttl)
+
+
+async def _load(rt: Runtime, session_id: str, token: str) -> tuple[StoredSession, SessionMeta]:
+    stored = await rt.store.get(session_id)
+    if stored is None:
+        raise NotFound(f"session {session_id} not found or expired", field="session_id")
+    meta = SessionMeta.from_bytes(stored.meta)
+    if not hmac.compare_digest(meta.token_digest, _digest(token)):
+        raise Forbidden("this token does not belong to the session", field="authorization")
+    return stored, meta
+
+
+async def authorize(rt: Runtime, session_id: str, token: str) -> SessionMeta:
+    return (await _load(rt, session_id, token))[1]
+
+
+async def apply_batch(
+    rt: Runtime, session_id: str, token: str, seq: int, events: Sequence[Event]
+) -> BatchResult:
+    digest = events_digest(events)
+    deadline = time.monotonic() + rt.settings.seq_wait_s
+    while True:
+        stored, meta = await _load(rt, session_id, token)
+        spec = get_engine(meta.engine)
+        state = SessionState.from_bytes(stored.state, spec)
+        if seq <= state.last_seq:
+            return _replay(state, seq, digest)
+        if seq > state.last_seq + 1:
+            if time.monotonic() >= deadline:
+                raise Conflict(
+                    f"seq {seq} arrived before seq {state.last_seq + 1}; send that one first",
+                    field="seq",
+                )
+            await anyio.sleep(SEQ_POLL_S)
+            continue
+        async with rt.transaction() as s:
+            maps = await site_maps(s, rt.maps, meta.site_id)
+        rng = np.random.default_rng(np.random.SeedSequence(meta.entropy, spawn_key=(seq,)))
+        params = spec.params_type()
+        new_engine_state, fixes = await anyio.to_thread.run_sync(
+            spec.run, state.engine_state, list(events), maps, params, rng
+        )
+        wire = [fix_to_wire(f, maps, meta.engine) for f in fixes]
+        body = orjson.dumps(wire)
+        replies = (*state.replies, Reply(seq, digest, body))[-rt.settings.replay_window :]
+        new_state = SessionState(
+            last_seq=seq,
+            engine_state=new_engine_state,
+            replies=replies,
+            last_fix=orjson.dumps(wire[-1]) if wire else state.last_fix,
+        )
+        ok = await rt.store.compare_and_set(
+            session_id, stored.version, new_state.to_bytes(), rt.settings.session_idle_s
+        )
+        if ok:
+            if wire:
+                await rt.store.publish(session_id, orjson.dumps({"seq": seq, "fixes": wire}))
+            return BatchResult(seq, False, wire)
+        # another writer got there first: read the new state and try again
+
+
+def _replay(state: SessionState, seq: int, digest: bytes) -> BatchResult:
+    for reply in state.replies:
+        if reply.seq == seq:
+            if reply.digest != digest:
+                raise Conflict(f"seq {seq} was already applied with different events", field="seq")
+            return BatchResult(seq, True, orjson.loads(reply.body))
+    raise Conflict(
+        f"seq {seq} was applied long ago and its reply is no longer kept; "
+        f"the session is at seq {state.last_seq}",
+        field="seq",
+    )
+
+
+async def get_session(rt: Runtime, session_id: str, token: str) -> SessionInfo:
+    stored, meta = await _load(rt, session_id, token)
+    state = SessionState.from_bytes(stored.state, get_engine(meta.engine))
+    return SessionInfo(
+        id=session_id,
+        site_id=meta.site_id,
+        engine=meta.engine,
+        last_seq=state.last_seq,
+        last_fix=orjson.loads(state.last_fix) if state.last_fix else None,
+        idle_timeout_s=rt.settings.session_idle_s,
+    )
+
+
+async def end_session(rt: Runtime, session_id: str, token: str) -> None:
+    await _load(rt, session_id, token)
+    await rt.store.delete(session_id)
+    await rt.store.publish(session_id, orjson.dumps({"closed": True}))
+
+
+@asynccontextmanager
+async def follow(rt: Runtime, session_id: str) -> AsyncIterator[AsyncIterator[dict[str, Any]]]:
+    """Live messages of a session: ``{"seq", "fixes"}`` per applied batch, ``{"closed"}`` at
+    the end. The caller must have authorised the reader first."""
+    async with rt.store.subscribe(session_id) as raw:
+
+        async def messages() -> AsyncIterator[dict[str, Any]]:
+            async for data in raw:
+                message: dict[str, Any] = orjson.loads(data)
+                yield message
+
+        yield messages()

@@ -1,0 +1,207 @@
+"""SQL schema: sites, buildings, floors, emitters, survey points, radio and magnetic map
+versions, uploads and API keys. Ids are 32-character hex UUIDs."""
+
+from __future__ import annotations
+
+import uuid
+from datetime import UTC, datetime
+from typing import Any, ClassVar
+
+from sqlalchemy import (
+    JSON,
+    BigInteger,
+    DateTime,
+    Float,
+    ForeignKey,
+    Index,
+    Integer,
+    LargeBinary,
+    MetaData,
+    String,
+    UniqueConstraint,
+)
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
+
+
+def new_id() -> str:
+    return uuid.uuid4().hex
+
+
+def utcnow() -> datetime:
+    return datetime.now(UTC)
+
+
+NAMING = {
+    "ix": "ix_%(column_0_label)s",
+    "uq": "uq_%(table_name)s_%(column_0_name)s",
+    "ck": "ck_%(table_name)s_%(constraint_name)s",
+    "fk": "fk_%(table_name)s_%(column_0_name)s_%(referred_table_name)s",
+    "pk": "pk_%(table_name)s",
+}
+
+
+class Base(DeclarativeBase):
+    metadata = MetaData(naming_convention=NAMING)
+    type_annotation_map: ClassVar[dict[Any, Any]] = {
+        datetime: DateTime(timezone=True),
+        dict[str, Any]: JSON,
+    }
+
+
+class Site(Base):
+    __tablename__ = "sites"
+    id: Mapped[str] = mapped_column(String(32), primary_key=True, default=new_id)
+    name: Mapped[str] = mapped_column(String(200))
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+
+class Building(Base):
+    """A building with its local metric frame (x east, y north) and optional geo-reference."""
+
+    __tablename__ = "buildings"
+    id: Mapped[str] = mapped_column(String(32), primary_key=True, default=new_id)
+    site_id: Mapped[str] = mapped_column(ForeignKey("sites.id", ondelete="CASCADE"), index=True)
+    name: Mapped[str] = mapped_column(String(200))
+    origin_lat: Mapped[float | None] = mapped_column(Float)
+    origin_lon: Mapped[float | None] = mapped_column(Float)
+    rotation_rad: Mapped[float] = mapped_column(Float, default=0.0)
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+
+class Floor(Base):
+    __tablename__ = "floors"
+    __table_args__ = (UniqueConstraint("building_id", "level"),)
+    id: Mapped[str] = mapped_column(String(32), primary_key=True, default=new_id)
+    building_id: Mapped[str] = mapped_column(
+        ForeignKey("buildings.id", ondelete="CASCADE"), index=True
+    )
+    level: Mapped[int] = mapped_column(Integer)
+    name: Mapped[str | None] = mapped_column(String(200))
+    plan_geojson: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+
+class Emitter(Base):
+    """A WiFi access point (BSSID) or BLE beacon heard in a building."""
+
+    __tablename__ = "emitters"
+    __table_args__ = (UniqueConstraint("building_id", "kind", "key"),)
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    building_id: Mapped[str] = mapped_column(
+        ForeignKey("buildings.id", ondelete="CASCADE"), index=True
+    )
+    kind: Mapped[str] = mapped_column(String(8))  # "wifi" | "ble"
+    key: Mapped[str] = mapped_column(String(128))  # lower-cased BSSID or beacon id
+    floor_id: Mapped[str | None] = mapped_column(ForeignKey("floors.id", ondelete="SET NULL"))
+    x_m: Mapped[float | None] = mapped_column(Float)
+    y_m: Mapped[float | None] = mapped_column(Float)
+    tx_power_dbm: Mapped[float | None] = mapped_column(Float)  # RSS at 1 m
+    path_loss_exponent: Mapped[float | None] = mapped_column(Float)
+
+
+class SurveyPoint(Base):
+    """A labelled fingerprint: where the surveyor stood and what the phone measured."""
+
+    __tablename__ = "survey_points"
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    building_id: Mapped[str] = mapped_column(
+        ForeignKey("buildings.id", ondelete="CASCADE"), index=True
+    )
+    floor_id: Mapped[str] = mapped_column(ForeignKey("floors.id", ondelete="CASCADE"))
+    x_m: Mapped[float] = mapped_column(Float)
+    y_m: Mapped[float] = mapped_column(Float)
+    t_ms: Mapped[int | None] = mapped_column(BigInteger)
+    # {"wifi": [[bssid, rssi_dbm], ...], "ble": [[id, rssi_dbm], ...], "mag_ut": [x, y, z] | null}
+    readings: Mapped[dict[str, Any]] = mapped_column(JSON)
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+
+class RadioMapVersion(Base):
+    __tablename__ = "radio_maps"
+    __table_args__ = (UniqueConstraint("building_id", "version"),)
+    id: Mapped[str] = mapped_column(String(32), primary_key=True, default=new_id)
+    building_id: Mapped[str] = mapped_column(
+        ForeignKey("buildings.id", ondelete="CASCADE"), index=True
+    )
+    version: Mapped[int] = mapped_column(Integer)
+    cell_m: Mapped[float] = mapped_column(Float)
+    n_reference_points: Mapped[int] = mapped_column(Integer)
+    n_emitters: Mapped[int] = mapped_column(Integer)
+    n_survey_points: Mapped[int] = mapped_column(Integer)
+    source: Mapped[str] = mapped_column(String(32), default="survey")
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+
+class ReferencePoint(Base):
+    __tablename__ = "radio_map_rps"
+    map_id: Mapped[str] = mapped_column(
+        ForeignKey("radio_maps.id", ondelete="CASCADE"), primary_key=True
+    )
+    idx: Mapped[int] = mapped_column(Integer, primary_key=True)
+    floor_id: Mapped[str] = mapped_column(ForeignKey("floors.id", ondelete="CASCADE"))
+    x_m: Mapped[float] = mapped_column(Float)
+    y_m: Mapped[float] = mapped_column(Float)
+
+
+class RadioStat(Base):
+    """Per reference point × emitter statistics of one radio map version."""
+
+    __tablename__ = "radio_map_stats"
+    map_id: Mapped[str] = mapped_column(
+        ForeignKey("radio_maps.id", ondelete="CASCADE"), primary_key=True
+    )
+    rp_idx: Mapped[int] = mapped_column(Integer, primary_key=True)
+    emitter_id: Mapped[int] = mapped_column(
+        ForeignKey("emitters.id", ondelete="CASCADE"), primary_key=True
+    )
+    mean_dbm: Mapped[float] = mapped_column(Float)
+    var_db2: Mapped[float] = mapped_column(Float)
+    count: Mapped[int] = mapped_column(Integer)
+
+
+class MagneticMapVersion(Base):
+    """A regular grid over one floor; arrays stored compressed (dtype + shape + raw bytes)."""
+
+    __tablename__ = "magnetic_maps"
+    __table_args__ = (UniqueConstraint("floor_id", "version"),)
+    id: Mapped[str] = mapped_column(String(32), primary_key=True, default=new_id)
+    floor_id: Mapped[str] = mapped_column(ForeignKey("floors.id", ondelete="CASCADE"), index=True)
+    version: Mapped[int] = mapped_column(Integer)
+    origin_x_m: Mapped[float] = mapped_column(Float)
+    origin_y_m: Mapped[float] = mapped_column(Float)
+    resolution_m: Mapped[float] = mapped_column(Float)
+    n_rows: Mapped[int] = mapped_column(Integer)
+    n_cols: Mapped[int] = mapped_column(Integer)
+    arrays: Mapped[bytes] = mapped_column(LargeBinary)
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+
+class Upload(Base):
+    """A crowdsourced trace waiting for, or folded into, a map version."""
+
+    __tablename__ = "uploads"
+    id: Mapped[str] = mapped_column(String(32), primary_key=True, default=new_id)
+    site_id: Mapped[str] = mapped_column(ForeignKey("sites.id", ondelete="CASCADE"), index=True)
+    building_id: Mapped[str | None] = mapped_column(ForeignKey("buildings.id", ondelete="CASCADE"))
+    idempotency_key: Mapped[str | None] = mapped_column(String(128), unique=True)
+    status: Mapped[str] = mapped_column(String(16), default="queued")
+    content_type: Mapped[str] = mapped_column(String(64))
+    payload: Mapped[bytes] = mapped_column(LargeBinary)
+    attempts: Mapped[int] = mapped_column(Integer, default=0)
+    report: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+    updated_at: Mapped[datetime] = mapped_column(default=utcnow, onupdate=utcnow)
+
+
+class ApiKey(Base):
+    """An admin API key; only its SHA-256 digest is stored."""
+
+    __tablename__ = "api_keys"
+    id: Mapped[str] = mapped_column(String(32), primary_key=True, default=new_id)
+    name: Mapped[str] = mapped_column(String(200))
+    key_hash: Mapped[str] = mapped_column(String(64), unique=True)
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+    revoked_at: Mapped[datetime | None] = mapped_column()
+
+
+Index("ix_survey_points_floor", SurveyPoint.floor_id)

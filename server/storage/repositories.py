@@ -1,0 +1,266 @@
+"""Queries over the SQL schema. Functions take an ``AsyncSession``; the caller (a service)
+owns the transaction."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from sqlalchemy import func, insert, select
+from sqlalchemy.ext.asyncio import AsyncSession
+
+from server.storage.models import (
+    ApiKey,
+    Building,
+    Emitter,
+    Floor,
+    RadioMapVersion,
+    RadioStat,
+    ReferencePoint,
+    Site,
+    SurveyPoint,
+)
+
+INSERT_CHUNK = 5000
+
+
+# ---------------------------------------------------------------- sites, buildings, floors
+
+
+async def create_site(s: AsyncSession, name: str) -> Site:
+    site = Site(name=name)
+    s.add(site)
+    await s.flush()
+    return site
+
+
+async def list_sites(s: AsyncSession) -> Sequence[Site]:
+    return (await s.scalars(select(Site).order_by(Site.created_at, Site.id))).all()
+
+
+async def get_site(s: AsyncSession, site_id: str) -> Site | None:
+    return await s.get(Site, site_id)
+
+
+async def create_building(s: AsyncSession, site_id: str, **fields: Any) -> Building:
+    building = Building(site_id=site_id, **fields)
+    s.add(building)
+    await s.flush()
+    return building
+
+
+async def list_buildings(s: AsyncSession, site_id: str) -> Sequence[Building]:
+    stmt = select(Building).where(Building.site_id == site_id).order_by(Building.created_at)
+    return (await s.scalars(stmt)).all()
+
+
+async def get_building(s: AsyncSession, building_id: str) -> Building | None:
+    return await s.get(Building, building_id)
+
+
+async def create_floor(s: AsyncSession, building_id: str, level: int, name: str | None) -> Floor:
+    floor = Floor(building_id=building_id, level=level, name=name)
+    s.add(floor)
+    await s.flush()
+    return floor
+
+
+async def find_floor(s: AsyncSession, building_id: str, level: int) -> Floor | None:
+    stmt = select(Floor).where(Floor.building_id == building_id, Floor.level == level)
+    return (await s.scalars(stmt)).one_or_none()
+
+
+async def list_floors(s: AsyncSession, building_id: str) -> Sequence[Floor]:
+    stmt = select(Floor).where(Floor.building_id == building_id).order_by(Floor.level)
+    return (await s.scalars(stmt)).all()
+
+
+async def get_floor(s: AsyncSession, floor_id: str) -> Floor | None:
+    return await s.get(Floor, floor_id)
+
+
+async def list_site_floors(s: AsyncSession, site_id: str) -> Sequence[tuple[Floor, Building]]:
+    """All floors of a site with their building, in (building creation, level) order."""
+    stmt = (
+        select(Floor, Building)
+        .join(Building, Floor.building_id == Building.id)
+        .where(Building.site_id == site_id)
+        .order_by(Building.created_at, Building.id, Floor.level)
+    )
+    return [(f, b) for f, b in (await s.execute(stmt)).all()]
+
+
+# ---------------------------------------------------------------- survey points
+
+
+async def add_survey_points(s: AsyncSession, rows: Sequence[dict[str, Any]]) -> None:
+    for start in range(0, len(rows), INSERT_CHUNK):
+        await s.execute(insert(SurveyPoint), list(rows[start : start + INSERT_CHUNK]))
+
+
+async def list_survey_points(s: AsyncSession, building_id: str) -> Sequence[SurveyPoint]:
+    stmt = select(SurveyPoint).where(SurveyPoint.building_id == building_id)
+    return (await s.scalars(stmt.order_by(SurveyPoint.id))).all()
+
+
+# ---------------------------------------------------------------- emitters and radio maps
+
+
+async def ensure_emitters(
+    s: AsyncSession, building_id: str, keys: Iterable[tuple[str, str]]
+) -> dict[tuple[str, str], int]:
+    """Ids of the building's emitters ``(kind, key)``, creating the missing ones."""
+    wanted = set(keys)
+    stmt = select(Emitter.kind, Emitter.key, Emitter.id).where(Emitter.building_id == building_id)
+    known = {(k, key): i for k, key, i in (await s.execute(stmt)).all()}
+    missing = sorted(wanted - known.keys())
+    if missing:
+        rows = [{"building_id": building_id, "kind": k, "key": key} for k, key in missing]
+        await s.execute(insert(Emitter), rows)
+        known = {(k, key): i for k, key, i in (await s.execute(stmt)).all()}
+    return {k: known[k] for k in wanted}
+
+
+@dataclass(frozen=True)
+class RadioMapArrays:
+    """One radio map version as dense arrays (rows: reference points, columns: emitters)."""
+
+    map_id: str
+    rp_floor_id: list[str]
+    rp_xy: NDArray[np.float32]
+    emitters: list[tuple[str, str]]  # (kind, key) per column
+    mean_dbm: NDArray[np.float32]
+    var_db2: NDArray[np.float32]
+    count: NDArray[np.int32]
+
+
+async def save_radio_map(
+    s: AsyncSession,
+    building_id: str,
+    *,
+    cell_m: float,
+    n_survey_points: int,
+    rp_floor_id: Sequence[str],
+    rp_xy: NDArray[np.floating[Any]],
+    emitter_ids: Sequence[int],
+    mean_dbm: NDArray[np.floating[Any]],
+    var_db2: NDArray[np.floating[Any]],
+    count: NDArray[np.integer[Any]],
+    source: str = "survey",
+) -> RadioMapVersion:
+    """Store a new version (the next number for the building); only heard cells are rows."""
+    last = await s.scalar(
+        select(func.max(RadioMapVersion.version)).where(RadioMapVersion.building_id == building_id)
+    )
+    heard_rp, heard_em = np.nonzero(count > 0)
+    row = RadioMapVersion(
+        building_id=building_id,
+        version=(last or 0) + 1,
+        cell_m=cell_m,
+        n_reference_points=len(rp_floor_id),
+        n_emitters=int(np.unique(heard_em).size),
+        n_survey_points=n_survey_points,
+        source=source,
+    )
+    s.add(row)
+    await s.flush()
+    rps = [
+        {"map_id": row.id, "idx": i, "floor_id": f, "x_m": float(xy[0]), "y_m": float(xy[1])}
+        for i, (f, xy) in enumerate(zip(rp_floor_id, rp_xy.tolist(), strict=True))
+    ]
+    for start in range(0, len(rps), INSERT_CHUNK):
+        await s.execute(insert(ReferencePoint), rps[start : start + INSERT_CHUNK])
+    ids = np.asarray(emitter_ids, dtype=np.int64)
+    stats = [
+        {
+            "map_id": row.id,
+            "rp_idx": int(r),
+            "emitter_id": int(ids[e]),
+            "mean_dbm": float(mean_dbm[r, e]),
+            "var_db2": float(var_db2[r, e]),
+            "count": int(count[r, e]),
+        }
+        for r, e in zip(heard_rp.tolist(), heard_em.tolist(), strict=True)
+    ]
+    for start in range(0, len(stats), INSERT_CHUNK):
+        await s.execute(insert(RadioStat), stats[start : start + INSERT_CHUNK])
+    return row
+
+
+async def latest_radio_map(s: AsyncSession, building_id: str) -> RadioMapVersion | None:
+    stmt = (
+        select(RadioMapVersion)
+        .where(RadioMapVersion.building_id == building_id)
+        .order_by(RadioMapVersion.version.desc())
+        .limit(1)
+    )
+    return (await s.scalars(stmt)).one_or_none()
+
+
+async def list_radio_maps(s: AsyncSession, building_id: str) -> Sequence[RadioMapVersion]:
+    stmt = select(RadioMapVersion).where(RadioMapVersion.building_id == building_id)
+    return (await s.scalars(stmt.order_by(RadioMapVersion.version))).all()
+
+
+async def load_radio_map(s: AsyncSession, map_id: str, missing_dbm: float) -> RadioMapArrays:
+    rps = (
+        await s.execute(
+            select(ReferencePoint.floor_id, ReferencePoint.x_m, ReferencePoint.y_m)
+            .where(ReferencePoint.map_id == map_id)
+            .order_by(ReferencePoint.idx)
+        )
+    ).all()
+    stats = (
+        await s.execute(
+            select(
+                RadioStat.rp_idx,
+                RadioStat.emitter_id,
+                RadioStat.mean_dbm,
+                RadioStat.var_db2,
+                RadioStat.count,
+                Emitter.kind,
+                Emitter.key,
+            )
+            .join(Emitter, RadioStat.emitter_id == Emitter.id)
+            .where(RadioStat.map_id == map_id)
+        )
+    ).all()
+    columns = sorted({(kind, key) for *_, kind, key in stats})
+    col_of = {k: i for i, k in enumerate(columns)}
+    n_rp, n_em = len(rps), len(columns)
+    mean = np.full((n_rp, n_em), missing_dbm, dtype=np.float32)
+    var = np.zeros((n_rp, n_em), dtype=np.float32)
+    count = np.zeros((n_rp, n_em), dtype=np.int32)
+    if stats:
+        rp_idx = np.fromiter((r[0] for r in stats), dtype=np.int64, count=len(stats))
+        col = np.fromiter((col_of[(r[5], r[6])] for r in stats), dtype=np.int64, count=len(stats))
+        mean[rp_idx, col] = [r[2] for r in stats]
+        var[rp_idx, col] = [r[3] for r in stats]
+        count[rp_idx, col] = [r[4] for r in stats]
+    return RadioMapArrays(
+        map_id=map_id,
+        rp_floor_id=[r[0] for r in rps],
+        rp_xy=np.asarray([(r[1], r[2]) for r in rps], dtype=np.float32).reshape(n_rp, 2),
+        emitters=columns,
+        mean_dbm=mean,
+        var_db2=var,
+        count=count,
+    )
+
+
+# ---------------------------------------------------------------- API keys
+
+
+async def create_api_key(s: AsyncSession, name: str, key_hash: str) -> ApiKey:
+    key = ApiKey(name=name, key_hash=key_hash)
+    s.add(key)
+    await s.flush()
+    return key
+
+
+async def find_api_key(s: AsyncSession, key_hash: str) -> ApiKey | None:
+    stmt = select(ApiKey).where(ApiKey.key_hash == key_hash, ApiKey.revoked_at.is_(None))
+    return (await s.scalars(stmt)).one_or_none()

@@ -1,0 +1,149 @@
+"""Admin API: keys required, sites/buildings/floors, plans, surveys and radio map versions."""
+
+from __future__ import annotations
+
+import httpx
+import pytest
+
+from tests.api.toy_site import build_toy_site
+
+
+@pytest.mark.parametrize(
+    ("method", "path"),
+    [
+        ("GET", "/v1/sites"),
+        ("POST", "/v1/sites"),
+        ("GET", "/v1/buildings/x/floors"),
+        ("POST", "/v1/buildings/x/survey"),
+    ],
+)
+async def test_admin_calls_need_a_key(client: httpx.AsyncClient, method: str, path: str) -> None:
+    r = await client.request(method, path, json={"name": "x"})
+    assert r.status_code == 401
+    assert "authorization" in r.json()["message"]
+    r = await client.request(
+        method, path, json={"name": "x"}, headers={"Authorization": "Bearer wrong"}
+    )
+    assert r.status_code == 401
+
+
+async def test_site_building_floor_round_trip(
+    client: httpx.AsyncClient, admin: dict[str, str]
+) -> None:
+    r = await client.post("/v1/sites", json={"name": "Mall"}, headers=admin)
+    assert r.status_code == 201
+    site = r.json()
+    listed = (await client.get("/v1/sites", headers=admin)).json()
+    assert site["id"] in [s["id"] for s in listed["items"]]
+    assert listed["count"] == len(listed["items"])
+    assert (await client.get(f"/v1/sites/{site['id']}", headers=admin)).json() == site
+
+    r = await client.post(
+        f"/v1/sites/{site['id']}/buildings",
+        json={"name": "North", "origin_lat": 41.0, "origin_lon": 2.0, "rotation_rad": 0.1},
+        headers=admin,
+    )
+    assert r.status_code == 201
+    building = r.json()
+    assert building["site_id"] == site["id"]
+    assert (await client.get(f"/v1/buildings/{building['id']}", headers=admin)).json() == building
+
+    r = await client.post(
+        f"/v1/buildings/{building['id']}/floors", json={"level": -1, "name": "B1"}, headers=admin
+    )
+    assert r.status_code == 201
+    floor = r.json()
+    assert floor["has_plan"] is False
+    dup = await client.post(
+        f"/v1/buildings/{building['id']}/floors", json={"level": -1}, headers=admin
+    )
+    assert dup.status_code == 409
+    assert "level" in dup.json()["message"]
+
+    plan = {
+        "type": "FeatureCollection",
+        "features": [
+            {
+                "type": "Feature",
+                "properties": {"kind": "walkable"},
+                "geometry": {"type": "Polygon", "coordinates": [[[0, 0], [5, 0], [5, 5], [0, 0]]]},
+            }
+        ],
+    }
+    r = await client.put(f"/v1/floors/{floor['id']}/plan", json=plan, headers=admin)
+    assert r.status_code == 200
+    assert r.json()["has_plan"] is True
+    assert (await client.get(f"/v1/floors/{floor['id']}/plan", headers=admin)).json() == plan
+
+
+async def test_missing_things_are_404_naming_the_field(
+    client: httpx.AsyncClient, admin: dict[str, str]
+) -> None:
+    r = await client.get("/v1/sites/nope", headers=admin)
+    assert r.status_code == 404
+    assert "site_id" in r.json()["message"]
+    r = await client.post("/v1/buildings/nope/floors", json={"level": 0}, headers=admin)
+    assert r.status_code == 404
+    assert "building_id" in r.json()["message"]
+
+
+async def test_survey_builds_new_versions(client: httpx.AsyncClient, admin: dict[str, str]) -> None:
+    site = await build_toy_site(client, admin)
+    maps = (await client.get(f"/v1/buildings/{site.building_id}/radio-maps", headers=admin)).json()
+    assert maps["count"] == 1
+    first = maps["items"][0]
+    assert first["version"] == 1
+    assert first["n_survey_points"] == 2 * 21 * 11
+    assert first["n_reference_points"] == 2 * 21 * 11  # 1 m cells, one point each
+    assert first["n_emitters"] == 16
+
+    extra = {
+        "points": [{"x_m": 0.2, "y_m": 0.2, "floor": 0, "ble": [{"id": "b1", "rssi_dbm": -70}]}]
+    }
+    r = await client.post(f"/v1/buildings/{site.building_id}/survey", json=extra, headers=admin)
+    assert r.status_code == 201
+    second = r.json()
+    assert second["version"] == 2
+    assert second["n_survey_points"] == first["n_survey_points"] + 1
+    assert second["n_reference_points"] == first["n_reference_points"]  # merged into a cell
+    assert second["n_emitters"] == 17
+
+
+async def test_survey_on_unknown_level_names_the_point(
+    client: httpx.AsyncClient, admin: dict[str, str]
+) -> None:
+    site = await build_toy_site(client, admin)
+    body = {"points": [{"x_m": 0, "y_m": 0, "floor": 0}, {"x_m": 1, "y_m": 1, "floor": 7}]}
+    r = await client.post(f"/v1/buildings/{site.building_id}/survey", json=body, headers=admin)
+    assert r.status_code == 422
+    assert "points.1.floor" in r.json()["message"]
+
+
+async def test_locate_finds_the_surveyed_point(
+    client: httpx.AsyncClient, admin: dict[str, str]
+) -> None:
+    from tests.api.toy_site import rssi_at
+
+    site = await build_toy_site(client, admin)
+    r = await client.post("/v1/locate", json={"site_id": site.site_id, "wifi": rssi_at(12, 3, 1)})
+    assert r.status_code == 200, r.text
+    body = r.json()
+    assert body["floor"] == 1
+    assert body["floor_id"] == site.floor_ids[1]
+    assert abs(body["x_m"] - 12) < 1.0
+    assert abs(body["y_m"] - 3) < 1.0
+    r = await client.post("/v1/locate", json={"site_id": site.site_id})
+    assert r.status_code == 422
+    r = await client.post(
+        "/v1/locate",
+        json={"site_id": site.site_id, "wifi": [{"bssid": "ff:ff", "rssi_dbm": -50}]},
+    )
+    assert r.status_code == 422
+    assert "wifi" in r.json()["message"]
+
+
+async def test_health(client: httpx.AsyncClient) -> None:
+    assert (await client.get("/healthz")).json() == {"status": "ok"}
+    r = await client.get("/readyz")
+    assert r.status_code == 200
+    assert r.json() == {"status": "ok"}

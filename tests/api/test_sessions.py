@@ -1,0 +1,203 @@
+"""Sessions: exactly-once batches, ordering under concurrency, isolation, validation."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+from typing import Any
+
+import httpx
+import pytest
+
+from tests.api.toy_site import ToySite, build_toy_site, rssi_at
+
+T0 = 1_700_000_000_000
+
+
+@pytest.fixture
+async def site(client: httpx.AsyncClient, admin: dict[str, str]) -> ToySite:
+    return await build_toy_site(client, admin)
+
+
+async def open_session(client: httpx.AsyncClient, site: ToySite) -> tuple[str, dict[str, str]]:
+    r = await client.post("/v1/sessions", json={"site_id": site.site_id, "engine": "step_ekf"})
+    assert r.status_code == 201, r.text
+    body = r.json()
+    return body["id"], {"Authorization": f"Bearer {body['token']}"}
+
+
+def scan(t: int, x: float, y: float, level: int = 0) -> dict[str, Any]:
+    return {"type": "wifi", "t": t, "readings": rssi_at(x, y, level)}
+
+
+def step(t: int, heading_rad: float = math.pi / 2, length_m: float = 0.7) -> dict[str, Any]:
+    return {"type": "step", "t": t, "length_m": length_m, "heading_rad": heading_rad}
+
+
+async def test_first_batch_gives_a_fix_near_the_truth(
+    client: httpx.AsyncClient, site: ToySite
+) -> None:
+    sid, auth = await open_session(client, site)
+    r = await client.post(
+        f"/v1/sessions/{sid}/batches", json={"seq": 1, "events": [scan(T0, 5, 5)]}, headers=auth
+    )
+    assert r.status_code == 200, r.text
+    fixes = r.json()["fixes"]
+    assert len(fixes) == 1
+    fix = fixes[0]
+    assert math.hypot(fix["x_m"] - 5, fix["y_m"] - 5) < 1.0
+    assert fix["floor"] == 0
+    assert fix["floor_id"] == site.floor_ids[0]
+    assert fix["engine"] == "step_ekf"
+    assert fix["uncertainty_m"] > 0
+
+
+async def test_same_seq_twice_is_applied_once(client: httpx.AsyncClient, site: ToySite) -> None:
+    sid, auth = await open_session(client, site)
+    url = f"/v1/sessions/{sid}/batches"
+    await client.post(url, json={"seq": 1, "events": [scan(T0, 5, 5)]}, headers=auth)
+    batch = {"seq": 2, "events": [step(T0 + 600), step(T0 + 1200)]}
+    first = await client.post(url, json=batch, headers=auth)
+    again = await client.post(url, json=batch, headers=auth)
+    assert first.status_code == again.status_code == 200
+    assert first.json()["replayed"] is False
+    assert again.json()["replayed"] is True
+    assert again.json()["fixes"] == first.json()["fixes"]
+    state = (await client.get(f"/v1/sessions/{sid}", headers=auth)).json()
+    assert state["last_seq"] == 2
+    assert state["last_fix"] == first.json()["fixes"][-1]
+    # the next step continues from two steps, not four
+    r = await client.post(url, json={"seq": 3, "events": [step(T0 + 1800)]}, headers=auth)
+    start_x = first.json()["fixes"][0]["x_m"] - 0.7
+    assert r.json()["fixes"][0]["x_m"] == pytest.approx(start_x + 3 * 0.7, abs=0.2)
+
+
+async def test_reused_seq_with_other_events_is_a_conflict(
+    client: httpx.AsyncClient, site: ToySite
+) -> None:
+    sid, auth = await open_session(client, site)
+    url = f"/v1/sessions/{sid}/batches"
+    await client.post(url, json={"seq": 1, "events": [scan(T0, 5, 5)]}, headers=auth)
+    r = await client.post(url, json={"seq": 1, "events": [scan(T0, 9, 9)]}, headers=auth)
+    assert r.status_code == 409
+    assert "seq" in r.json()["message"]
+
+
+async def test_concurrent_batches_both_apply_in_order(
+    client: httpx.AsyncClient, site: ToySite
+) -> None:
+    sid, auth = await open_session(client, site)
+    url = f"/v1/sessions/{sid}/batches"
+    await client.post(url, json={"seq": 1, "events": [scan(T0, 5, 5)]}, headers=auth)
+    # seq 3 is sent first and must wait for seq 2; both land, neither is lost
+    east = {"seq": 2, "events": [step(T0 + 600, math.pi / 2), step(T0 + 1200, math.pi / 2)]}
+    north = {"seq": 3, "events": [step(T0 + 1800, 0.0), step(T0 + 2400, 0.0)]}
+    r3, r2 = await asyncio.gather(
+        client.post(url, json=north, headers=auth), client.post(url, json=east, headers=auth)
+    )
+    assert r2.status_code == 200, r2.text
+    assert r3.status_code == 200, r3.text
+    assert r2.json()["replayed"] is False
+    assert r3.json()["replayed"] is False
+    start = r2.json()["fixes"][0]
+    last = r3.json()["fixes"][-1]
+    # two steps east then two north from where seq 2 began
+    assert last["y_m"] - start["y_m"] == pytest.approx(2 * 0.7, abs=0.3)
+    assert last["x_m"] - start["x_m"] == pytest.approx(0.7, abs=0.3)
+    state = (await client.get(f"/v1/sessions/{sid}", headers=auth)).json()
+    assert state["last_seq"] == 3
+
+
+async def test_many_concurrent_batches_none_lost(client: httpx.AsyncClient, site: ToySite) -> None:
+    sid, auth = await open_session(client, site)
+    url = f"/v1/sessions/{sid}/batches"
+    await client.post(url, json={"seq": 1, "events": [scan(T0, 2, 5)]}, headers=auth)
+    batches = [{"seq": n, "events": [step(T0 + 600 * n, math.pi / 2, 0.5)]} for n in range(2, 12)]
+    responses = await asyncio.gather(*(client.post(url, json=b, headers=auth) for b in batches))
+    assert [r.status_code for r in responses] == [200] * len(batches)
+    state = (await client.get(f"/v1/sessions/{sid}", headers=auth)).json()
+    assert state["last_seq"] == 11
+    first_fix = responses[0].json()["fixes"][0]
+    assert state["last_fix"]["x_m"] - first_fix["x_m"] == pytest.approx(9 * 0.5, abs=0.3)
+
+
+async def test_seq_gap_times_out_with_409(
+    client: httpx.AsyncClient, site: ToySite, settings: Any
+) -> None:
+    sid, auth = await open_session(client, site)
+    url = f"/v1/sessions/{sid}/batches"
+    original = settings.seq_wait_s
+    settings.seq_wait_s = 0.2
+    try:
+        r = await client.post(url, json={"seq": 5, "events": [step(T0)]}, headers=auth)
+    finally:
+        settings.seq_wait_s = original
+    assert r.status_code == 409
+    assert r.json()["detail"][0]["loc"] == ["seq"]
+
+
+async def test_other_sessions_token_is_forbidden(client: httpx.AsyncClient, site: ToySite) -> None:
+    sid_a, auth_a = await open_session(client, site)
+    sid_b, auth_b = await open_session(client, site)
+    batch = {"seq": 1, "events": [scan(T0, 5, 5)]}
+    assert (
+        await client.post(f"/v1/sessions/{sid_a}/batches", json=batch, headers=auth_b)
+    ).status_code == 403
+    assert (await client.get(f"/v1/sessions/{sid_a}", headers=auth_b)).status_code == 403
+    assert (await client.delete(f"/v1/sessions/{sid_a}", headers=auth_b)).status_code == 403
+    assert (await client.get(f"/v1/sessions/{sid_a}")).status_code == 401
+    # b's own session is readable with its own token, and a is untouched
+    assert (await client.get(f"/v1/sessions/{sid_b}", headers=auth_b)).status_code == 200
+    assert (await client.get(f"/v1/sessions/{sid_a}", headers=auth_a)).json()["last_seq"] == 0
+
+
+@pytest.mark.parametrize(
+    ("event", "field"),
+    [
+        ({"type": "step", "t": T0, "heading_rad": 0.0}, "events.1.length_m"),
+        ({"type": "step", "t": T0, "length_m": -0.5, "heading_rad": 0.0}, "events.1.length_m"),
+        (
+            {"type": "step", "t": T0, "length_m": 0.7, "heading_rad": float("nan")},
+            "events.1.heading_rad",
+        ),
+        ({"type": "imu", "t": T0}, "events.1.type"),
+        (
+            {"type": "wifi", "t": T0, "readings": [{"bssid": "aa", "rssi_dbm": float("nan")}]},
+            "events.1.readings.0.rssi_dbm",
+        ),
+        ({"type": "wifi", "readings": []}, "events.1.t"),
+        ({"type": "mag", "t": T0}, "events.1"),
+    ],
+)
+async def test_malformed_events_get_422_naming_the_field(
+    client: httpx.AsyncClient, site: ToySite, event: dict[str, Any], field: str
+) -> None:
+    sid, auth = await open_session(client, site)
+    url = f"/v1/sessions/{sid}/batches"
+    await client.post(url, json={"seq": 1, "events": [scan(T0, 5, 5)]}, headers=auth)
+    before = (await client.get(f"/v1/sessions/{sid}", headers=auth)).json()
+    # a valid step first: the whole batch is refused, not just the bad event
+    body = json.dumps({"seq": 2, "events": [step(T0 + 600), event]})  # NaN as a bare token
+    r = await client.post(url, content=body, headers={**auth, "content-type": "application/json"})
+    assert r.status_code == 422, r.text
+    assert field in r.json()["message"]
+    after = (await client.get(f"/v1/sessions/{sid}", headers=auth)).json()
+    assert after == before
+
+
+async def test_unknown_engine_and_site_are_rejected(
+    client: httpx.AsyncClient, site: ToySite
+) -> None:
+    r = await client.post("/v1/sessions", json={"site_id": site.site_id, "engine": "nope"})
+    assert r.status_code == 422
+    assert "engine" in r.json()["message"]
+    r = await client.post("/v1/sessions", json={"site_id": "0" * 32})
+    assert r.status_code == 404
+    assert "site_id" in r.json()["message"]
+
+
+async def test_deleted_session_is_gone(client: httpx.AsyncClient, site: ToySite) -> None:
+    sid, auth = await open_session(client, site)
+    assert (await client.delete(f"/v1/sessions/{sid}", headers=auth)).status_code == 204
+    assert (await client.get(f"/v1/sessions/{sid}", headers=auth)).status_code == 404

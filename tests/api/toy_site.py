@@ -1,0 +1,70 @@
+"""A small surveyed site built through the admin API, for API tests.
+
+One building, levels 0 and 1, a 20 m x 10 m floor surveyed every metre; eight WiFi
+access points per floor with log-distance path loss (no shadowing), so a scan taken at a
+surveyed point matches that point best.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import httpx
+import numpy as np
+from numpy.typing import NDArray
+
+WIDTH_M, DEPTH_M = 20.0, 10.0
+LEVELS = (0, 1)
+AP_XY = np.array(
+    [[0, 0], [10, 0], [20, 0], [0, 10], [10, 10], [20, 10], [5, 5], [15, 5]], dtype=float
+)
+
+
+def rssi_at(x_m: float, y_m: float, level: int) -> list[dict[str, Any]]:
+    """Readings a phone at (x, y) on ``level`` hears: the floor's own APs loud, the other
+    floor's 20 dB weaker."""
+    readings = []
+    for lvl in LEVELS:
+        d = np.maximum(np.hypot(AP_XY[:, 0] - x_m, AP_XY[:, 1] - y_m), 1.0)
+        rss: NDArray[np.float64] = -40.0 - 25.0 * np.log10(d) - 20.0 * abs(lvl - level)
+        for i, value in enumerate(rss):
+            if value > -95:
+                readings.append(
+                    {"bssid": f"02:00:00:00:{lvl:02x}:{i:02x}", "rssi_dbm": float(value)}
+                )
+    return readings
+
+
+@dataclass(frozen=True)
+class ToySite:
+    site_id: str
+    building_id: str
+    floor_ids: dict[int, str]
+
+
+async def build_toy_site(client: httpx.AsyncClient, admin: dict[str, str]) -> ToySite:
+    r = await client.post("/v1/sites", json={"name": "toy"}, headers=admin)
+    assert r.status_code == 201, r.text
+    site_id = r.json()["id"]
+    r = await client.post(f"/v1/sites/{site_id}/buildings", json={"name": "B"}, headers=admin)
+    assert r.status_code == 201, r.text
+    building_id = r.json()["id"]
+    floor_ids = {}
+    for level in LEVELS:
+        r = await client.post(
+            f"/v1/buildings/{building_id}/floors", json={"level": level}, headers=admin
+        )
+        assert r.status_code == 201, r.text
+        floor_ids[level] = r.json()["id"]
+    points = [
+        {"x_m": float(x), "y_m": float(y), "floor": level, "wifi": rssi_at(x, y, level)}
+        for level in LEVELS
+        for x in range(int(WIDTH_M) + 1)
+        for y in range(int(DEPTH_M) + 1)
+    ]
+    r = await client.post(
+        f"/v1/buildings/{building_id}/survey", json={"points": points}, headers=admin
+    )
+    assert r.status_code == 201, r.text
+    return ToySite(site_id, building_id, floor_ids)

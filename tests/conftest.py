@@ -1,0 +1,77 @@
+"""Shared fixtures: settings for the mode under test, a migrated database, the app in-process.
+
+The suite runs twice (see the README): on the embedded defaults (SQLite file, in-memory
+session store) and on the production shape when ``INDOORPOS_DATABASE_URL`` and
+``INDOORPOS_REDIS_URL`` are set (real PostgreSQL and Redis).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import AsyncIterator
+from pathlib import Path
+
+import httpx
+import pytest
+from asgi_lifespan import LifespanManager
+from fastapi import FastAPI
+from pydantic import SecretStr
+
+from server.app import create_app
+from server.config import Settings
+from server.storage import db
+
+ADMIN_KEY = "test-admin-key"
+
+
+def _reset_postgres(url: str) -> None:
+    """Give the test run an empty schema on the test database."""
+    import asyncio
+
+    from sqlalchemy import text
+
+    async def reset() -> None:
+        engine = db.create_engine(url)
+        async with engine.begin() as conn:
+            await conn.execute(text("DROP SCHEMA IF EXISTS public CASCADE"))
+            await conn.execute(text("CREATE SCHEMA public"))
+        await engine.dispose()
+
+    asyncio.run(reset())
+
+
+@pytest.fixture(scope="session")
+def settings(tmp_path_factory: pytest.TempPathFactory) -> Settings:
+    data_dir = tmp_path_factory.mktemp("indoorpos")
+    database_url = os.environ.get("INDOORPOS_DATABASE_URL") or None
+    redis_url = os.environ.get("INDOORPOS_REDIS_URL") or None
+    if database_url and not database_url.startswith("sqlite"):
+        _reset_postgres(database_url)
+    s = Settings(
+        data_dir=Path(data_dir),
+        database_url=database_url,
+        redis_url=redis_url,
+        admin_key=SecretStr(ADMIN_KEY),
+        seq_wait_s=5.0,
+    )
+    db.migrate(s.resolved_database_url)
+    return s
+
+
+@pytest.fixture(scope="session")
+async def app(settings: Settings) -> AsyncIterator[FastAPI]:
+    application = create_app(settings)
+    async with LifespanManager(application):
+        yield application
+
+
+@pytest.fixture
+async def client(app: FastAPI) -> AsyncIterator[httpx.AsyncClient]:
+    transport = httpx.ASGITransport(app=app)
+    async with httpx.AsyncClient(transport=transport, base_url="http://test") as c:
+        yield c
+
+
+@pytest.fixture
+def admin() -> dict[str, str]:
+    return {"Authorization": f"Bearer {ADMIN_KEY}"}
