@@ -1,0 +1,98 @@
+"""The live socket pushes every fix of its session, and only to that session's token."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from typing import Any
+
+import httpx
+import pytest
+from websockets.asyncio.client import ClientConnection, connect
+from websockets.exceptions import ConnectionClosed
+
+from tests.api.toy_site import build_toy_site, rssi_at
+from tests.conftest import ADMIN_KEY
+
+T0 = 1_700_000_000_000
+ADMIN = {"Authorization": f"Bearer {ADMIN_KEY}"}
+
+
+async def _session(client: httpx.AsyncClient, site_id: str) -> tuple[str, str]:
+    r = await client.post("/v1/sessions", json={"site_id": site_id})
+    assert r.status_code == 201, r.text
+    return r.json()["id"], r.json()["token"]
+
+
+async def _recv(ws: ClientConnection) -> dict[str, Any]:
+    message: dict[str, Any] = json.loads(await asyncio.wait_for(ws.recv(), timeout=5))
+    return message
+
+
+def _ws_url(live_url: str, sid: str, token: str) -> str:
+    return live_url.replace("http", "ws", 1) + f"/v1/sessions/{sid}/live?token={token}"
+
+
+async def test_fixes_posted_over_http_arrive_on_the_socket(live_url: str) -> None:
+    async with httpx.AsyncClient(base_url=live_url) as client:
+        site = await build_toy_site(client, ADMIN)
+        sid, token = await _session(client, site.site_id)
+        async with connect(_ws_url(live_url, sid, token)) as ws:
+            batch = {
+                "seq": 1,
+                "events": [
+                    {"type": "wifi", "t": T0, "readings": rssi_at(4, 4, 0)},
+                    {"type": "step", "t": T0 + 600, "length_m": 0.7, "heading_rad": 0.0},
+                ],
+            }
+            r = await client.post(
+                f"/v1/sessions/{sid}/batches", json=batch, headers={"Authorization": f"Bearer {token}"}
+            )
+            assert r.status_code == 200, r.text
+            fixes = r.json()["fixes"]
+            assert len(fixes) == 2
+            pushed = [await _recv(ws) for _ in fixes]
+            assert [m["type"] for m in pushed] == ["fix", "fix"]
+            assert [m["seq"] for m in pushed] == [1, 1]
+            assert [m["fix"] for m in pushed] == fixes
+
+            # a batch sent over the socket gets its result there, and its fix is pushed too
+            await ws.send(json.dumps({"type": "batch", "seq": 2, "events": [
+                {"type": "step", "t": T0 + 1200, "length_m": 0.7, "heading_rad": 0.0}
+            ]}))
+            got = [await _recv(ws), await _recv(ws)]
+            kinds = sorted(m["type"] for m in got)
+            assert kinds == ["batch_result", "fix"]
+            result = next(m for m in got if m["type"] == "batch_result")
+            assert result["seq"] == 2
+            assert len(result["fixes"]) == 1
+
+            # invalid input over the socket is an error message, the socket stays open
+            await ws.send(json.dumps({"type": "batch", "seq": 3, "events": [{"type": "step"}]}))
+            err = await _recv(ws)
+            assert err["type"] == "error"
+            assert err["status"] == 422
+            assert "events.0.t" in err["message"]
+
+            # ending the session closes the socket
+            r = await client.delete(
+                f"/v1/sessions/{sid}", headers={"Authorization": f"Bearer {token}"}
+            )
+            assert r.status_code == 204
+            with pytest.raises(ConnectionClosed):
+                await asyncio.wait_for(ws.recv(), timeout=5)
+
+
+async def test_socket_refuses_another_sessions_token(live_url: str) -> None:
+    async with httpx.AsyncClient(base_url=live_url) as client:
+        site = await build_toy_site(client, ADMIN)
+        sid_a, _ = await _session(client, site.site_id)
+        _, token_b = await _session(client, site.site_id)
+        async with connect(_ws_url(live_url, sid_a, token_b)) as ws:
+            err = await _recv(ws)
+            assert err["type"] == "error"
+            assert err["status"] == 403
+            with pytest.raises(ConnectionClosed) as closed:
+                await asyncio.wait_for(ws.recv(), timeout=5)
+            assert closed.value.rcvd is not None
+            assert closed.value.rcvd.code == 4403
