@@ -1,0 +1,1 @@
+"""Persistence: SQL models and repositories, the session state store, array codecs."""

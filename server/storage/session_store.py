@@ -1,0 +1,355 @@
+"""Per-session state store: one versioned record per session plus a live pub/sub channel.
+
+A record is immutable ``meta`` (written once at create), a ``state`` blob and a ``version``
+that starts at 1 and grows by one per successful :meth:`SessionStore.compare_and_set`.
+Writers read, compute, then compare-and-set on the version they read, so two replicas
+working on one session never overwrite each other: the loser re-reads and retries.
+Every record expires after ``ttl_s`` seconds without a successful write.
+
+Two implementations behind one :class:`SessionStore` protocol:
+
+- :class:`RedisSessionStore` (production): one hash per session at
+  ``{prefix}:sess:{<session_id>}:state:v1`` with fields ``ver``, ``meta``, ``state``,
+  written by Lua scripts so check, write and expiry happen atomically; live messages on
+  the channel ``{prefix}:sess:{<session_id>}:live:v1``. The braces are a Redis Cluster
+  hash tag: all keys of one session live in one slot.
+- :class:`MemorySessionStore` (embedded mode, tests): a dict in the event loop's thread.
+
+Pub/sub is fire-and-forget in both: a subscriber sees the messages published after its
+subscription went live, none from before, and nothing is replayed after a reconnect.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import AsyncIterator, Awaitable, Callable
+from contextlib import AbstractAsyncContextManager, asynccontextmanager
+from dataclasses import dataclass
+from typing import Any, Protocol, cast
+
+import anyio
+from redis.asyncio import Redis
+from redis.asyncio.client import PubSub
+
+SUBSCRIBE_TIMEOUT_S = 5.0  # how long subscribe() waits for Redis to confirm
+CONNECT_TIMEOUT_S = 5.0  # fail a ping fast when Redis is unreachable
+MEMORY_QUEUE_SIZE = 1024  # messages a slow in-memory subscriber may fall behind by
+MEMORY_SWEEP_INTERVAL_S = 60.0  # how often the in-memory store drops expired records
+
+
+class SessionExists(Exception):
+    """:meth:`SessionStore.create` was called for a session id that is already present."""
+
+
+@dataclass(frozen=True, slots=True)
+class StoredSession:
+    version: int  # 1 after create, +1 per successful compare_and_set
+    meta: bytes  # written once at create, never changed
+    state: bytes
+
+
+class SessionStore(Protocol):
+    async def create(self, session_id: str, meta: bytes, state: bytes, ttl_s: int) -> None:
+        """Store a new record at version 1; raise :class:`SessionExists` if present."""
+        ...
+
+    async def get(self, session_id: str) -> StoredSession | None:
+        """The record, or ``None`` if it never existed, expired or was deleted."""
+        ...
+
+    async def compare_and_set(
+        self, session_id: str, expected_version: int, state: bytes, ttl_s: int
+    ) -> bool:
+        """Atomically: if the record exists at ``expected_version``, store ``state``,
+        bump the version, reset the expiry to ``ttl_s`` and return ``True``; otherwise
+        change nothing and return ``False``."""
+        ...
+
+    async def delete(self, session_id: str) -> bool:
+        """Remove the record; ``True`` if it existed."""
+        ...
+
+    async def publish(self, session_id: str, message: bytes) -> None:
+        """Send ``message`` to every current subscriber of the session."""
+        ...
+
+    def subscribe(self, session_id: str) -> AbstractAsyncContextManager[AsyncIterator[bytes]]:
+        """``async with store.subscribe(sid) as messages: async for m in messages: ...``
+
+        The subscription is live when ``__aenter__`` returns: nothing published after
+        that is missed. Leaving the block unsubscribes; the iterator then ends."""
+        ...
+
+    async def ping(self) -> None:
+        """Raise if the backend does not answer."""
+        ...
+
+    async def close(self) -> None:
+        """Release connections; the store is not used afterwards."""
+        ...
+
+
+def _ttl_ms(ttl_s: int) -> int:
+    """The expiry in whole milliseconds; a non-positive TTL is a caller bug, not a delete."""
+    if ttl_s <= 0:
+        raise ValueError(f"ttl_s must be positive, got {ttl_s}")
+    return int(ttl_s * 1000)
+
+
+# --- in memory ------------------------------------------------------------------------------
+
+
+@dataclass(slots=True)
+class _Record:
+    version: int
+    meta: bytes
+    state: bytes
+    expires_at: float
+
+
+class _QueueMessages:
+    """Iterator over one in-memory subscriber's queue; ends once the subscription closed."""
+
+    def __init__(self, queue: asyncio.Queue[bytes]) -> None:
+        self.queue = queue
+        self.closed = False
+
+    def __aiter__(self) -> _QueueMessages:
+        return self
+
+    async def __anext__(self) -> bytes:
+        if self.closed:
+            raise StopAsyncIteration
+        return await self.queue.get()
+
+
+class MemorySessionStore:
+    """Sessions in a dict, for one process (embedded mode and tests).
+
+    Every operation runs without an ``await`` between its read and its write, so it is
+    atomic within the event loop. Expiry is checked on access against ``clock`` (default
+    :func:`time.monotonic`); expired records are also swept out every
+    ``MEMORY_SWEEP_INTERVAL_S`` so abandoned sessions do not pile up.
+
+    Each subscriber has its own bounded queue of ``queue_size`` messages. A subscriber that
+    falls that far behind loses its *oldest* queued messages: publishers never block and
+    never fail because of a slow reader.
+    """
+
+    def __init__(
+        self,
+        *,
+        queue_size: int = MEMORY_QUEUE_SIZE,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        if queue_size < 1:
+            raise ValueError(f"queue_size must be at least 1, got {queue_size}")
+        self._queue_size = queue_size
+        self._clock = clock
+        self._records: dict[str, _Record] = {}
+        self._subscribers: dict[str, set[asyncio.Queue[bytes]]] = {}
+        self._next_sweep = clock() + MEMORY_SWEEP_INTERVAL_S
+
+    def _live(self, session_id: str) -> _Record | None:
+        now = self._clock()
+        if now >= self._next_sweep:
+            self._records = {k: r for k, r in self._records.items() if r.expires_at > now}
+            self._next_sweep = now + MEMORY_SWEEP_INTERVAL_S
+        record = self._records.get(session_id)
+        if record is not None and record.expires_at <= now:
+            del self._records[session_id]
+            return None
+        return record
+
+    async def create(self, session_id: str, meta: bytes, state: bytes, ttl_s: int) -> None:
+        _ttl_ms(ttl_s)
+        if self._live(session_id) is not None:
+            raise SessionExists(session_id)
+        self._records[session_id] = _Record(1, bytes(meta), bytes(state), self._clock() + ttl_s)
+
+    async def get(self, session_id: str) -> StoredSession | None:
+        record = self._live(session_id)
+        if record is None:
+            return None
+        return StoredSession(record.version, record.meta, record.state)
+
+    async def compare_and_set(
+        self, session_id: str, expected_version: int, state: bytes, ttl_s: int
+    ) -> bool:
+        _ttl_ms(ttl_s)
+        record = self._live(session_id)
+        if record is None or record.version != expected_version:
+            return False
+        record.state = bytes(state)
+        record.version += 1
+        record.expires_at = self._clock() + ttl_s
+        return True
+
+    async def delete(self, session_id: str) -> bool:
+        existed = self._live(session_id) is not None
+        self._records.pop(session_id, None)
+        return existed
+
+    async def publish(self, session_id: str, message: bytes) -> None:
+        message = bytes(message)
+        for queue in self._subscribers.get(session_id, ()):
+            if queue.full():
+                queue.get_nowait()  # drop the oldest rather than block the publisher
+            queue.put_nowait(message)
+
+    @asynccontextmanager
+    async def _subscription(self, session_id: str) -> AsyncIterator[AsyncIterator[bytes]]:
+        queue: asyncio.Queue[bytes] = asyncio.Queue(self._queue_size)
+        subscribers = self._subscribers.setdefault(session_id, set())
+        subscribers.add(queue)
+        messages = _QueueMessages(queue)
+        try:
+            yield messages
+        finally:
+            messages.closed = True
+            subscribers.discard(queue)
+            if not subscribers:
+                self._subscribers.pop(session_id, None)
+
+    def subscribe(self, session_id: str) -> AbstractAsyncContextManager[AsyncIterator[bytes]]:
+        return self._subscription(session_id)
+
+    async def ping(self) -> None:
+        return None
+
+    async def close(self) -> None:
+        self._records.clear()
+
+
+# --- Redis ----------------------------------------------------------------------------------
+
+# KEYS[1] = state key; ARGV = meta, state, ttl_ms. Returns 1 if created, 0 if present.
+_CREATE_LUA = """
+if redis.call('EXISTS', KEYS[1]) == 1 then
+  return 0
+end
+redis.call('HSET', KEYS[1], 'ver', 1, 'meta', ARGV[1], 'state', ARGV[2])
+redis.call('PEXPIRE', KEYS[1], ARGV[3])
+return 1
+"""
+
+# KEYS[1] = state key; ARGV = expected version, state, ttl_ms. Returns 1 if written, else 0.
+_CAS_LUA = """
+local ver = redis.call('HGET', KEYS[1], 'ver')
+if not ver or tonumber(ver) ~= tonumber(ARGV[1]) then
+  return 0
+end
+redis.call('HSET', KEYS[1], 'state', ARGV[2])
+redis.call('HINCRBY', KEYS[1], 'ver', 1)
+redis.call('PEXPIRE', KEYS[1], ARGV[3])
+return 1
+"""
+
+
+class _PubSubMessages:
+    """Iterator over the data of ``message`` pushes on one pub/sub connection."""
+
+    def __init__(self, pubsub: PubSub) -> None:
+        self.pubsub = pubsub
+        self.closed = False
+
+    def __aiter__(self) -> _PubSubMessages:
+        return self
+
+    async def __anext__(self) -> bytes:
+        while not self.closed:
+            message = await self.pubsub.get_message(timeout=None)
+            if message is not None and message["type"] == "message":
+                data: bytes = message["data"]
+                return data
+        raise StopAsyncIteration
+
+
+class RedisSessionStore:
+    """Sessions in Redis (or Redis Cluster): any api replica can serve any session.
+
+    ``client`` must return bytes (``decode_responses=False``). The store owns the client:
+    :meth:`close` closes it.
+    """
+
+    def __init__(self, client: Redis, prefix: str = "ips") -> None:
+        self._client = client
+        self._prefix = prefix
+        self._create = client.register_script(_CREATE_LUA)
+        self._cas = client.register_script(_CAS_LUA)
+
+    def state_key(self, session_id: str) -> str:
+        """The hash holding the session's ``ver``, ``meta`` and ``state``."""
+        return f"{self._prefix}:sess:{{{session_id}}}:state:v1"
+
+    def live_channel(self, session_id: str) -> str:
+        """The pub/sub channel of the session's live messages."""
+        return f"{self._prefix}:sess:{{{session_id}}}:live:v1"
+
+    async def create(self, session_id: str, meta: bytes, state: bytes, ttl_s: int) -> None:
+        created = await self._create(
+            keys=[self.state_key(session_id)], args=[meta, state, _ttl_ms(ttl_s)]
+        )
+        if not created:
+            raise SessionExists(session_id)
+
+    async def get(self, session_id: str) -> StoredSession | None:
+        fields = self._client.hmget(self.state_key(session_id), ["ver", "meta", "state"])
+        ver, meta, state = await cast("Awaitable[list[bytes | None]]", fields)
+        if ver is None or meta is None or state is None:
+            return None
+        return StoredSession(int(ver), meta, state)
+
+    async def compare_and_set(
+        self, session_id: str, expected_version: int, state: bytes, ttl_s: int
+    ) -> bool:
+        written = await self._cas(
+            keys=[self.state_key(session_id)], args=[expected_version, state, _ttl_ms(ttl_s)]
+        )
+        return bool(written)
+
+    async def delete(self, session_id: str) -> bool:
+        removed: int = await self._client.delete(self.state_key(session_id))
+        return removed > 0
+
+    async def publish(self, session_id: str, message: bytes) -> None:
+        await self._client.publish(self.live_channel(session_id), message)
+
+    @asynccontextmanager
+    async def _subscription(self, session_id: str) -> AsyncIterator[AsyncIterator[bytes]]:
+        pubsub = self._client.pubsub()
+        messages = _PubSubMessages(pubsub)
+        try:
+            await pubsub.subscribe(self.live_channel(session_id))
+            # SUBSCRIBE is only sent above; the subscription is live once Redis confirms it.
+            async with asyncio.timeout(SUBSCRIBE_TIMEOUT_S):
+                confirmation: dict[str, Any] | None = None
+                while confirmation is None or confirmation["type"] != "subscribe":
+                    confirmation = await pubsub.get_message(timeout=None)
+            yield messages
+        finally:
+            messages.closed = True
+            # Closing drops the connection, which unsubscribes; shielded so a cancelled
+            # reader still gives its connection back to the pool.
+            with anyio.CancelScope(shield=True):
+                await pubsub.aclose()  # type: ignore[no-untyped-call]  # unannotated in redis-py
+
+    def subscribe(self, session_id: str) -> AbstractAsyncContextManager[AsyncIterator[bytes]]:
+        return self._subscription(session_id)
+
+    async def ping(self) -> None:
+        await self._client.ping()
+
+    async def close(self) -> None:
+        await self._client.aclose()
+
+
+def make_session_store(redis_url: str | None) -> SessionStore:
+    """Redis when a URL is given (production shape), otherwise in memory (embedded)."""
+    if not redis_url:
+        return MemorySessionStore()
+    client: Redis = Redis.from_url(
+        redis_url, decode_responses=False, socket_connect_timeout=CONNECT_TIMEOUT_S
+    )
+    return RedisSessionStore(client)

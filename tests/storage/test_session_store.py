@@ -1,0 +1,343 @@
+"""The session store contract, run against the in-memory store and a real Redis.
+
+Redis comes from ``INDOORPOS_REDIS_URL`` (default database 15 on localhost). It is skipped
+when unreachable, unless ``INDOORPOS_TEST_REQUIRE_REDIS=1``, which turns that into a failure.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import uuid
+from collections.abc import AsyncIterator, Awaitable, Callable
+
+import pytest
+import redis.exceptions
+from redis.asyncio import Redis
+
+from server.storage.session_store import (
+    MemorySessionStore,
+    RedisSessionStore,
+    SessionExists,
+    SessionStore,
+    make_session_store,
+)
+
+REDIS_URL = os.environ.get("INDOORPOS_REDIS_URL") or "redis://127.0.0.1:6379/15"
+REQUIRE_REDIS = os.environ.get("INDOORPOS_TEST_REQUIRE_REDIS") == "1"
+TTL_S = 60
+WAIT_S = 2.0  # upper bound for any single message to arrive
+PREFIX = f"ips-test-{uuid.uuid4().hex[:8]}"  # keys of this run only, never the app's
+
+
+async def _redis_store() -> RedisSessionStore:
+    client = Redis.from_url(REDIS_URL, decode_responses=False, socket_connect_timeout=2)
+    try:
+        await client.ping()
+    except Exception as exc:
+        await client.aclose()
+        if REQUIRE_REDIS:
+            pytest.fail(f"Redis at {REDIS_URL} is required but does not answer: {exc}")
+        pytest.skip(f"Redis at {REDIS_URL} does not answer: {exc}")
+    return RedisSessionStore(client, prefix=PREFIX)
+
+
+class FakeClock:
+    """Monotonic time for the in-memory store, so its TTL tests need not wait."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+    async def sleep(self, seconds: float) -> None:
+        self.now += seconds
+        await asyncio.sleep(0)
+
+
+Sleep = Callable[[float], Awaitable[None]]
+
+
+@pytest.fixture(params=["memory", "redis"])
+async def backend(request: pytest.FixtureRequest) -> AsyncIterator[tuple[SessionStore, Sleep]]:
+    if request.param == "memory":
+        clock = FakeClock()
+        store: SessionStore = MemorySessionStore(clock=clock)
+        sleep: Sleep = clock.sleep
+    else:
+        store, sleep = await _redis_store(), asyncio.sleep
+    yield store, sleep
+    await store.close()
+
+
+@pytest.fixture
+def store(backend: tuple[SessionStore, Sleep]) -> SessionStore:
+    return backend[0]
+
+
+@pytest.fixture
+def sleep(backend: tuple[SessionStore, Sleep]) -> Sleep:
+    """Wait for the store's clock: real time for Redis, a fake clock for memory."""
+    return backend[1]
+
+
+@pytest.fixture
+async def new_id(store: SessionStore) -> AsyncIterator[Callable[..., str]]:
+    """Make a session id (a fresh uuid unless given); deleted from the store at teardown."""
+    made: list[str] = []
+
+    def make(session_id: str | None = None) -> str:
+        made.append(session_id if session_id is not None else uuid.uuid4().hex)
+        return made[-1]
+
+    yield make
+    for session_id in made:
+        await store.delete(session_id)
+
+
+async def test_create_then_get(store: SessionStore, new_id: Callable[..., str]) -> None:
+    sid = new_id()
+    assert await store.get(sid) is None
+    await store.create(sid, b"meta\x00\xff", b"state-1", TTL_S)
+    stored = await store.get(sid)
+    assert stored is not None
+    assert (stored.version, stored.meta, stored.state) == (1, b"meta\x00\xff", b"state-1")
+
+
+async def test_create_twice_raises(store: SessionStore, new_id: Callable[..., str]) -> None:
+    sid = new_id()
+    await store.create(sid, b"m", b"s", TTL_S)
+    with pytest.raises(SessionExists):
+        await store.create(sid, b"other", b"other", TTL_S)
+    stored = await store.get(sid)
+    assert stored is not None
+    assert (stored.version, stored.meta, stored.state) == (1, b"m", b"s")
+
+
+async def test_compare_and_set(store: SessionStore, new_id: Callable[..., str]) -> None:
+    sid = new_id()
+    await store.create(sid, b"m", b"s1", TTL_S)
+    assert await store.compare_and_set(sid, 1, b"s2", TTL_S)
+    assert await store.compare_and_set(sid, 2, b"", TTL_S)
+    assert not await store.compare_and_set(sid, 2, b"stale", TTL_S)
+    assert not await store.compare_and_set(sid, 4, b"future", TTL_S)
+    stored = await store.get(sid)
+    assert stored is not None
+    assert (stored.version, stored.meta, stored.state) == (3, b"m", b"")
+
+
+async def test_compare_and_set_on_a_missing_session(
+    store: SessionStore, new_id: Callable[..., str]
+) -> None:
+    sid = new_id()
+    assert not await store.compare_and_set(sid, 1, b"s", TTL_S)
+    assert await store.get(sid) is None
+
+
+async def test_concurrent_writers_exactly_one_wins(
+    store: SessionStore, new_id: Callable[..., str]
+) -> None:
+    sid = new_id()
+    await store.create(sid, b"m", b"s1", TTL_S)
+    writers = [f"writer-{i}".encode() for i in range(8)]
+    results = await asyncio.gather(
+        *(store.compare_and_set(sid, 1, state, TTL_S) for state in writers)
+    )
+    assert sum(results) == 1
+    stored = await store.get(sid)
+    assert stored is not None
+    assert stored.version == 2
+    assert stored.state == writers[results.index(True)]
+
+
+async def test_ttl_expiry_and_failed_write_does_not_refresh(
+    store: SessionStore, new_id: Callable[..., str], sleep: Sleep
+) -> None:
+    sid = new_id()
+    await store.create(sid, b"m", b"s", 1)
+    await sleep(0.5)
+    assert await store.get(sid) is not None
+    assert not await store.compare_and_set(sid, 7, b"stale", 60)  # must not extend the TTL
+    await sleep(0.6)
+    assert await store.get(sid) is None
+    assert not await store.compare_and_set(sid, 1, b"late", 60)
+    await store.create(sid, b"again", b"s", TTL_S)  # an expired id is free again
+    stored = await store.get(sid)
+    assert stored is not None
+    assert (stored.version, stored.meta) == (1, b"again")
+
+
+async def test_successful_write_refreshes_ttl(
+    store: SessionStore, new_id: Callable[..., str], sleep: Sleep
+) -> None:
+    sid = new_id()
+    await store.create(sid, b"m", b"s", 1)
+    await sleep(0.5)
+    assert await store.compare_and_set(sid, 1, b"s2", 2)
+    await sleep(1.0)  # past the first TTL, within the refreshed one
+    stored = await store.get(sid)
+    assert stored is not None
+    assert stored.state == b"s2"
+
+
+async def test_non_positive_ttl_is_refused(store: SessionStore, new_id: Callable[..., str]) -> None:
+    sid = new_id()
+    with pytest.raises(ValueError, match="ttl_s"):
+        await store.create(sid, b"m", b"s", 0)
+    await store.create(sid, b"m", b"s", TTL_S)
+    with pytest.raises(ValueError, match="ttl_s"):
+        await store.compare_and_set(sid, 1, b"s", -1)
+    assert await store.get(sid) is not None
+
+
+async def test_delete(store: SessionStore, new_id: Callable[..., str]) -> None:
+    sid, other = new_id(), new_id()
+    await store.create(sid, b"m", b"s", TTL_S)
+    await store.create(other, b"m", b"s", TTL_S)
+    assert await store.delete(sid)
+    assert not await store.delete(sid)
+    assert await store.get(sid) is None
+    assert not await store.compare_and_set(sid, 1, b"s", TTL_S)
+    assert await store.get(other) is not None
+
+
+async def _next(messages: AsyncIterator[bytes]) -> bytes:
+    async with asyncio.timeout(WAIT_S):
+        return await anext(messages)
+
+
+async def test_publish_subscribe(store: SessionStore, new_id: Callable[..., str]) -> None:
+    sid, other = new_id(), new_id()
+    sent = [f"m{i}".encode() for i in range(5)]
+    async with store.subscribe(sid) as first:
+        async with store.subscribe(sid) as second:
+            for message in sent:
+                await store.publish(sid, message)
+            await store.publish(other, b"not for us")
+            assert [await _next(first) for _ in sent] == sent
+            assert [await _next(second) for _ in sent] == sent
+        # second unsubscribed: it gets nothing more, first still does
+        await store.publish(sid, b"after")
+        assert await _next(first) == b"after"
+        assert [m async for m in second] == []
+    assert [m async for m in first] == []
+    if isinstance(store, RedisSessionStore):
+        await _assert_no_subscribers(store, sid)
+
+
+async def _assert_no_subscribers(store: RedisSessionStore, session_id: str) -> None:
+    """Redis drops a closed subscription when it sees the connection go, soon after."""
+    channel = store.live_channel(session_id)
+    client = Redis.from_url(REDIS_URL, decode_responses=False)
+    try:
+        for _ in range(200):
+            if (await client.pubsub_numsub(channel))[0][1] == 0:
+                return
+            await asyncio.sleep(0.01)
+        pytest.fail(f"{channel} still has subscribers")
+    finally:
+        await client.aclose()
+
+
+async def test_subscription_is_live_on_enter(
+    store: SessionStore, new_id: Callable[..., str]
+) -> None:
+    sid = new_id()
+    for i in range(3):
+        async with store.subscribe(sid) as messages:
+            await store.publish(sid, f"first-{i}".encode())
+            assert await _next(messages) == f"first-{i}".encode()
+
+
+async def test_cancelled_reader_unsubscribes(
+    store: SessionStore, new_id: Callable[..., str]
+) -> None:
+    sid = new_id()
+
+    async def read_forever() -> None:
+        async with store.subscribe(sid) as messages:
+            async for _ in messages:
+                pass
+
+    task = asyncio.create_task(read_forever())
+    await asyncio.sleep(0.1)
+    task.cancel()
+    with pytest.raises(asyncio.CancelledError):
+        await task
+    if isinstance(store, RedisSessionStore):
+        await _assert_no_subscribers(store, sid)
+    async with store.subscribe(sid) as messages:
+        await store.publish(sid, b"still works")
+        assert await _next(messages) == b"still works"
+
+
+ODD_IDS = ["a", "a}", "{a", "a}:state:v1", "a:b", "*", "?", "[x]", "with space", "ü€", "x\ny"]
+
+
+async def test_odd_session_ids_stay_in_their_own_keys(
+    store: SessionStore, new_id: Callable[..., str]
+) -> None:
+    run = uuid.uuid4().hex
+    ids = [new_id(f"{run}{odd}") for odd in ODD_IDS] + [new_id(f"{odd}{run}") for odd in ODD_IDS]
+    for sid in ids:
+        await store.create(sid, sid.encode(), sid.encode(), TTL_S)
+    for sid in ids:
+        stored = await store.get(sid)
+        assert stored is not None
+        assert stored.meta == stored.state == sid.encode()
+    assert await store.compare_and_set(ids[0], 1, b"changed", TTL_S)
+    assert await store.delete(ids[1])
+    for sid in ids[2:]:
+        stored = await store.get(sid)
+        assert stored is not None
+        assert (stored.version, stored.state) == (1, sid.encode())
+    if isinstance(store, RedisSessionStore):
+        client = Redis.from_url(REDIS_URL, decode_responses=False)
+        try:
+            keys = {k async for k in client.scan_iter(match=f"{PREFIX}:*{run}*")}
+        finally:
+            await client.aclose()
+        assert keys == {store.state_key(sid).encode() for sid in ids if sid != ids[1]}
+
+
+async def test_ping(store: SessionStore) -> None:
+    await store.ping()
+
+
+async def test_unreachable_redis_fails_ping() -> None:
+    store = make_session_store("redis://127.0.0.1:1/0")
+    assert isinstance(store, RedisSessionStore)
+    try:
+        with pytest.raises(redis.exceptions.ConnectionError):
+            await store.ping()
+    finally:
+        await store.close()
+
+
+async def test_make_session_store_without_url_is_in_memory() -> None:
+    store = make_session_store(None)
+    assert isinstance(store, MemorySessionStore)
+    await store.close()
+
+
+# --- in-memory specifics --------------------------------------------------------------------
+
+
+async def test_memory_slow_subscriber_drops_oldest() -> None:
+    store = MemorySessionStore(queue_size=3)
+    async with store.subscribe("s") as messages:
+        for i in range(5):
+            await store.publish("s", f"m{i}".encode())  # never blocks
+        assert [await _next(messages) for _ in range(3)] == [b"m2", b"m3", b"m4"]
+
+
+async def test_memory_sweep_drops_expired_records() -> None:
+    now = [0.0]
+    store = MemorySessionStore(clock=lambda: now[0])
+    for i in range(10):
+        await store.create(f"s{i}", b"m", b"s", 10)
+    await store.create("long", b"m", b"s", 10_000)
+    now[0] = 5_000.0
+    assert await store.get("long") is not None
+    assert list(store._records) == ["long"]
