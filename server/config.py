@@ -1,7 +1,7 @@
 """Service settings, read from the environment with the prefix ``INDOORPOS_``.
 
-With nothing set the service runs embedded: a SQLite file under ``data_dir``, the
-in-memory session store and the worker as an in-process task. Setting
+With nothing set the service runs embedded: a SQLite file under ``data_dir`` and the
+in-memory session store. Setting
 ``INDOORPOS_DATABASE_URL`` (a plain ``postgresql://user@host:port/db``) and
 ``INDOORPOS_REDIS_URL`` (``redis://host:port/db``) switches to the production shape.
 """
@@ -31,7 +31,6 @@ class Settings(BaseSettings):
     replay_window: int = Field(
         16, ge=1, le=256, description="recent batch replies kept for retried seqs"
     )
-    embedded_worker: bool = Field(True, description="run the worker inside the api process")
     map_cache_size: int = Field(32, ge=1, description="site map sets kept in memory")
 
     @field_validator("database_url")
