@@ -1,14 +1,52 @@
-"""Radio maps as dense matrices and weighted K-nearest-neighbour matching.
+"""Radio maps as dense matrices and weighted K-nearest-neighbour (WKNN) matching.
 
-PLACEHOLDER: the full module is being written.
+A radio map holds ``n_rp`` reference points (RPs) by ``n_em`` emitter columns. A scan is
+turned into a vector over the same columns (``scan_vector``) with ``MISSING_DBM`` where an
+emitter was not heard, exactly as the map stores "not heard", so a map emitter that the
+phone does not hear (or the reverse) counts as a -100 dBm reading on one side.
+
+Matching (``wknn``), after ``papers/002_*`` section 4.1:
+
+* signal distance between the scan ``s`` and RP ``i``, over the columns of the scan's
+  kind only (WiFi scans against WiFi columns, BLE against BLE), eq 1::
+
+      D_i = sqrt( sum_j (s_j - M_ij)^2 )
+
+* position as the inverse-distance weighted mean of the K nearest RPs, eq 3::
+
+      (x, y) = sum_i w_i (x_i, y_i),   w_i = (1 / D_i) / sum_k (1 / D_k)
+
+  with ``D_i`` floored at ``DISTANCE_EPS_DB`` so a scan identical to an RP's fingerprint
+  gives (numerically) that RP instead of a division by zero;
+
+* floor: the K nearest RPs over all floors vote for their floor with weight ``1 / D_i``;
+  the floor with the largest vote wins, and eq 3 is applied to the K nearest RPs of that
+  floor only, so a fix never averages positions of two floors.
+
+Uncertainty, after ``papers/003_*`` eq 17: with normalised weights (``sum w_i = 1``)::
+
+    sigma_FP^2 = sum_i w_i^2 * || (x_fp, y_fp) - (x_i, y_i) ||
+
+The paper uses this as the variance (r1 = r2) of the fingerprint position in its EKF,
+but it has the units of a distance (m), not of a variance (m^2), and the squared weights
+make it shrink with K (K equal weights give the mean neighbour spread divided by K). It is
+a spread indicator, not a calibrated variance; it is returned as ``var_m2`` unchanged and
+without any lower bound, and callers put their own floor under it (the ``step_ekf``
+engine's ``min_fix_var_m2``).
 """
+
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
+
+from server.positioning.events import RadioReading, radio_key
 
 MISSING_DBM = -100.0
+DISTANCE_EPS_DB = 1e-6  # floor under D_i in the 1/D weights (papers/002_* eq 3)
 
 
 @dataclass(frozen=True)
@@ -26,3 +64,200 @@ class RadioMap:
     var_db2: np.ndarray
     count: np.ndarray
     emitters: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class ScanVector:
+    """One scan laid out over the columns of a radio map.
+
+    Attributes
+    ----------
+    rssi_dbm : ndarray, shape (n_em,), float32
+        RSS per map column; ``MISSING_DBM`` for emitters not heard.
+    mask : ndarray, shape (n_em,), bool
+        Columns of the scan's kind (key prefix ``"<kind>:"``); matching uses only these.
+    n_matched : int
+        Number of distinct map columns the scan heard.
+    """
+
+    rssi_dbm: NDArray[np.float32]
+    mask: NDArray[np.bool_]
+    n_matched: int
+
+
+@dataclass(frozen=True)
+class WknnFix:
+    """A WKNN position.
+
+    Attributes
+    ----------
+    x_m, y_m : float
+        Weighted mean position of the neighbours (``papers/002_*`` eq 3).
+    floor : int
+        Floor index (into ``SiteMaps.floors``) chosen by the weighted vote.
+    var_m2 : float
+        ``papers/003_*`` eq 17 with normalised weights; see the module docstring for why
+        it is not a calibrated variance. No lower bound is applied.
+    neighbours : ndarray, shape (k,), int64
+        RP indices into the map, nearest first.
+    weights : ndarray, shape (k,), float64
+        Normalised 1/D weights of the neighbours (sum to 1).
+    distances_db : ndarray, shape (k,), float64
+        Signal distances D_i of the neighbours (``papers/002_*`` eq 1), unfloored.
+    """
+
+    x_m: float
+    y_m: float
+    floor: int
+    var_m2: float
+    neighbours: NDArray[np.int64]
+    weights: NDArray[np.float64]
+    distances_db: NDArray[np.float64]
+
+
+def scan_vector(radio_map: RadioMap, readings: Sequence[RadioReading], kind: str) -> ScanVector:
+    """Lay a scan out over the columns of ``radio_map``.
+
+    Parameters
+    ----------
+    radio_map : RadioMap
+        The map whose columns define the vector.
+    readings : sequence of RadioReading
+        The scan. Emitters the map does not know and non-finite readings are ignored; an
+        emitter heard twice keeps its strongest reading.
+    kind : str
+        ``"wifi"`` or ``"ble"``: how emitters are keyed (``radio_key``) and which columns
+        go into the mask.
+
+    Returns
+    -------
+    ScanVector
+        ``rssi_dbm`` and ``mask`` of shape (n_em,), and the number of columns heard.
+    """
+    n_em = len(radio_map.emitters)
+    column = {key: j for j, key in enumerate(radio_map.emitters)}
+    rssi = np.full(n_em, MISSING_DBM, dtype=np.float64)
+    heard = np.zeros(n_em, dtype=bool)
+    cols = [column.get(radio_key(kind, r.emitter), -1) for r in readings]
+    values = np.array([r.rssi_dbm for r in readings], dtype=np.float64)
+    keep = (np.array(cols, dtype=np.int64) >= 0) & np.isfinite(values)
+    idx = np.array(cols, dtype=np.int64)[keep]
+    if idx.size:
+        # strongest reading per column: start at -inf on heard columns, then take the max
+        rssi[idx] = -np.inf
+        np.maximum.at(rssi, idx, values[keep])
+        heard[idx] = True
+    prefix = f"{kind}:"
+    mask = np.fromiter((key.startswith(prefix) for key in radio_map.emitters), bool, n_em)
+    return ScanVector(
+        rssi_dbm=rssi.astype(np.float32), mask=mask, n_matched=int(np.count_nonzero(heard))
+    )
+
+
+def signal_distances(
+    radio_map: RadioMap, scan: ScanVector, rows: NDArray[np.int64] | None = None
+) -> NDArray[np.float64]:
+    """Euclidean signal distance of the scan to RPs (``papers/002_*`` eq 1).
+
+    Parameters
+    ----------
+    radio_map : RadioMap
+    scan : ScanVector
+        Only the columns in ``scan.mask`` take part.
+    rows : ndarray, shape (n,), int, optional
+        RP indices; all RPs when None.
+
+    Returns
+    -------
+    ndarray, shape (n,) or (n_rp,), float64
+        D_i in dB.
+    """
+    cols = np.flatnonzero(scan.mask)
+    fingerprints = (
+        radio_map.mean_dbm[:, cols] if rows is None else radio_map.mean_dbm[np.ix_(rows, cols)]
+    )
+    diff = fingerprints.astype(np.float64) - scan.rssi_dbm[cols]
+    squared: NDArray[np.float64] = np.einsum("ij,ij->i", diff, diff)
+    return np.sqrt(squared)
+
+
+def _nearest(distances: NDArray[np.float64], k: int) -> NDArray[np.int64]:
+    """Positions of the ``k`` smallest distances, nearest first (ties: lower position first)."""
+    if k < distances.size:
+        kth = distances[np.argpartition(distances, k - 1)[k - 1]]
+        # everything nearer than the k-th distance, then the lowest positions tied with it
+        nearer = np.flatnonzero(distances < kth)
+        part = np.concatenate([nearer, np.flatnonzero(distances == kth)[: k - nearer.size]])
+    else:
+        part = np.arange(distances.size)
+    order = np.lexsort((part, distances[part]))
+    return part[order].astype(np.int64)
+
+
+def wknn(
+    radio_map: RadioMap,
+    scan: ScanVector,
+    k: int = 4,
+    candidates: NDArray[np.integer] | NDArray[np.bool_] | None = None,
+) -> WknnFix | None:
+    """Weighted K-nearest-neighbour position, floor and spread of a scan.
+
+    Parameters
+    ----------
+    radio_map : RadioMap
+        The map with ``n_rp`` reference points.
+    scan : ScanVector
+        From ``scan_vector`` on the same map.
+    k : int
+        Number of neighbours K (``papers/002_*`` eq 3); fewer are used when fewer
+        candidates exist.
+    candidates : ndarray, shape (n_cand,) int or (n_rp,) bool, optional
+        RP indices (or a mask over RPs) to search, e.g. a partition around the previous
+        position; all RPs when None.
+
+    Returns
+    -------
+    WknnFix or None
+        None when the scan heard no map column or there is no candidate RP.
+    """
+    if k < 1:
+        raise ValueError(f"k must be at least 1, got {k}")
+    if scan.n_matched == 0:
+        return None
+    n_rp = radio_map.rp_xy.shape[0]
+    if candidates is None:
+        cand = np.arange(n_rp, dtype=np.int64)
+    else:
+        cand = np.asarray(candidates)
+        # sorted and unique, so ties in distance go to the lower RP index
+        cand = np.flatnonzero(cand) if cand.dtype == bool else np.unique(cand.astype(np.int64))
+    if cand.size == 0:
+        return None
+
+    dist = signal_distances(radio_map, scan, None if candidates is None else cand)
+    inv = 1.0 / np.maximum(dist, DISTANCE_EPS_DB)
+    floors = radio_map.rp_floor[cand].astype(np.int64)
+
+    # floor vote among the k nearest candidates, weighted by 1/D
+    top = _nearest(dist, k)
+    voted, where = np.unique(floors[top], return_inverse=True)
+    floor = int(voted[np.argmax(np.bincount(where.ravel(), weights=inv[top]))])
+
+    # WKNN over the k nearest candidates of that floor
+    on_floor = np.flatnonzero(floors == floor)
+    sel = on_floor[_nearest(dist[on_floor], k)]
+    weights = inv[sel] / inv[sel].sum()
+    rp = cand[sel]
+    xy_rp = radio_map.rp_xy[rp].astype(np.float64)
+    xy = weights @ xy_rp
+    spread = np.linalg.norm(xy_rp - xy, axis=1)
+    var_m2 = float(np.sum(weights**2 * spread))  # papers/003_* eq 17, sum(w) = 1
+    return WknnFix(
+        x_m=float(xy[0]),
+        y_m=float(xy[1]),
+        floor=floor,
+        var_m2=var_m2,
+        neighbours=rp,
+        weights=weights,
+        distances_db=dist[sel],
+    )

@@ -5,13 +5,14 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from server.positioning.engines.step_ekf import StepEkfParams
 from server.positioning.events import RadioReading
 from server.positioning.fingerprint import scan_vector, wknn
 from server.services.errors import Invalid, NotFound
 from server.services.maps import site_maps
 from server.services.runtime import Runtime
 
-MIN_VAR_M2 = 1.0  # floor under the fingerprint variance, as in the step_ekf engine
+MIN_VAR_M2 = StepEkfParams().min_fix_var_m2  # the same floor as the step_ekf engine
 
 
 @dataclass(frozen=True)

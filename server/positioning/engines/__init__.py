@@ -1,0 +1,26 @@
+"""Fusion engines: one module per engine, each a pure ``run(state, events, maps, params, rng)``.
+
+``ENGINES`` maps an engine name (as a session names it) to its ``EngineSpec``.
+"""
+
+from __future__ import annotations
+
+from server.positioning.engines import step_ekf
+from server.positioning.engines.base import EngineSpec
+
+ENGINES: dict[str, EngineSpec] = {"step_ekf": step_ekf.SPEC}
+
+
+def get_engine(name: str) -> EngineSpec:
+    """The registry entry of engine ``name``.
+
+    Raises
+    ------
+    KeyError
+        When no engine has that name; the message lists the known engines.
+    """
+    try:
+        return ENGINES[name]
+    except KeyError:
+        known = ", ".join(sorted(ENGINES))
+        raise KeyError(f"unknown engine {name!r}; known engines: {known}") from None
