@@ -1,8 +1,10 @@
 """WebSocket ``/v1/sessions/{id}/live``: every new fix of the session, as it is made.
 
 The token comes as ``?token=`` (browsers cannot set headers on a socket) or as a bearer
-header. Messages out: ``{"type": "fix", "seq", "fix"}``, ``{"type": "batch_result", ...}``
-for batches sent over the socket, ``{"type": "error", "status", "detail", "message"}``.
+header. Messages out: ``{"type": "ready"}`` once the socket follows the session (fixes
+of batches posted after it are never missed), ``{"type": "fix", "seq", "fix"}``,
+``{"type": "batch_result", ...}`` for batches sent over the socket, and
+``{"type": "error", "status", "detail", "message"}``.
 Fan-out goes through the session store's pub/sub, so any replica can serve the socket.
 """
 
@@ -67,6 +69,8 @@ async def live(
         await websocket.close(code=CLOSE_CODES.get(exc.status, 1008))
         return
     async with sessions.follow(rt, session_id) as messages, anyio.create_task_group() as tg:
+        # the subscription is live from here on: tell the client nothing will be missed
+        await sock.send({"type": "ready", "session_id": session_id})
 
         async def forward() -> None:
             async for message in messages:

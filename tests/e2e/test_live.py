@@ -38,6 +38,7 @@ async def test_fixes_posted_over_http_arrive_on_the_socket(live_url: str) -> Non
         site = await build_toy_site(client, ADMIN)
         sid, token = await _session(client, site.site_id)
         async with connect(_ws_url(live_url, sid, token)) as ws:
+            assert (await _recv(ws))["type"] == "ready"
             batch = {
                 "seq": 1,
                 "events": [
@@ -46,7 +47,9 @@ async def test_fixes_posted_over_http_arrive_on_the_socket(live_url: str) -> Non
                 ],
             }
             r = await client.post(
-                f"/v1/sessions/{sid}/batches", json=batch, headers={"Authorization": f"Bearer {token}"}
+                f"/v1/sessions/{sid}/batches",
+                json=batch,
+                headers={"Authorization": f"Bearer {token}"},
             )
             assert r.status_code == 200, r.text
             fixes = r.json()["fixes"]
@@ -57,9 +60,17 @@ async def test_fixes_posted_over_http_arrive_on_the_socket(live_url: str) -> Non
             assert [m["fix"] for m in pushed] == fixes
 
             # a batch sent over the socket gets its result there, and its fix is pushed too
-            await ws.send(json.dumps({"type": "batch", "seq": 2, "events": [
-                {"type": "step", "t": T0 + 1200, "length_m": 0.7, "heading_rad": 0.0}
-            ]}))
+            await ws.send(
+                json.dumps(
+                    {
+                        "type": "batch",
+                        "seq": 2,
+                        "events": [
+                            {"type": "step", "t": T0 + 1200, "length_m": 0.7, "heading_rad": 0.0}
+                        ],
+                    }
+                )
+            )
             got = [await _recv(ws), await _recv(ws)]
             kinds = sorted(m["type"] for m in got)
             assert kinds == ["batch_result", "fix"]

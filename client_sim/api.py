@@ -1,0 +1,307 @@
+"""A small async client of the indoorpos HTTP API and its live WebSocket.
+
+:class:`ApiClient` wraps one shared ``httpx.AsyncClient`` (whose ``base_url`` is the
+service) and turns every non-2xx answer into :class:`ApiError`. Admin calls send the
+admin key as a bearer token, device calls the session's token. :class:`LiveFixes` holds
+a session's ``/v1/sessions/{id}/live`` socket open and counts the fixes pushed on it.
+
+It speaks HTTP and WebSocket only, so it can drive any deployed stack.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+from collections import Counter
+from collections.abc import AsyncIterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+from urllib.parse import urlencode
+
+import httpx
+from websockets.asyncio.client import ClientConnection, connect
+from websockets.exceptions import ConnectionClosed, ConnectionClosedOK, WebSocketException
+
+SURVEY_TIMEOUT_S = 300.0  # a survey rebuilds the radio map before it answers
+
+
+class ApiError(Exception):
+    """A non-2xx answer: ``status`` and the body's ``detail`` (or the text)."""
+
+    def __init__(self, status: int, detail: Any, message: str | None = None) -> None:
+        self.status = status
+        self.detail = detail
+        self.message = message if message is not None else str(detail)
+        super().__init__(f"{status}: {self.message}")
+
+
+@dataclass(frozen=True, slots=True)
+class Session:
+    id: str
+    token: str
+    site_id: str
+    engine: str
+    idle_timeout_s: int
+
+
+@dataclass(frozen=True, slots=True)
+class Fix:
+    """The fields of a wire ``FixOut`` the simulator reads, and the whole of it in ``raw``."""
+
+    t: int
+    x_m: float
+    y_m: float
+    floor: int | None
+    uncertainty_m: float
+    source: str
+    engine: str
+    raw: Mapping[str, Any] = field(repr=False)
+
+    @classmethod
+    def from_wire(cls, body: Mapping[str, Any]) -> Fix:
+        return cls(
+            t=int(body["t"]),
+            x_m=float(body["x_m"]),
+            y_m=float(body["y_m"]),
+            floor=None if body.get("floor") is None else int(body["floor"]),
+            uncertainty_m=float(body.get("uncertainty_m", float("nan"))),
+            source=str(body.get("source", "")),
+            engine=str(body.get("engine", "")),
+            raw=body,
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class BatchResult:
+    seq: int
+    replayed: bool
+    fixes: tuple[Fix, ...]
+
+
+def _raise_for_status(response: httpx.Response) -> None:
+    if response.is_success:
+        return
+    try:
+        body = response.json()
+    except ValueError:
+        raise ApiError(response.status_code, response.text) from None
+    if isinstance(body, dict):
+        message = body.get("message")
+        raise ApiError(
+            response.status_code,
+            body.get("detail", body),
+            message if isinstance(message, str) else None,
+        )
+    raise ApiError(response.status_code, body)
+
+
+def _bearer(token: str) -> dict[str, str]:
+    return {"Authorization": f"Bearer {token}"}
+
+
+class ApiClient:
+    """The API calls the simulator makes, over a shared ``httpx.AsyncClient``."""
+
+    def __init__(self, http: httpx.AsyncClient, admin_key: str | None = None) -> None:
+        self.http = http
+        self._admin_key = admin_key
+
+    @property
+    def base_url(self) -> str:
+        return str(self.http.base_url)
+
+    async def _call(
+        self,
+        method: str,
+        path: str,
+        *,
+        token: str | None,
+        body: Any = None,
+        time_limit_s: float | None = None,
+    ) -> Any:
+        response = await self.http.request(
+            method,
+            path,
+            json=body,
+            headers=_bearer(token) if token is not None else None,
+            timeout=time_limit_s if time_limit_s is not None else httpx.USE_CLIENT_DEFAULT,
+        )
+        _raise_for_status(response)
+        return response.json() if response.content else None
+
+    async def _admin(
+        self, method: str, path: str, body: Any, time_limit_s: float | None = None
+    ) -> Any:
+        if self._admin_key is None:
+            raise ValueError("this client has no admin key")
+        return await self._call(
+            method, path, token=self._admin_key, body=body, time_limit_s=time_limit_s
+        )
+
+    # ------------------------------------------------------------ admin
+
+    async def create_site(self, name: str) -> dict[str, Any]:
+        result: dict[str, Any] = await self._admin("POST", "/v1/sites", {"name": name})
+        return result
+
+    async def create_building(self, site_id: str, name: str) -> dict[str, Any]:
+        result: dict[str, Any] = await self._admin(
+            "POST", f"/v1/sites/{site_id}/buildings", {"name": name}
+        )
+        return result
+
+    async def create_floor(
+        self, building_id: str, level: int, name: str | None = None
+    ) -> dict[str, Any]:
+        result: dict[str, Any] = await self._admin(
+            "POST", f"/v1/buildings/{building_id}/floors", {"level": level, "name": name}
+        )
+        return result
+
+    async def put_plan(self, floor_id: str, plan: Mapping[str, Any]) -> dict[str, Any]:
+        result: dict[str, Any] = await self._admin("PUT", f"/v1/floors/{floor_id}/plan", plan)
+        return result
+
+    async def post_survey(self, building_id: str, body: Mapping[str, Any]) -> dict[str, Any]:
+        """``body`` is a ``SurveyIn``; the answer the new ``RadioMapRead``."""
+        result: dict[str, Any] = await self._admin(
+            "POST", f"/v1/buildings/{building_id}/survey", body, time_limit_s=SURVEY_TIMEOUT_S
+        )
+        return result
+
+    # ------------------------------------------------------------ device
+
+    async def create_session(self, site_id: str, engine: str) -> Session:
+        body = await self._call(
+            "POST", "/v1/sessions", token=None, body={"site_id": site_id, "engine": engine}
+        )
+        return Session(
+            id=str(body["id"]),
+            token=str(body["token"]),
+            site_id=str(body["site_id"]),
+            engine=str(body["engine"]),
+            idle_timeout_s=int(body["idle_timeout_s"]),
+        )
+
+    async def post_batch(
+        self, session: Session, seq: int, events: Sequence[Mapping[str, Any]]
+    ) -> BatchResult:
+        body = await self._call(
+            "POST",
+            f"/v1/sessions/{session.id}/batches",
+            token=session.token,
+            body={"seq": seq, "events": list(events)},
+        )
+        return BatchResult(
+            seq=int(body["seq"]),
+            replayed=bool(body.get("replayed", False)),
+            fixes=tuple(Fix.from_wire(f) for f in body.get("fixes", [])),
+        )
+
+    async def delete_session(self, session: Session) -> None:
+        await self._call("DELETE", f"/v1/sessions/{session.id}", token=session.token)
+
+
+def live_url(base_url: str, session: Session) -> str:
+    """``ws(s)://.../v1/sessions/{id}/live?token=...`` under ``base_url``."""
+    url = httpx.URL(base_url)
+    scheme = {"http": "ws", "https": "wss"}.get(url.scheme, url.scheme)
+    path = url.path.rstrip("/") + f"/v1/sessions/{session.id}/live"
+    return str(
+        url.copy_with(scheme=scheme, path=path, query=urlencode({"token": session.token}).encode())
+    )
+
+
+class LiveFixes:
+    """Counts what a session's live socket pushes, from a reader task.
+
+    ``fixes_by_seq`` counts ``{"type": "fix"}`` messages per batch ``seq``; ``fix_messages``
+    is their total; ``errors`` keeps the text of ``{"type": "error"}`` messages and of an
+    unexpected close; ``closed`` is set once the socket is closed for whatever reason.
+    """
+
+    def __init__(self, ws: ClientConnection) -> None:
+        self._ws = ws
+        self.fixes_by_seq: Counter[int] = Counter()
+        self.fix_messages = 0
+        self.errors: list[str] = []
+        self.closed = asyncio.Event()
+        self.ready = asyncio.Event()
+        self._changed = asyncio.Event()
+        self._closing = False
+        self._task = asyncio.create_task(self._read())
+
+    @classmethod
+    @contextlib.asynccontextmanager
+    async def open(
+        cls, base_url: str, session: Session, open_timeout_s: float = 10.0
+    ) -> AsyncIterator[LiveFixes]:
+        """Connect, read in the background, and on exit close the socket and the reader."""
+        async with connect(
+            live_url(base_url, session), open_timeout=open_timeout_s, close_timeout=2.0
+        ) as ws:
+            live = cls(ws)
+            try:
+                # the server says "ready" once it follows the session; fixes of batches
+                # posted after that are never missed
+                ready = asyncio.ensure_future(live.ready.wait())
+                closed = asyncio.ensure_future(live.closed.wait())
+                await asyncio.wait(
+                    {ready, closed}, timeout=open_timeout_s, return_when=asyncio.FIRST_COMPLETED
+                )
+                ready.cancel()
+                closed.cancel()
+                if not live.ready.is_set():
+                    raise ConnectionError(f"live socket not ready: {'; '.join(live.errors)}")
+                yield live
+            finally:
+                live._closing = True
+                live._task.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await live._task
+
+    async def wait_for(self, expected: Mapping[int, int], timeout_s: float) -> bool:
+        """Wait until at least ``expected[seq]`` fixes of every ``seq`` have arrived, the
+        socket closed, or ``timeout_s`` passed; whether they all arrived."""
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + timeout_s
+        while True:
+            if all(self.fixes_by_seq[s] >= n for s, n in expected.items()):
+                return True
+            remaining = deadline - loop.time()
+            if remaining <= 0 or self.closed.is_set():
+                return False
+            self._changed.clear()
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._changed.wait(), remaining)
+
+    async def _read(self) -> None:
+        try:
+            async for raw in self._ws:
+                self._handle(raw)
+        except ConnectionClosedOK:
+            pass
+        except (ConnectionClosed, WebSocketException, OSError) as exc:
+            if not self._closing:
+                self.errors.append(f"live socket: {type(exc).__name__}: {exc}")
+        finally:
+            self.closed.set()
+            self._changed.set()
+
+    def _handle(self, raw: str | bytes) -> None:
+        try:
+            message = json.loads(raw)
+        except ValueError:
+            self.errors.append(f"live socket: not JSON: {raw[:200]!r}")
+            return
+        kind = message.get("type") if isinstance(message, dict) else None
+        if kind == "ready":
+            self.ready.set()
+        elif kind == "fix":
+            self.fixes_by_seq[int(message.get("seq", 0))] += 1
+            self.fix_messages += 1
+            self._changed.set()
+        elif kind == "error":
+            text = message.get("message") or message.get("detail")
+            self.errors.append(f"live socket: {message.get('status')}: {text}")
