@@ -8,17 +8,20 @@ import json
 import socket
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated
 
 import typer
 import uvicorn
 from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.progress import BarColumn, Progress, TaskID, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
 from server.app import create_app
 from server.config import get_settings
+from server.positioning.engines.base import SiteMaps
+from server.positioning.events import Event, Fix
 from server.services import auth
 from server.services.runtime import open_runtime
 from server.storage import db
@@ -26,7 +29,31 @@ from server.storage import db
 app = typer.Typer(help="indoorpos: an indoor positioning service.", no_args_is_help=True)
 keys_app = typer.Typer(help="Admin API keys.", no_args_is_help=True)
 app.add_typer(keys_app, name="keys")
+evaluate_app = typer.Typer(
+    help="Measure engines and methods on recorded datasets.", no_args_is_help=True
+)
+app.add_typer(evaluate_app, name="evaluate")
 console = Console()
+
+
+def _progress_bar(counter: str = "{task.completed}/{task.total}") -> Progress:
+    return Progress(
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        TextColumn(counter),
+        TimeRemainingColumn(),
+        console=console,
+    )
+
+
+def _print_report(title: str, result: dict[str, object]) -> None:
+    table = Table(title=title)
+    table.add_column("measure")
+    table.add_column("value", justify="right")
+    for name, value in result.items():
+        text = f"{value:.3f}" if isinstance(value, float) else str(value)
+        table.add_row(name, text)
+    console.print(table)
 
 
 @app.command()
@@ -123,13 +150,7 @@ def demo(
     server.start()
     base_url = f"http://127.0.0.1:{port}"
     console.print(f"serving on {base_url} (docs at {base_url}/docs)")
-    with Progress(
-        TextColumn("[bold]{task.description}"),
-        BarColumn(),
-        TextColumn("{task.completed:.0f}/{task.total:.0f} s"),
-        TimeRemainingColumn(),
-        console=console,
-    ) as progress:
+    with _progress_bar("{task.completed:.0f}/{task.total:.0f} s") as progress:
         task = progress.add_task(f"{walkers} walkers", total=duration)
         summary = asyncio.run(
             run_walkers(
@@ -142,15 +163,9 @@ def demo(
             )
         )
     result = summary.to_json_dict()
-    table = Table(title="demo summary")
-    table.add_column("measure")
-    table.add_column("value", justify="right")
-    for name, value in result.items():
-        if isinstance(value, float):
-            table.add_row(name, f"{value:.2f}")
-        elif not isinstance(value, list | dict):
-            table.add_row(name, str(value))
-    console.print(table)
+    _print_report(
+        "demo summary", {k: v for k, v in result.items() if not isinstance(v, list | dict)}
+    )
     for message in result.get("error_messages", []) or []:
         console.print(f"[red]error:[/] {message}")
     if json_path is not None:
@@ -176,3 +191,133 @@ def openapi(
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(create_app().openapi(), indent=2, sort_keys=True) + "\n")
     console.print(f"wrote {out}")
+
+
+def _http_replayer(
+    base_url: str, admin_key: str, progress: Callable[[str, int, int], None]
+) -> Callable[..., list[list[Fix]]]:
+    """Replay through a running service: training scans go up as a survey, each test trace
+    becomes one session's batches."""
+    from client_sim.replay import replay_over_http
+    from server.api.convert import fix_from_wire, to_wire
+    from server.services.evaluation import LabelledScans, batches
+
+    def run(
+        engine: str, maps: SiteMaps, labelled: LabelledScans, traces: list[list[Event]]
+    ) -> list[list[Fix]]:
+        survey = []
+        for (x_m, y_m), floor, event in zip(
+            labelled.xy_m, labelled.floor, labelled.events, strict=True
+        ):
+            wire = to_wire(event)
+            key = "wifi" if wire["type"] == "wifi" else "ble"
+            survey.append(
+                {
+                    "x_m": x_m,
+                    "y_m": y_m,
+                    "floor": maps.floors[floor].level,
+                    "t": event.t_ms,
+                    key: wire["readings"],
+                }
+            )
+        fixes = asyncio.run(
+            replay_over_http(
+                base_url,
+                admin_key,
+                site_name=f"evaluation {maps.floors[0].building_id}",
+                levels=[f.level for f in maps.floors],
+                survey_points=survey,
+                engine=engine,
+                traces=[[[to_wire(e) for e in b] for b in batches(t)] for t in traces],
+                on_progress=progress,
+            )
+        )
+        index = {f.level: i for i, f in enumerate(maps.floors)}
+        return [[fix_from_wire(f, index) for f in path] for path in fixes]
+
+    return run
+
+
+@evaluate_app.command("ilc")
+def evaluate_ilc(
+    site_dir: Annotated[
+        Path, typer.Argument(exists=True, file_okay=False, help="site or floor directory")
+    ],
+    engine: Annotated[list[str], typer.Option(help="engine to replay (repeat to compare)")],
+    json_path: Annotated[Path | None, typer.Option("--json", help="write the metrics here")] = None,
+    split_seed: Annotated[int, typer.Option(help="seed of the per-floor path split")] = 0,
+    train_fraction: Annotated[float, typer.Option(min=0.05, max=0.95)] = 0.8,
+    plots: Annotated[Path | None, typer.Option(help="write figures into this directory")] = None,
+    via_http: Annotated[
+        str | None, typer.Option(help="replay through the service at this URL instead")
+    ] = None,
+    admin_key: Annotated[
+        str | None, typer.Option(envvar="INDOORPOS_ADMIN_KEY", help="admin key for --via-http")
+    ] = None,
+) -> None:
+    """Replay ILC 2.0 test traces through engines, with maps built from training traces."""
+    from server.services import evaluation
+
+    if via_http and not admin_key:
+        raise typer.BadParameter("--via-http needs --admin-key (or INDOORPOS_ADMIN_KEY)")
+
+    runs = []
+    with _progress_bar() as bar:
+        tasks: dict[str, TaskID] = {}
+
+        def progress(stage: str, done: int, total: int) -> None:
+            if stage not in tasks:
+                tasks[stage] = bar.add_task(stage, total=total)
+            bar.update(tasks[stage], completed=done, total=total)
+
+        for name in engine:
+            tasks.clear()
+            runs.append(
+                evaluation.evaluate_ilc(
+                    site_dir,
+                    name,
+                    split_seed=split_seed,
+                    train_fraction=train_fraction,
+                    progress=progress,
+                )
+            )
+    for run in runs:
+        _print_report(f"ILC {run.site.name} · {run.summary['engine']}", run.summary)
+    if json_path is not None:
+        payload = runs[0].summary if len(runs) == 1 else {"runs": [r.summary for r in runs]}
+        json_path.write_text(json.dumps(payload, indent=2) + "\n")
+        console.print(f"metrics written to {json_path}")
+    if plots is not None:
+        written = evaluation.write_ilc_plots(runs, plots)
+        console.print(f"{len(written)} figures written to {plots}")
+
+
+@evaluate_app.command("uji")
+def evaluate_uji(
+    train_csv: Annotated[Path, typer.Argument(exists=True, dir_okay=False)],
+    test_csv: Annotated[Path, typer.Argument(exists=True, dir_okay=False)],
+    method: Annotated[str, typer.Option(help="fingerprint method")] = "wknn",
+    k: Annotated[int, typer.Option(min=1, help="neighbours")] = 4,
+    json_path: Annotated[Path | None, typer.Option("--json", help="write the metrics here")] = None,
+) -> None:
+    """Fingerprint methods on UJIIndoorLoc-style CSV files (EvAAL score included)."""
+    from server.datasets.uji import read_ujiindoorloc
+    from server.services import evaluation
+
+    with console.status("reading fingerprints"):
+        train = read_ujiindoorloc(train_csv)
+        test = read_ujiindoorloc(test_csv)
+    with _progress_bar() as bar:
+        task = bar.add_task(method, total=test.rssi_dbm.shape[0])
+        result = evaluation.evaluate_uji(
+            train,
+            test,
+            method,
+            k=k,
+            progress=lambda _stage, done, total: bar.update(task, completed=done, total=total),
+        )
+    result["dataset"] = f"uji:{test_csv.name}"
+    _print_report(f"{method} on {test_csv.name}", result)
+    if json_path is not None:
+        json_path.write_text(json.dumps(result, indent=2) + "\n")
+        console.print(f"metrics written to {json_path}")

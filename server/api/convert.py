@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 from server.api import schemas as sc
 from server.positioning.events import (
     BleEvent,
     Event,
+    Fix,
     MagEvent,
     RadioReading,
     StepEvent,
@@ -37,3 +39,45 @@ def wifi_pairs(readings: Sequence[sc.WifiReading]) -> list[tuple[str, float]]:
 
 def ble_pairs(readings: Sequence[sc.BleReading]) -> list[tuple[str, float]]:
     return [(r.id, r.rssi_dbm) for r in readings]
+
+
+def to_wire(event: Event) -> dict[str, Any]:
+    """The batch-API form of a core event (the inverse of ``to_event``)."""
+    match event:
+        case StepEvent():
+            return {
+                "type": "step",
+                "t": event.t_ms,
+                "length_m": event.length_m,
+                "heading_rad": event.heading_rad,
+                "confidence": event.confidence,
+            }
+        case WifiEvent():
+            readings = [{"bssid": r.emitter, "rssi_dbm": r.rssi_dbm} for r in event.readings]
+            return {"type": "wifi", "t": event.t_ms, "readings": readings}
+        case BleEvent():
+            readings = [{"id": r.emitter, "rssi_dbm": r.rssi_dbm} for r in event.readings]
+            return {"type": "ble", "t": event.t_ms, "readings": readings}
+        case MagEvent():
+            return {
+                "type": "mag",
+                "t": event.t_ms,
+                "field_ut": list(event.field_ut) if event.field_ut else None,
+                "magnitude_ut": event.magnitude_ut,
+            }
+
+
+def fix_from_wire(body: Mapping[str, Any], floor_index: Mapping[int, int]) -> Fix:
+    """A wire fix back into the core's form; ``floor_index`` maps levels to floor indices."""
+    level = body.get("floor")
+    cov = body["cov_m2"]
+    return Fix(
+        t_ms=int(body["t"]),
+        x_m=float(body["x_m"]),
+        y_m=float(body["y_m"]),
+        floor=floor_index.get(int(level), -1) if level is not None else -1,
+        heading_rad=body.get("heading_rad"),
+        cov=(float(cov[0]), float(cov[1]), float(cov[2]), float(cov[3])),
+        source=str(body["source"]),
+        diagnostics=dict(body.get("diagnostics", {})),
+    )

@@ -5,10 +5,10 @@
 
 from __future__ import annotations
 
-from server.positioning.engines import step_ekf
+from server.positioning.engines import step_ekf, wknn
 from server.positioning.engines.base import EngineSpec
 
-ENGINES: dict[str, EngineSpec] = {"step_ekf": step_ekf.SPEC}
+ENGINES: dict[str, EngineSpec] = {"step_ekf": step_ekf.SPEC, "wknn": wknn.SPEC}
 
 
 def get_engine(name: str) -> EngineSpec:

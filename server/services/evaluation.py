@@ -1,0 +1,422 @@
+"""Evaluation on recorded data nobody in this project made.
+
+ILC 2.0 (``evaluate_ilc``): per floor, the traces are split by a seeded shuffle of their
+path ids into training and test sets. Radio maps come from the training traces only: each
+scan is placed by linear interpolation between the surveyor's waypoints and the scans are
+gridded by the same code the survey API uses (``gridding.build_radio_map``, cells of
+``TRACE_CELL_M``). Each test trace is then replayed causally through the engine in
+batches of ``BATCH_MS`` of phone time, as a phone would post them; the engine never sees
+waypoints or the true floor and searches every floor of the site. The estimate at a
+waypoint is the last fix at or before its timestamp (none yet: counted as missing).
+
+UJIIndoorLoc-style data (``evaluate_uji``): every training fingerprint is a reference
+point (no gridding: the published baselines match against raw fingerprints), floors are
+(building, floor) pairs, so the floor choice of WKNN also picks the building.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from server.datasets.ilc import IlcSite, IlcTrace, read_site, read_trace
+from server.datasets.uji import Fingerprints
+from server.positioning.engines import get_engine
+from server.positioning.engines.base import FloorRef, SiteMaps
+from server.positioning.engines.step_ekf import StepEkfParams
+from server.positioning.events import BleEvent, Event, Fix, RadioReading, WifiEvent, radio_key
+from server.positioning.fingerprint import MISSING_DBM, RadioMap, scan_vector, wknn
+from server.positioning.mapping.gridding import build_radio_map
+from server.positioning.mapping.labelled import interpolate_track
+from server.positioning.mapping.matrices import readings_matrix
+from server.positioning.metrics import error_report
+
+# Traces sample the walk every few metres; 1 m cells keep that resolution and merge only
+# scans taken at nearly the same spot (the same cell size as surveys).
+TRACE_CELL_M = 1.0
+# A phone posts about once a second; replay cuts each trace into batches of that span.
+BATCH_MS = 1000
+
+# the floor under the fingerprint variance that the engines use
+MIN_FIX_VAR_M2 = StepEkfParams().min_fix_var_m2
+
+Progress = Callable[[str, int, int], None]
+
+
+@dataclass(frozen=True)
+class SplitPaths:
+    """Trace files per floor index, for training and for testing."""
+
+    train: tuple[tuple[int, Path], ...]
+    test: tuple[tuple[int, Path], ...]
+
+
+def split_site(site: IlcSite, seed: int, train_fraction: float) -> SplitPaths:
+    """Seeded split of each floor's traces by path id; at least one on each side when a
+    floor has two or more traces."""
+    if not 0.0 < train_fraction < 1.0:
+        raise ValueError("train_fraction must be between 0 and 1")
+    train: list[tuple[int, Path]] = []
+    test: list[tuple[int, Path]] = []
+    for index, floor in enumerate(site.floors):
+        files = sorted(floor.trace_files, key=_path_id)
+        rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(index,)))
+        order = rng.permutation(len(files))
+        n_train = round(train_fraction * len(files))
+        if len(files) >= 2:
+            n_train = min(max(n_train, 1), len(files) - 1)
+        train += [(index, files[i]) for i in sorted(order[:n_train].tolist())]
+        test += [(index, files[i]) for i in sorted(order[n_train:].tolist())]
+    return SplitPaths(tuple(train), tuple(test))
+
+
+def _path_id(path: Path) -> str:
+    return path.name.split(".", 1)[0]
+
+
+def site_floors(site: IlcSite) -> tuple[FloorRef, ...]:
+    return tuple(FloorRef(site.name, f.name, f.level) for f in site.floors)
+
+
+@dataclass
+class LabelledScans:
+    """Scans placed on the floor by interpolation between waypoints: what the map builder
+    eats, and what a survey upload carries."""
+
+    xy_m: list[tuple[float, float]] = field(default_factory=list)
+    floor: list[int] = field(default_factory=list)
+    events: list[WifiEvent | BleEvent] = field(default_factory=list)
+
+    def add_trace(self, trace: IlcTrace, floor_index: int) -> None:
+        events = trace.radio_events()
+        if not events or trace.waypoint_t_ms.size == 0:
+            return
+        t = np.array([e.t_ms for e in events], dtype=np.int64)
+        xy, valid = interpolate_track(trace.waypoint_t_ms, trace.waypoint_xy_m, t)
+        for event, point, ok in zip(events, xy.tolist(), valid.tolist(), strict=True):
+            if ok and event.readings:
+                self.xy_m.append((point[0], point[1]))
+                self.floor.append(floor_index)
+                self.events.append(event)
+
+    def radio_map(self, cell_m: float = TRACE_CELL_M) -> RadioMap:
+        scans = [
+            [(radio_key(_kind(e), r.emitter), r.rssi_dbm) for r in e.readings] for e in self.events
+        ]
+        emitters, rssi = readings_matrix(scans)
+        xy = np.asarray(self.xy_m, dtype=np.float64).reshape(-1, 2)
+        return build_radio_map(
+            xy, np.asarray(self.floor, dtype=np.int64), rssi, emitters, cell_m=cell_m
+        )
+
+
+def _kind(event: WifiEvent | BleEvent) -> str:
+    return "wifi" if isinstance(event, WifiEvent) else "ble"
+
+
+def build_site_maps(
+    site: IlcSite, train: Iterable[tuple[int, Path]], progress: Progress | None = None
+) -> tuple[SiteMaps, LabelledScans, int]:
+    """Radio map of the site from its training traces; also the labelled scans and the
+    number of unreadable lines met."""
+    labelled = LabelledScans()
+    bad_lines = 0
+    train = list(train)
+    for done, (floor_index, path) in enumerate(train, start=1):
+        trace = read_trace(path, site.floors[floor_index].name)
+        bad_lines += trace.bad_lines
+        labelled.add_trace(trace, floor_index)
+        if progress:
+            progress("maps", done, len(train))
+    radio = labelled.radio_map() if labelled.events else None
+    return SiteMaps(site_floors(site), radio, version="train"), labelled, bad_lines
+
+
+def batches(events: Sequence[Event], batch_ms: int = BATCH_MS) -> list[list[Event]]:
+    """Cut a time-ordered event list into consecutive spans of ``batch_ms`` phone time."""
+    out: list[list[Event]] = []
+    start: int | None = None
+    for event in events:
+        if start is None or event.t_ms >= start + batch_ms:
+            out.append([])
+            start = event.t_ms
+        out[-1].append(event)
+    return out
+
+
+def replay(engine: str, events: Sequence[Event], maps: SiteMaps, seed: int) -> list[Fix]:
+    """Run an engine over a trace batch by batch, as the service would."""
+    spec = get_engine(engine)
+    params = spec.params_type()
+    state = spec.initial_state(params)
+    fixes: list[Fix] = []
+    for seq, batch in enumerate(batches(events), start=1):
+        rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(seq,)))
+        state, new = spec.run(state, batch, maps, params, rng)
+        fixes += new
+    return fixes
+
+
+@dataclass(frozen=True)
+class WaypointEstimates:
+    """Per waypoint: the truth and the last fix at or before it (NaN when none)."""
+
+    true_xy_m: NDArray[np.float64]
+    true_floor: NDArray[np.int64]
+    est_xy_m: NDArray[np.float64]
+    est_floor: NDArray[np.int64]
+    sigma_m: NDArray[np.float64]
+
+
+def estimates_at_waypoints(
+    trace: IlcTrace, floor_index: int, fixes: Sequence[Fix]
+) -> WaypointEstimates:
+    n = trace.waypoint_t_ms.size
+    est = np.full((n, 2), np.nan)
+    est_floor = np.full(n, -1, dtype=np.int64)
+    sigma = np.full(n, np.nan)
+    if fixes:
+        fix_t = np.array([f.t_ms for f in fixes], dtype=np.int64)
+        order = np.argsort(fix_t, kind="stable")
+        fix_t = fix_t[order]
+        # index of the last fix with t <= waypoint t
+        idx = np.searchsorted(fix_t, trace.waypoint_t_ms, side="right") - 1
+        for row, i in enumerate(idx.tolist()):
+            if i < 0:
+                continue
+            fix = fixes[int(order[i])]
+            est[row] = (fix.x_m, fix.y_m)
+            est_floor[row] = fix.floor
+            sigma[row] = fix.uncertainty_m
+    return WaypointEstimates(
+        true_xy_m=trace.waypoint_xy_m.astype(np.float64),
+        true_floor=np.full(n, floor_index, dtype=np.int64),
+        est_xy_m=est,
+        est_floor=est_floor,
+        sigma_m=sigma,
+    )
+
+
+@dataclass(frozen=True)
+class PathResult:
+    path_id: str
+    floor_index: int
+    estimates: WaypointEstimates
+    fixes: tuple[Fix, ...]
+
+
+@dataclass(frozen=True)
+class IlcEvaluation:
+    site: IlcSite
+    maps: SiteMaps
+    split: SplitPaths
+    paths: tuple[PathResult, ...]
+    summary: dict[str, Any]
+
+
+def _stack(paths: Sequence[PathResult]) -> WaypointEstimates:
+    def cat(name: str, dtype: Any, shape: tuple[int, ...]) -> Any:
+        parts = [getattr(p.estimates, name) for p in paths]
+        return np.concatenate(parts) if parts else np.zeros(shape, dtype=dtype)
+
+    return WaypointEstimates(
+        true_xy_m=cat("true_xy_m", np.float64, (0, 2)),
+        true_floor=cat("true_floor", np.int64, (0,)),
+        est_xy_m=cat("est_xy_m", np.float64, (0, 2)),
+        est_floor=cat("est_floor", np.int64, (0,)),
+        sigma_m=cat("sigma_m", np.float64, (0,)),
+    )
+
+
+def summarize(paths: Sequence[PathResult], **extra: Any) -> dict[str, Any]:
+    est = _stack(paths)
+    report = error_report(
+        est.est_xy_m, est.true_xy_m, est.est_floor, est.true_floor, sigma_m=est.sigma_m
+    )
+    return {**extra, **report.to_dict()}
+
+
+# Replays test traces (a list of time-ordered event lists) through an engine, given the
+# training maps and the labelled training scans they were built from; one fix list per trace.
+Replayer = Callable[[str, SiteMaps, LabelledScans, list[list[Event]]], list[list[Fix]]]
+
+
+def in_process_replayer(seed: int, progress: Progress | None = None) -> Replayer:
+    def run(
+        engine: str, maps: SiteMaps, _labelled: LabelledScans, traces: list[list[Event]]
+    ) -> list[list[Fix]]:
+        out = []
+        for done, events in enumerate(traces, start=1):
+            out.append(replay(engine, events, maps, seed=seed))
+            if progress:
+                progress("replay", done, len(traces))
+        return out
+
+    return run
+
+
+def evaluate_ilc(
+    site_dir: Path,
+    engine: str,
+    *,
+    split_seed: int = 0,
+    train_fraction: float = 0.8,
+    progress: Progress | None = None,
+    replayer: Replayer | None = None,
+) -> IlcEvaluation:
+    get_engine(engine)  # fail early on an unknown engine name
+    site = read_site(site_dir)
+    split = split_site(site, split_seed, train_fraction)
+    maps, labelled, bad_lines = build_site_maps(site, split.train, progress)
+    traces = []
+    for done, (floor_index, path) in enumerate(split.test, start=1):
+        trace = read_trace(path, site.floors[floor_index].name)
+        bad_lines += trace.bad_lines
+        traces.append((floor_index, trace))
+        if progress:
+            progress("read test traces", done, len(split.test))
+    replayer = replayer or in_process_replayer(split_seed, progress)
+    fixes = replayer(engine, maps, labelled, [list[Event](t.radio_events()) for _, t in traces])
+    results = [
+        PathResult(
+            trace.path_id,
+            floor_index,
+            estimates_at_waypoints(trace, floor_index, path_fixes),
+            tuple(path_fixes),
+        )
+        for (floor_index, trace), path_fixes in zip(traces, fixes, strict=True)
+    ]
+    summary = summarize(
+        results,
+        engine=engine,
+        dataset=f"ilc:{site.name}",
+        split_seed=split_seed,
+        train_fraction=train_fraction,
+        train_paths=len(split.train),
+        test_paths=len(split.test),
+        floors=len(site.floors),
+        reference_points=int(maps.radio.rp_xy.shape[0]) if maps.radio else 0,
+        bad_lines=bad_lines,
+    )
+    return IlcEvaluation(site, maps, split, tuple(results), summary)
+
+
+# ---------------------------------------------------------------- UJIIndoorLoc-style data
+
+
+def fingerprint_map(train: Fingerprints) -> tuple[RadioMap, tuple[FloorRef, ...]]:
+    """Every training fingerprint as a reference point; floors are (building, floor)."""
+    pairs = sorted({(int(b), int(f)) for b, f in zip(train.building, train.floor, strict=True)})
+    index = {p: i for i, p in enumerate(pairs)}
+    rp_floor = np.array(
+        [index[(int(b), int(f))] for b, f in zip(train.building, train.floor, strict=True)],
+        dtype=np.int32,
+    )
+    heard = ~np.isnan(train.rssi_dbm)
+    mean = np.where(heard, np.maximum(train.rssi_dbm, MISSING_DBM), MISSING_DBM)
+    radio = RadioMap(
+        rp_xy=train.xy_m.astype(np.float32),
+        rp_floor=rp_floor,
+        mean_dbm=mean.astype(np.float32),
+        var_db2=np.where(heard, 16.0, 0.0).astype(np.float32),
+        count=heard.astype(np.int32),
+        emitters=tuple(radio_key("wifi", e) for e in train.emitters),
+    )
+    floors = tuple(FloorRef(str(b), f"{b}:{f}", f) for b, f in pairs)
+    return radio, floors
+
+
+def evaluate_uji(
+    train: Fingerprints,
+    test: Fingerprints,
+    method: str,
+    *,
+    k: int = 4,
+    progress: Progress | None = None,
+) -> dict[str, Any]:
+    if method != "wknn":
+        raise ValueError(f"unknown method {method!r}; known methods: wknn")
+    radio, floors = fingerprint_map(train)
+    n = test.rssi_dbm.shape[0]
+    est = np.full((n, 2), np.nan)
+    est_floor = np.full(n, -1, dtype=np.int64)
+    est_building = np.full(n, -1, dtype=np.int64)
+    sigma = np.full(n, np.nan)
+    for row in range(n):
+        heard = ~np.isnan(test.rssi_dbm[row])
+        readings = [
+            RadioReading(test.emitters[j], float(test.rssi_dbm[row, j]))
+            for j in np.flatnonzero(heard).tolist()
+        ]
+        fix = wknn(radio, scan_vector(radio, readings, "wifi"), k=k)
+        if fix is not None:
+            est[row] = (fix.x_m, fix.y_m)
+            est_floor[row] = floors[fix.floor].level
+            est_building[row] = int(floors[fix.floor].building_id)
+            sigma[row] = np.sqrt(max(fix.var_m2, MIN_FIX_VAR_M2))
+        if progress and (row % 50 == 0 or row == n - 1):
+            progress("locate", row + 1, n)
+    report = error_report(
+        est,
+        test.xy_m,
+        est_floor,
+        test.floor,
+        sigma_m=sigma,
+        est_building=est_building,
+        true_building=test.building,
+    )
+    return {
+        "method": method,
+        "k": k,
+        "dataset": "uji",
+        "train_points": int(train.rssi_dbm.shape[0]),
+        **report.to_dict(),
+    }
+
+
+def errors_m(evaluation: IlcEvaluation) -> list[float]:
+    est = _stack(evaluation.paths)
+    ok = ~np.isnan(est.est_xy_m[:, 0])
+    errors: list[float] = np.hypot(*(est.est_xy_m[ok] - est.true_xy_m[ok]).T).tolist()
+    return errors
+
+
+def write_ilc_plots(evaluations: Sequence[IlcEvaluation], out_dir: Path) -> list[Path]:
+    """The error CDF of every engine on one figure, and per test path (of the first
+    engine) the floor plan with the truth and the estimated track."""
+    from server.services.plots import plot_error_cdf, plot_track
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    site = evaluations[0].site.name
+    written = [
+        plot_error_cdf(
+            {e.summary["engine"]: errors_m(e) for e in evaluations},
+            out_dir / "error_cdf.png",
+            title=f"ILC {site}: horizontal error at waypoints",
+        )
+    ]
+    for evaluation in evaluations:
+        engine = evaluation.summary["engine"]
+        for path in evaluation.paths:
+            floor = evaluation.site.floors[path.floor_index]
+            fixes = path.fixes
+            est = np.array([(f.x_m, f.y_m) for f in fixes], dtype=np.float64).reshape(-1, 2)
+            floor_ok = np.array([f.floor == path.floor_index for f in fixes], dtype=bool)
+            written.append(
+                plot_track(
+                    out_dir / engine / f"{floor.name}_{path.path_id}.png",
+                    title=f"{engine} · {floor.name} · {path.path_id}",
+                    plan=floor.plan,
+                    truth_xy_m=path.estimates.true_xy_m,
+                    est_xy_m=est,
+                    est_floor_ok=floor_ok,
+                    waypoint_xy_m=path.estimates.true_xy_m,
+                    sigma_m=np.array([f.uncertainty_m for f in fixes]),
+                )
+            )
+    return written

@@ -1,0 +1,294 @@
+"""Figures of evaluation results: error CDFs and tracks on the floor plan.
+
+matplotlib is an optional dependency (the ``plots`` extra), imported only when a figure
+is drawn. Figures are built with the object-oriented API on an Agg canvas
+(``matplotlib.figure.Figure`` + ``FigureCanvasAgg``), never through ``pyplot``: nothing is
+registered in pyplot's global figure list, so drawing hundreds of figures leaks nothing
+and needs no display.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from server.positioning.metrics import error_cdf
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
+
+DPI = 120
+INSTALL_HINT = "drawing figures needs matplotlib: pip install 'indoorpos[plots]'"
+
+FloatArray = NDArray[np.float64]
+
+
+def _figure(width_in: float, height_in: float) -> Figure:
+    """A figure on its own Agg canvas (no pyplot)."""
+    try:
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+    except ImportError as exc:
+        raise RuntimeError(INSTALL_HINT) from exc
+    fig = Figure(figsize=(width_in, height_in), layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _save(fig: Figure, out: Path) -> Path:
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=DPI, format="png")
+    fig.clear()
+    return out
+
+
+def plot_error_cdf(curves: Mapping[str, Sequence[float]], out: Path, title: str) -> Path:
+    """One figure with the empirical error CDF of each engine or method.
+
+    Parameters
+    ----------
+    curves : mapping of str to sequence of float
+        Per name (the legend label) the horizontal errors in metres; non-finite values
+        (missing estimates) are dropped.
+    out : Path
+        PNG file to write; its directory is created when missing.
+    title : str
+
+    Returns
+    -------
+    Path
+        ``out``.
+
+    Raises
+    ------
+    RuntimeError
+        When matplotlib is not installed.
+    """
+    fig = _figure(7.0, 4.5)
+    ax = fig.add_subplot()
+    for name, errors in curves.items():
+        e, share = error_cdf(errors)
+        if e.size == 0:
+            ax.plot([], [], label=f"{name} (no estimates)")
+            continue
+        # the same percentile rule (numpy's linear) as metrics.error_report
+        p50, p90 = np.percentile(e, [50.0, 90.0]).tolist()
+        (line,) = ax.step(
+            np.concatenate([[0.0], e]),
+            np.concatenate([[0.0], share]),
+            where="post",
+            label=f"{name}: median {p50:.2f} m, P90 {p90:.2f} m (n={e.size})",
+        )
+        ax.plot([p50, p90], [0.5, 0.9], "o", color=line.get_color(), markersize=4)
+    ax.set_xlim(left=0.0)
+    ax.set_ylim(0.0, 1.0)
+    ax.set_xlabel("horizontal error (m)")
+    ax.set_ylabel("share of estimates")
+    ax.set_title(title)
+    ax.grid(visible=True, alpha=0.3)
+    ax.legend(loc="lower right", fontsize="small")
+    return _save(fig, out)
+
+
+def _points(name: str, value: ArrayLike | None) -> FloatArray:
+    array = np.asarray([] if value is None else value, dtype=np.float64)
+    if array.size == 0:
+        return array.reshape(0, 2)
+    if array.ndim != 2 or array.shape[1] != 2:
+        raise ValueError(f"{name} must have shape (n, 2), got {array.shape}")
+    return array
+
+
+def _per_point(
+    name: str, value: ArrayLike | None, n: int, dtype: type[np.generic]
+) -> NDArray[Any] | None:
+    if value is None:
+        return None
+    array = np.asarray(value, dtype=dtype)
+    if array.shape != (n,):
+        raise ValueError(f"{name} must have shape ({n},), got {array.shape}")
+    return array
+
+
+def _coords(positions: Any) -> FloatArray:
+    """GeoJSON positions as (n, 2) x, y; empty when they are not a list of positions."""
+    try:
+        array = np.asarray(positions, dtype=np.float64)
+    except (TypeError, ValueError):  # ragged or not numbers: not drawn
+        return np.zeros((0, 2))
+    if array.ndim != 2 or array.shape[1] < 2:
+        return np.zeros((0, 2))
+    return array[:, :2]
+
+
+def _geometry_parts(geometry: Any) -> Iterator[tuple[str, list[FloatArray]]]:
+    """("polygon", rings) and ("line", [points]) parts of a GeoJSON geometry in metres."""
+    if not isinstance(geometry, Mapping):
+        return
+    kind = geometry.get("type")
+    coords: Any = geometry.get("coordinates")
+    if kind == "Polygon":
+        yield "polygon", [_coords(ring) for ring in coords]
+    elif kind == "MultiPolygon":
+        for polygon in coords:
+            yield "polygon", [_coords(ring) for ring in polygon]
+    elif kind == "LineString":
+        yield "line", [_coords(coords)]
+    elif kind == "MultiLineString":
+        for line in coords:
+            yield "line", [_coords(line)]
+    elif kind == "GeometryCollection":
+        for part in geometry.get("geometries", ()):
+            yield from _geometry_parts(part)
+    # points and unknown types are not drawn
+
+
+# floor plan styles by properties.kind: (face colour, edge colour, line width, z-order)
+_STYLES: dict[str, tuple[str, str, float, float]] = {
+    "outline": ("none", "0.15", 1.4, 2.0),
+    "unit": ("0.9", "0.6", 0.6, 1.0),
+}
+_OTHER = ("none", "0.55", 0.8, 1.0)
+
+
+def _draw_plan(ax: Axes, plan: Mapping[str, Any]) -> None:
+    from matplotlib.patches import PathPatch
+    from matplotlib.path import Path as MplPath
+
+    for feature in plan.get("features", ()):
+        if not isinstance(feature, Mapping):
+            continue
+        properties = feature.get("properties") or {}
+        kind = properties.get("kind")
+        style = _STYLES.get(kind, _OTHER) if isinstance(kind, str) else _OTHER
+        facecolor, edgecolor, linewidth, zorder = style
+        for part, arrays in _geometry_parts(feature.get("geometry")):
+            rings = [a for a in arrays if a.shape[0] >= 2]
+            if not rings:
+                continue
+            if part == "line":
+                ax.plot(rings[0][:, 0], rings[0][:, 1], "-", color=edgecolor, lw=linewidth)
+                continue
+            # rings as one compound path: holes (wound the other way, RFC 7946) stay empty
+            path = MplPath.make_compound_path(*(MplPath(ring, closed=True) for ring in rings))
+            patch = PathPatch(
+                path, facecolor=facecolor, edgecolor=edgecolor, linewidth=linewidth, zorder=zorder
+            )
+            ax.add_patch(patch)
+
+
+def plot_track(
+    out: Path,
+    *,
+    title: str,
+    plan: Mapping[str, Any] | None,
+    truth_xy_m: ArrayLike,
+    est_xy_m: ArrayLike,
+    est_floor_ok: ArrayLike | None = None,
+    waypoint_xy_m: ArrayLike | None = None,
+    sigma_m: ArrayLike | None = None,
+) -> Path:
+    """The floor plan with the true path and the estimated track of one walk.
+
+    Parameters
+    ----------
+    out : Path
+        PNG file to write; its directory is created when missing.
+    title : str
+    plan : mapping, optional
+        GeoJSON FeatureCollection in the building's metric frame. Polygon and
+        MultiPolygon outlines and LineStrings are drawn; features with
+        ``properties.kind == "outline"`` dark, ``"unit"`` filled light grey.
+    truth_xy_m : array_like, shape (n, 2)
+        The true path in metres, drawn as a line.
+    est_xy_m : array_like, shape (m, 2)
+        Estimated positions in metres, in time order.
+    est_floor_ok : array_like, shape (m,), bool, optional
+        False where the estimate's floor was wrong (drawn red).
+    waypoint_xy_m : array_like, shape (k, 2), optional
+        Ground-truth waypoints, drawn as rings.
+    sigma_m : array_like, shape (m,), optional
+        1-σ radius of each estimate, drawn as a faint circle (non-finite ones skipped).
+
+    Returns
+    -------
+    Path
+        ``out``.
+
+    Raises
+    ------
+    RuntimeError
+        When matplotlib is not installed.
+    ValueError
+        When array shapes do not match.
+    """
+    truth = _points("truth_xy_m", truth_xy_m)
+    est = _points("est_xy_m", est_xy_m)
+    waypoints = _points("waypoint_xy_m", waypoint_xy_m)
+    floor_ok = _per_point("est_floor_ok", est_floor_ok, est.shape[0], np.bool_)
+    sigma = _per_point("sigma_m", sigma_m, est.shape[0], np.float64)
+
+    fig = _figure(8.0, 6.0)
+    from matplotlib.collections import EllipseCollection
+
+    ax = fig.add_subplot()
+    if plan is not None:
+        _draw_plan(ax, plan)
+    if sigma is not None:
+        keep = np.isfinite(sigma) & np.isfinite(est).all(axis=1)
+        if keep.any():
+            diameters = 2.0 * sigma[keep]
+            circles = EllipseCollection(
+                diameters,
+                diameters,
+                np.zeros(diameters.size),
+                units="xy",
+                offsets=est[keep],
+                offset_transform=ax.transData,
+                facecolors="tab:blue",
+                edgecolors="none",
+                alpha=0.08,
+                zorder=3,
+            )
+            ax.add_collection(circles)
+            ax.fill([], [], color="tab:blue", alpha=0.15, label="1-σ circles")
+    if truth.shape[0]:
+        ax.plot(truth[:, 0], truth[:, 1], "-", color="black", lw=1.5, zorder=4, label="truth")
+    if waypoints.shape[0]:
+        ax.plot(
+            waypoints[:, 0],
+            waypoints[:, 1],
+            "o",
+            mfc="none",
+            mec="black",
+            ms=6,
+            zorder=5,
+            label="waypoints",
+        )
+    if est.shape[0]:
+        ok = np.ones(est.shape[0], dtype=bool) if floor_ok is None else floor_ok
+        ax.plot(est[:, 0], est[:, 1], "-", color="tab:blue", lw=0.6, alpha=0.5, zorder=6)
+        ax.plot(est[ok, 0], est[ok, 1], ".", color="tab:blue", ms=5, zorder=7, label="estimate")
+        if not ok.all():
+            ax.plot(
+                est[~ok, 0],
+                est[~ok, 1],
+                ".",
+                color="red",
+                ms=6,
+                zorder=8,
+                label="estimate, wrong floor",
+            )
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.autoscale_view()
+    ax.set_xlabel("x (m, east)")
+    ax.set_ylabel("y (m, north)")
+    ax.set_title(title)
+    if ax.get_legend_handles_labels()[1]:
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small")
+    return _save(fig, out)

@@ -1,0 +1,199 @@
+"""The ``wknn`` engine on a toy two-floor map where the answer is known exactly.
+
+Each floor has 3 x 3 reference points 2 m apart. Three WiFi access points per floor and
+one BLE beacon per floor fade 6 dB per metre from their spot and 20 dB per floor crossed,
+so every RP's fingerprint is distinct.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+import pytest
+
+from server.positioning.engines import ENGINES, get_engine
+from server.positioning.engines.base import FloorRef, SiteMaps
+from server.positioning.engines.step_ekf import StepEkfParams
+from server.positioning.engines.wknn import SPEC, WknnParams, WknnState, initial_state, run
+from server.positioning.events import (
+    BleEvent,
+    Event,
+    Fix,
+    MagEvent,
+    RadioReading,
+    StepEvent,
+    WifiEvent,
+)
+from server.positioning.fingerprint import MISSING_DBM, RadioMap, scan_vector, wknn
+
+GRID = np.array([(x, y) for y in (0.0, 2.0, 4.0) for x in (0.0, 2.0, 4.0)])
+# (key, x, y, floor) of each emitter
+EMITTERS = (
+    ("wifi:aa", 0.0, 0.0, 0),
+    ("wifi:bb", 4.0, 0.0, 0),
+    ("wifi:cc", 0.0, 4.0, 0),
+    ("wifi:dd", 4.0, 4.0, 1),
+    ("wifi:ee", 0.0, 4.0, 1),
+    ("wifi:ff", 4.0, 0.0, 1),
+    ("ble:b0", 0.0, 0.0, 0),
+    ("ble:b1", 4.0, 4.0, 1),
+)
+
+
+def toy_map(with_ble: bool = True) -> RadioMap:
+    emitters = [e for e in EMITTERS if with_ble or e[0].startswith("wifi:")]
+    xy = np.concatenate([GRID, GRID])
+    floor = np.repeat([0, 1], len(GRID))
+    mean = np.empty((len(xy), len(emitters)))
+    for j, (_, ex, ey, ef) in enumerate(emitters):
+        d = np.hypot(xy[:, 0] - ex, xy[:, 1] - ey)
+        mean[:, j] = -40.0 - 6.0 * d - 20.0 * np.abs(floor - ef)
+    return RadioMap(
+        rp_xy=xy.astype(np.float32),
+        rp_floor=floor.astype(np.int32),
+        mean_dbm=mean.astype(np.float32),
+        var_db2=np.full(mean.shape, 4.0, dtype=np.float32),
+        count=np.ones(mean.shape, dtype=np.int32),
+        emitters=tuple(e[0] for e in emitters),
+    )
+
+
+FLOORS = (FloorRef("b", "f0", 0), FloorRef("b", "f1", 1))
+MAPS = SiteMaps(floors=FLOORS, radio=toy_map(), version="toy")
+
+
+def readings_of(radio_map: RadioMap, rp: int, kind: str) -> tuple[RadioReading, ...]:
+    """The RP's fingerprint as a scan of the given kind."""
+    prefix = f"{kind}:"
+    return tuple(
+        RadioReading(key.removeprefix(prefix).upper(), float(radio_map.mean_dbm[rp, j]))
+        for j, key in enumerate(radio_map.emitters)
+        if key.startswith(prefix) and radio_map.mean_dbm[rp, j] > MISSING_DBM
+    )
+
+
+def run_all(
+    events: list[Event], maps: SiteMaps = MAPS, params: WknnParams | None = None
+) -> tuple[WknnState, list[Fix]]:
+    p = params or WknnParams()
+    return run(initial_state(p), events, maps, p, np.random.default_rng(0))
+
+
+@pytest.mark.parametrize("rp", [0, 4, 8, 9, 13, 17])
+def test_a_scan_equal_to_a_fingerprint_gives_that_rp_and_floor(rp: int) -> None:
+    assert MAPS.radio is not None
+    state, fixes = run_all([WifiEvent(100, readings_of(MAPS.radio, rp, "wifi"))])
+    assert len(fixes) == 1
+    fix = fixes[0]
+    assert (fix.x_m, fix.y_m) == pytest.approx(tuple(MAPS.radio.rp_xy[rp]), abs=1e-4)
+    assert fix.floor == int(MAPS.radio.rp_floor[rp])
+    assert fix.t_ms == 100
+    assert fix.source == "wifi"
+    assert fix.heading_rad is None
+    # the exact match gets nearly all the weight: eq 17 spread ~0, so the floor of 4 m²
+    assert fix.cov == (4.0, 0.0, 0.0, 4.0)
+    assert fix.diagnostics["n_matched"] == 6.0
+    assert fix.diagnostics["wknn_var_m2"] == pytest.approx(0.0, abs=1e-4)
+    assert state == WknnState(floor=fix.floor, n_fixes=1, last_t_ms=100)
+
+
+@pytest.mark.parametrize(("rp", "floor"), [(0, 0), (17, 1)])
+def test_ble_scans_give_ble_fixes(rp: int, floor: int) -> None:
+    assert MAPS.radio is not None
+    _, fixes = run_all([BleEvent(5, readings_of(MAPS.radio, rp, "ble"))])
+    assert len(fixes) == 1
+    assert fixes[0].source == "ble"
+    assert fixes[0].floor == floor
+    assert (fixes[0].x_m, fixes[0].y_m) == pytest.approx(tuple(MAPS.radio.rp_xy[rp]), abs=1e-4)
+
+
+def test_ble_scans_give_nothing_on_a_map_without_ble_columns() -> None:
+    maps = SiteMaps(floors=FLOORS, radio=toy_map(with_ble=False), version="wifi-only")
+    state, fixes = run_all([BleEvent(5, readings_of(toy_map(), 0, "ble"))], maps=maps)
+    assert fixes == []
+    assert state.n_fixes == 0
+
+
+def test_fix_is_the_wknn_of_the_scan_with_the_variance_floor() -> None:
+    assert MAPS.radio is not None
+    rng = np.random.default_rng(4)
+    scan = tuple(
+        RadioReading(r.emitter, r.rssi_dbm + float(rng.normal(0.0, 6.0)))
+        for r in readings_of(MAPS.radio, 4, "wifi")
+    )
+    params = WknnParams(k=3, min_fix_var_m2=0.01)
+    _, fixes = run_all([WifiEvent(0, scan)], params=params)
+    expected = wknn(MAPS.radio, scan_vector(MAPS.radio, scan, "wifi"), k=3)
+    assert expected is not None
+    var = max(expected.var_m2, 0.01)
+    assert (fixes[0].x_m, fixes[0].y_m, fixes[0].floor) == (
+        expected.x_m,
+        expected.y_m,
+        expected.floor,
+    )
+    assert fixes[0].cov == (var, 0.0, 0.0, var)
+
+
+def test_one_fix_per_scan_in_time_order_other_events_ignored() -> None:
+    assert MAPS.radio is not None
+    events: list[Event] = [
+        WifiEvent(300, readings_of(MAPS.radio, 13, "wifi")),
+        StepEvent(150, 0.7, 0.0),
+        MagEvent(160, magnitude_ut=45.0),
+        WifiEvent(100, readings_of(MAPS.radio, 2, "wifi")),
+        WifiEvent(200, (RadioReading("unknown", -50.0),)),  # hears no map column
+    ]
+    state, fixes = run_all(events)
+    assert [f.t_ms for f in fixes] == [100, 300]
+    assert [f.floor for f in fixes] == [0, 1]
+    assert state == WknnState(floor=1, n_fixes=2, last_t_ms=300)
+
+
+def test_no_map_no_fixes() -> None:
+    maps = SiteMaps(floors=FLOORS, radio=None, version="empty")
+    state, fixes = run_all([WifiEvent(10, (RadioReading("aa", -50.0),))], maps=maps)
+    assert fixes == []
+    assert state.n_fixes == 0
+    assert state.floor == -1
+
+
+def test_state_round_trips_through_arrays_and_batches_compose() -> None:
+    assert MAPS.radio is not None
+    events: list[Event] = [
+        WifiEvent(100 * i, readings_of(MAPS.radio, rp, "wifi"))
+        for i, rp in enumerate([0, 5, 10, 15], start=1)
+    ]
+    params = WknnParams()
+    state, first = run(initial_state(params), events[:2], MAPS, params, np.random.default_rng(1))
+    arrays = state.to_arrays()
+    assert all(a.dtype == np.int64 and a.shape == () for a in arrays.values())
+    restored = SPEC.from_arrays(arrays)
+    assert restored == state
+    state, second = run(restored, events[2:], MAPS, params, np.random.default_rng(2))
+    whole_state, whole = run_all(events)
+    assert state == whole_state == WknnState(floor=1, n_fixes=4, last_t_ms=400)
+    assert first + second == whole
+
+
+def test_registered_in_engines() -> None:
+    assert ENGINES["wknn"] is SPEC
+    assert get_engine("wknn").name == "wknn"
+    assert SPEC.params_type is WknnParams
+    assert SPEC.initial_state(WknnParams()) == WknnState()
+    assert SPEC.uses == frozenset({"wifi", "ble"})
+
+
+def test_defaults_match_step_ekf() -> None:
+    ours, theirs = WknnParams(), StepEkfParams()
+    assert ours.k == theirs.k
+    assert ours.min_fix_var_m2 == theirs.min_fix_var_m2
+
+
+@pytest.mark.parametrize(
+    "change", [{"k": 0}, {"min_fix_var_m2": 0.0}, {"min_fix_var_m2": float("nan")}]
+)
+def test_bad_params_are_refused(change: dict[str, Any]) -> None:
+    with pytest.raises(ValueError, match=next(iter(change))):
+        dataclasses.replace(WknnParams(), **change)

@@ -1,0 +1,175 @@
+"""Figures are written as PNG files of the expected size, without pyplot state."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+pytest.importorskip("matplotlib")
+
+from matplotlib.image import imread
+
+from server.services.plots import DPI, plot_error_cdf, plot_track
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+PLAN: dict[str, Any] = {
+    "type": "FeatureCollection",
+    "features": [
+        {
+            "type": "Feature",
+            "properties": {"kind": "outline"},
+            "geometry": {
+                "type": "Polygon",
+                "coordinates": [
+                    [[0, 0], [30, 0], [30, 20], [0, 20], [0, 0]],
+                    [[12, 8], [12, 12], [18, 12], [18, 8], [12, 8]],  # an atrium
+                ],
+            },
+        },
+        {
+            "type": "Feature",
+            "properties": {"kind": "unit", "name": "shops"},
+            "geometry": {
+                "type": "MultiPolygon",
+                "coordinates": [
+                    [[[1, 1], [8, 1], [8, 6], [1, 6], [1, 1]]],
+                    [[[22, 1], [29, 1], [29, 6], [22, 6], [22, 1]]],
+                ],
+            },
+        },
+        {
+            "type": "Feature",
+            "properties": {},
+            "geometry": {"type": "LineString", "coordinates": [[0, 10], [10, 10]]},
+        },
+        {
+            "type": "Feature",
+            "properties": None,
+            "geometry": {"type": "Point", "coordinates": [5, 5]},
+        },
+        {"type": "Feature", "properties": {"kind": "unit"}, "geometry": None},
+        {
+            "type": "Feature",
+            "properties": {},
+            "geometry": {"type": "LineString", "coordinates": [[0, 1], [2, 3, 4]]},  # ragged
+        },
+        {
+            "type": "Feature",
+            "properties": {"kind": "unit"},
+            "geometry": {"type": "Polygon", "coordinates": [[]]},  # empty ring: skipped
+        },
+        {
+            "type": "Feature",
+            "properties": {"kind": 3},
+            "geometry": {
+                "type": "GeometryCollection",
+                "geometries": [
+                    {"type": "MultiLineString", "coordinates": [[[20, 18, 0], [28, 18, 0]]]}
+                ],
+            },
+        },
+    ],
+}
+
+
+def assert_png(path: Path, width_in: float, height_in: float) -> None:
+    assert path.read_bytes()[:8] == PNG_SIGNATURE
+    image = imread(path)
+    assert image.shape[:2] == (round(height_in * DPI), round(width_in * DPI))
+
+
+def walk() -> tuple[np.ndarray, np.ndarray]:
+    truth = np.array([(2.0, 8.0), (25.0, 8.0), (25.0, 15.0), (5.0, 15.0)])
+    rng = np.random.default_rng(0)
+    t = np.linspace(0.0, 3.0, 40)
+    leg = np.minimum(t.astype(int), 2)
+    est = truth[leg] + (t - leg)[:, None] * (truth[leg + 1] - truth[leg])
+    return truth, est + rng.normal(0.0, 1.0, est.shape)
+
+
+def test_error_cdf_is_written(tmp_path: Path) -> None:
+    rng = np.random.default_rng(1)
+    out = plot_error_cdf(
+        {
+            "wknn": np.abs(rng.normal(0.0, 4.0, 300)).tolist(),
+            "step_ekf": [*np.abs(rng.normal(0.0, 2.0, 300)).tolist(), float("nan")],
+            "nothing": [],
+        },
+        tmp_path / "figures" / "cdf.png",
+        title="horizontal error",
+    )
+    assert out == tmp_path / "figures" / "cdf.png"
+    assert_png(out, 7.0, 4.5)
+
+
+def test_track_with_a_plan_is_written(tmp_path: Path) -> None:
+    truth, est = walk()
+    floor_ok = np.ones(len(est), dtype=bool)
+    floor_ok[5:9] = False
+    sigma = np.full(len(est), 1.5)
+    sigma[0] = np.nan
+    out = plot_track(
+        tmp_path / "wknn" / "F1_path.png",
+        title="wknn · F1 · path",
+        plan=PLAN,
+        truth_xy_m=truth,
+        est_xy_m=est,
+        est_floor_ok=floor_ok,
+        waypoint_xy_m=truth,
+        sigma_m=sigma,
+    )
+    assert_png(out, 8.0, 6.0)
+
+
+def test_track_without_plan_or_estimates_is_written(tmp_path: Path) -> None:
+    truth, _ = walk()
+    out = plot_track(
+        tmp_path / "empty.png",
+        title="no fixes",
+        plan=None,
+        truth_xy_m=truth,
+        est_xy_m=np.zeros((0, 2)),
+        est_floor_ok=np.zeros(0, dtype=bool),
+        sigma_m=np.zeros(0),
+    )
+    assert_png(out, 8.0, 6.0)
+
+
+def test_track_refuses_mismatched_arrays(tmp_path: Path) -> None:
+    truth, est = walk()
+    with pytest.raises(ValueError, match="est_floor_ok"):
+        plot_track(
+            tmp_path / "x.png",
+            title="",
+            plan=None,
+            truth_xy_m=truth,
+            est_xy_m=est,
+            est_floor_ok=[True],
+        )
+    with pytest.raises(ValueError, match="est_xy_m"):
+        plot_track(tmp_path / "x.png", title="", plan=None, truth_xy_m=truth, est_xy_m=[1, 2, 3])
+
+
+def test_many_figures_leave_no_pyplot_figures(tmp_path: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    truth, est = walk()
+    for i in range(20):
+        plot_track(tmp_path / f"{i}.png", title="", plan=PLAN, truth_xy_m=truth, est_xy_m=est)
+        plot_error_cdf({"a": [1.0, 2.0]}, tmp_path / f"cdf{i}.png", title="")
+    assert plt.get_fignums() == []
+
+
+def test_missing_matplotlib_names_the_extra(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    for name in ("matplotlib", "matplotlib.figure", "matplotlib.backends.backend_agg"):
+        monkeypatch.setitem(sys.modules, name, None)
+    with pytest.raises(RuntimeError, match=r"indoorpos\[plots\]"):
+        plot_error_cdf({"a": [1.0]}, tmp_path / "cdf.png", title="")
+    assert not (tmp_path / "cdf.png").exists()
