@@ -38,8 +38,9 @@ more bad line.
 WiFi scans: the rows of one scan share the first-column timestamp (the scan time) and
 become one ``WifiEvent``. Android also returns cached results (rows whose ``last_seen``
 is older than the scan); by default they are kept, and ``wifi_max_age_ms`` drops them
-(see ``WIFI_MAX_AGE_MS`` for the figures and why the default keeps them). A BSSID listed twice in one scan (one radio announcing several
-SSIDs) keeps its strongest reading, as ``fingerprint.scan_vector`` does.
+(see ``WIFI_MAX_AGE_MS`` for the figures and why the default keeps them). A BSSID listed
+twice in one scan (one radio announcing several SSIDs) keeps its strongest reading, as
+``fingerprint.scan_vector`` does.
 
 Floor plans: ``geojson_map.json`` is converted into the waypoint frame. The bounding box
 of its first feature (the floor outline) maps linearly onto ``[0, width] x [0, height]``
