@@ -1,0 +1,130 @@
+"""Evaluation harness: the split, the estimate at a waypoint, and a whole run on one floor."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from server.cli import app
+from server.datasets.ilc import IlcFloor, IlcSite, IlcTrace, read_site
+from server.positioning.events import Fix, StepEvent
+from server.services import evaluation
+
+DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
+SITE2 = DATA / "ilc20-sample" / "site2"
+needs_data = pytest.mark.skipif(
+    not SITE2.is_dir(), reason="../shared/data is not beside the project"
+)
+
+
+def _site(n_per_floor: tuple[int, ...]) -> IlcSite:
+    floors = tuple(
+        IlcFloor(
+            name=f"F{i + 1}",
+            level=i,
+            width_m=10.0,
+            height_m=10.0,
+            plan=None,
+            trace_files=tuple(Path(f"f{i}/p{j:03d}.txt") for j in range(n)),
+        )
+        for i, n in enumerate(n_per_floor)
+    )
+    return IlcSite("toy", floors)
+
+
+def test_split_is_deterministic_disjoint_and_complete() -> None:
+    site = _site((10, 5, 2, 1))
+    a = evaluation.split_site(site, 7, 0.8)
+    b = evaluation.split_site(site, 7, 0.8)
+    assert a == b
+    train, test = set(a.train), set(a.test)
+    assert not train & test
+    everything = {(i, p) for i, f in enumerate(site.floors) for p in f.trace_files}
+    assert train | test == everything
+    per_floor_train = [sum(1 for i, _ in a.train if i == f) for f in range(4)]
+    assert per_floor_train == [8, 4, 1, 1]  # 80 %, at least one on each side when possible
+    other = evaluation.split_site(site, 8, 0.8)
+    assert other.train != a.train
+
+
+def test_split_ignores_listing_order() -> None:
+    site = _site((10,))
+    shuffled = IlcSite(
+        "toy", (IlcFloor("F1", 0, 10.0, 10.0, None, tuple(reversed(site.floors[0].trace_files))),)
+    )
+    assert evaluation.split_site(site, 3, 0.8) == evaluation.split_site(shuffled, 3, 0.8)
+
+
+def _fix(t_ms: int, x_m: float, floor: int = 0) -> Fix:
+    return Fix(t_ms, x_m, 0.0, floor, None, (4.0, 0.0, 0.0, 4.0), "wifi")
+
+
+def test_estimate_is_the_last_fix_at_or_before_the_waypoint() -> None:
+    trace = IlcTrace(
+        path_id="p",
+        floor="F1",
+        site_id=None,
+        waypoint_t_ms=np.array([100, 200, 300], dtype=np.int64),
+        waypoint_xy_m=np.array([[0.0, 0.0], [5.0, 0.0], [9.0, 0.0]]),
+        wifi=(),
+        ble=(),
+        accel=np.zeros((0, 4)),
+        gyro=np.zeros((0, 4)),
+        magnetic=np.zeros((0, 4)),
+        rotation=np.zeros((0, 4)),
+        uncalibrated=frozenset(),
+        bad_lines=0,
+        joined_lines=0,
+        stale_wifi_readings=0,
+        skipped_types={},
+        t_first_ms=0,
+        t_last_ms=300,
+    )
+    fixes = [_fix(250, 7.0, floor=1), _fix(150, 4.0), _fix(200, 5.5)]
+    est = evaluation.estimates_at_waypoints(trace, 0, fixes)
+    assert np.isnan(est.est_xy_m[0]).all()  # nothing yet at t=100
+    assert est.est_xy_m[1, 0] == 5.5  # the fix at exactly t=200
+    assert est.est_xy_m[2, 0] == 7.0
+    assert est.est_floor.tolist() == [-1, 0, 1]
+    assert est.sigma_m[1] == pytest.approx(2.0)
+
+
+def test_batches_cut_phone_time() -> None:
+    events = [StepEvent(t, 0.7, 0.0) for t in (0, 400, 999, 1000, 2600)]
+    cut = evaluation.batches(events, batch_ms=1000)
+    assert [[e.t_ms for e in b] for b in cut] == [[0, 400, 999], [1000], [2600]]
+
+
+@needs_data
+def test_evaluate_one_floor_from_the_command_line(tmp_path: Path) -> None:
+    out = tmp_path / "out.json"
+    plots = tmp_path / "plots"
+    result = CliRunner().invoke(
+        app,
+        [
+            "evaluate",
+            "ilc",
+            str(SITE2 / "F4"),
+            "--engine",
+            "wknn",
+            "--json",
+            str(out),
+            "--plots",
+            str(plots),
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    report = json.loads(out.read_text())
+    site = read_site(SITE2 / "F4")
+    n_traces = len(site.floors[0].trace_files)
+    assert report["engine"] == "wknn"
+    assert report["train_paths"] + report["test_paths"] == n_traces
+    assert report["floor_hit_rate"] == 1.0  # one floor: nothing else to pick
+    assert report["n_points"] > 0
+    assert 0 < report["p50_m"] <= report["p90_m"] <= report["max_m"]
+    assert (plots / "error_cdf.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert len(list((plots / "wknn").glob("*.png"))) == report["test_paths"]
