@@ -254,6 +254,14 @@ def evaluate_ilc(
     admin_key: Annotated[
         str | None, typer.Option(envvar="INDOORPOS_ADMIN_KEY", help="admin key for --via-http")
     ] = None,
+    validation: Annotated[
+        bool,
+        typer.Option(
+            "--validation",
+            help="score on a split inside the training traces (for choosing parameters); "
+            "the test traces are not read",
+        ),
+    ] = False,
 ) -> None:
     """Replay ILC 2.0 test traces through engines, with maps built from training traces."""
     from server.services import evaluation
@@ -272,6 +280,7 @@ def evaluate_ilc(
 
         for name in engine:
             tasks.clear()
+            replayer = _http_replayer(via_http, admin_key or "", progress) if via_http else None
             runs.append(
                 evaluation.evaluate_ilc(
                     site_dir,
@@ -279,6 +288,8 @@ def evaluate_ilc(
                     split_seed=split_seed,
                     train_fraction=train_fraction,
                     progress=progress,
+                    replayer=replayer,
+                    validation=validation,
                 )
             )
     for run in runs:

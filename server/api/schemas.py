@@ -13,7 +13,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 MAX_EVENTS_PER_BATCH = 2000
-MAX_READINGS_PER_SCAN = 512
+MAX_READINGS_PER_SCAN = 2048  # malls with every SSID per radio reach 500+
 
 FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
 TimestampMs = Annotated[int, Field(ge=0, description="milliseconds since the epoch")]

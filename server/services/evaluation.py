@@ -17,7 +17,7 @@ point (no gridding: the published baselines match against raw fingerprints), flo
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -73,6 +73,15 @@ def split_site(site: IlcSite, seed: int, train_fraction: float) -> SplitPaths:
         train += [(index, files[i]) for i in sorted(order[:n_train].tolist())]
         test += [(index, files[i]) for i in sorted(order[n_train:].tolist())]
     return SplitPaths(tuple(train), tuple(test))
+
+
+def _restrict(site: IlcSite, paths: Iterable[tuple[int, Path]]) -> IlcSite:
+    keep = set(paths)
+    floors = tuple(
+        replace(f, trace_files=tuple(p for p in f.trace_files if (i, p) in keep))
+        for i, f in enumerate(site.floors)
+    )
+    return replace(site, floors=floors)
 
 
 def _path_id(path: Path) -> str:
@@ -268,10 +277,17 @@ def evaluate_ilc(
     train_fraction: float = 0.8,
     progress: Progress | None = None,
     replayer: Replayer | None = None,
+    validation: bool = False,
 ) -> IlcEvaluation:
+    """Build maps from the training traces and score the engine on the test traces; with
+    ``validation`` the test traces are left out entirely and the training traces are split
+    again (seed + 1) into map and validation traces, for choosing parameters."""
     get_engine(engine)  # fail early on an unknown engine name
     site = read_site(site_dir)
     split = split_site(site, split_seed, train_fraction)
+    if validation:
+        training_only = _restrict(site, split.train)
+        split = split_site(training_only, split_seed + 1, train_fraction)
     maps, labelled, bad_lines = build_site_maps(site, split.train, progress)
     traces = []
     for done, (floor_index, path) in enumerate(split.test, start=1):
@@ -294,7 +310,7 @@ def evaluate_ilc(
     summary = summarize(
         results,
         engine=engine,
-        dataset=f"ilc:{site.name}",
+        dataset=f"ilc:{site.name}" + (":validation" if validation else ""),
         split_seed=split_seed,
         train_fraction=train_fraction,
         train_paths=len(split.train),
