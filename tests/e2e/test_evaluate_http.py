@@ -1,0 +1,36 @@
+"""`indoorpos evaluate ilc --via-http` gives the figures of the in-process replay."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from server.cli import app
+from tests.conftest import ADMIN_KEY
+
+FLOOR = (
+    Path(__file__).resolve().parents[2].parent / "shared" / "data" / "ilc20-sample" / "site2" / "F4"
+)
+
+
+@pytest.mark.skipif(not FLOOR.is_dir(), reason="../shared/data is not beside the project")
+def test_same_figures_through_the_api(live_url: str, tmp_path: Path) -> None:
+    runner = CliRunner()
+    args = ["evaluate", "ilc", str(FLOOR), "--engine", "wknn", "--json"]
+    local = runner.invoke(app, [*args, str(tmp_path / "local.json")])
+    assert local.exit_code == 0, local.output
+    remote = runner.invoke(
+        app,
+        [*args, str(tmp_path / "http.json"), "--via-http", live_url, "--admin-key", ADMIN_KEY],
+    )
+    assert remote.exit_code == 0, remote.output
+    a = json.loads((tmp_path / "local.json").read_text())
+    b = json.loads((tmp_path / "http.json").read_text())
+    assert a["n_points"] > 0
+    for key in ("n_points", "n_missing", "floor_hit_rate"):
+        assert a[key] == b[key]
+    for key in ("mean_m", "p50_m", "p90_m", "max_m"):
+        assert b[key] == pytest.approx(a[key], rel=1e-6)
