@@ -128,3 +128,36 @@ def test_evaluate_one_floor_from_the_command_line(tmp_path: Path) -> None:
     assert 0 < report["p50_m"] <= report["p90_m"] <= report["max_m"]
     assert (plots / "error_cdf.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert len(list((plots / "wknn").glob("*.png"))) == report["test_paths"]
+
+
+@needs_data
+def test_evaluate_a_small_site_with_plain_and_xz_traces(tmp_path: Path) -> None:
+    """Another site in the ILC layout: two floors, traces as .txt and .txt.xz mixed."""
+    import lzma
+    import shutil
+
+    site_dir = tmp_path / "mini"
+    for floor in ("F1", "F2"):
+        source = SITE2 / floor
+        target = site_dir / floor / "path_data_files"
+        target.mkdir(parents=True)
+        for name in ("floor_info.json", "geojson_map.json"):
+            shutil.copy(source / name, site_dir / floor / name)
+        for i, trace in enumerate(sorted((source / "path_data_files").glob("*.txt.xz"))[:5]):
+            if i % 2:
+                shutil.copy(trace, target / trace.name)
+            else:
+                (target / trace.name.removesuffix(".xz")).write_bytes(
+                    lzma.decompress(trace.read_bytes())
+                )
+    out = tmp_path / "out.json"
+    result = CliRunner().invoke(
+        app, ["evaluate", "ilc", str(site_dir), "--engine", "wknn", "--json", str(out)]
+    )
+    assert result.exit_code == 0, result.output
+    report = json.loads(out.read_text())
+    assert report["dataset"] == "ilc:mini"
+    assert report["floors"] == 2
+    assert report["train_paths"] == 8
+    assert report["test_paths"] == 2
+    assert report["n_points"] > 0
