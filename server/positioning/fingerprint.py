@@ -223,7 +223,8 @@ def wknn(
     Returns
     -------
     WknnFix or None
-        None when the scan heard no map column or there is no candidate RP.
+        None when the scan heard no map column or no candidate RP hears any emitter of
+        the scan.
     """
     if k < 1:
         raise ValueError(f"k must be at least 1, got {k}")
@@ -236,10 +237,14 @@ def wknn(
         cand = np.asarray(candidates)
         # sorted and unique, so ties in distance go to the lower RP index
         cand = np.flatnonzero(cand) if cand.dtype == bool else np.unique(cand.astype(np.int64))
+    # RPs that share no emitter with the scan are all equally far from it; letting them
+    # in would make neighbours of arbitrary RPs, chosen by their order in the map
+    heard = np.flatnonzero(scan.mask & (scan.rssi_dbm > MISSING_DBM))
+    cand = cand[(radio_map.count[np.ix_(cand, heard)] > 0).any(axis=1)]
     if cand.size == 0:
         return None
 
-    dist = signal_distances(radio_map, scan, None if candidates is None else cand)
+    dist = signal_distances(radio_map, scan, cand)
     inv = 1.0 / np.maximum(dist, DISTANCE_EPS_DB)
     floors = radio_map.rp_floor[cand].astype(np.int64)
 
