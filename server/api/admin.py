@@ -8,7 +8,7 @@ from fastapi import APIRouter, status
 
 from server.api import schemas as sc
 from server.api.convert import ble_pairs, wifi_pairs
-from server.api.deps import AdminDep, SqlDep
+from server.api.deps import AdminDep, IdPath, SqlDep
 from server.services import maps, sites
 
 router = APIRouter(prefix="/v1", tags=["admin"], dependencies=[AdminDep])
@@ -41,57 +41,57 @@ async def list_sites(s: SqlDep) -> sc.SiteList:
 
 
 @router.get("/sites/{site_id}")
-async def get_site(site_id: str, s: SqlDep) -> sc.SiteRead:
+async def get_site(site_id: IdPath, s: SqlDep) -> sc.SiteRead:
     return sc.SiteRead.model_validate(await sites.get_site(s, site_id), from_attributes=True)
 
 
 @router.post("/sites/{site_id}/buildings", status_code=status.HTTP_201_CREATED)
-async def create_building(site_id: str, body: sc.BuildingCreate, s: SqlDep) -> sc.BuildingRead:
+async def create_building(site_id: IdPath, body: sc.BuildingCreate, s: SqlDep) -> sc.BuildingRead:
     building = await sites.create_building(s, site_id, **body.model_dump())
     return sc.BuildingRead.model_validate(building, from_attributes=True)
 
 
 @router.get("/sites/{site_id}/buildings")
-async def list_buildings(site_id: str, s: SqlDep) -> sc.BuildingList:
+async def list_buildings(site_id: IdPath, s: SqlDep) -> sc.BuildingList:
     rows = await sites.list_buildings(s, site_id)
     items = [sc.BuildingRead.model_validate(b, from_attributes=True) for b in rows]
     return sc.BuildingList(items=items, count=len(items))
 
 
 @router.get("/buildings/{building_id}")
-async def get_building(building_id: str, s: SqlDep) -> sc.BuildingRead:
+async def get_building(building_id: IdPath, s: SqlDep) -> sc.BuildingRead:
     building = await sites.get_building(s, building_id)
     return sc.BuildingRead.model_validate(building, from_attributes=True)
 
 
 @router.post("/buildings/{building_id}/floors", status_code=status.HTTP_201_CREATED)
-async def create_floor(building_id: str, body: sc.FloorCreate, s: SqlDep) -> sc.FloorRead:
+async def create_floor(building_id: IdPath, body: sc.FloorCreate, s: SqlDep) -> sc.FloorRead:
     return _floor(await sites.create_floor(s, building_id, body.level, body.name))
 
 
 @router.get("/buildings/{building_id}/floors")
-async def list_floors(building_id: str, s: SqlDep) -> sc.FloorList:
+async def list_floors(building_id: IdPath, s: SqlDep) -> sc.FloorList:
     items = [_floor(f) for f in await sites.list_floors(s, building_id)]
     return sc.FloorList(items=items, count=len(items))
 
 
 @router.get("/floors/{floor_id}")
-async def get_floor(floor_id: str, s: SqlDep) -> sc.FloorRead:
+async def get_floor(floor_id: IdPath, s: SqlDep) -> sc.FloorRead:
     return _floor(await sites.get_floor(s, floor_id))
 
 
 @router.put("/floors/{floor_id}/plan")
-async def put_floor_plan(floor_id: str, body: sc.FloorPlan, s: SqlDep) -> sc.FloorRead:
+async def put_floor_plan(floor_id: IdPath, body: sc.FloorPlan, s: SqlDep) -> sc.FloorRead:
     return _floor(await sites.put_floor_plan(s, floor_id, body.model_dump(mode="json")))
 
 
 @router.get("/floors/{floor_id}/plan")
-async def get_floor_plan(floor_id: str, s: SqlDep) -> sc.FloorPlan:
+async def get_floor_plan(floor_id: IdPath, s: SqlDep) -> sc.FloorPlan:
     return sc.FloorPlan.model_validate(await sites.get_floor_plan(s, floor_id))
 
 
 @router.post("/buildings/{building_id}/survey", status_code=status.HTTP_201_CREATED)
-async def post_survey(building_id: str, body: sc.SurveyIn, s: SqlDep) -> sc.RadioMapRead:
+async def post_survey(building_id: IdPath, body: sc.SurveyIn, s: SqlDep) -> sc.RadioMapRead:
     points = [
         maps.SurveyPointData(
             x_m=p.x_m,
@@ -108,6 +108,6 @@ async def post_survey(building_id: str, body: sc.SurveyIn, s: SqlDep) -> sc.Radi
 
 
 @router.get("/buildings/{building_id}/radio-maps")
-async def list_radio_maps(building_id: str, s: SqlDep) -> sc.RadioMapList:
+async def list_radio_maps(building_id: IdPath, s: SqlDep) -> sc.RadioMapList:
     items = [_radio_map(m) for m in await maps.list_radio_maps(s, building_id)]
     return sc.RadioMapList(items=items, count=len(items))

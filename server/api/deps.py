@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import AsyncIterator
 from typing import Annotated
 
-from fastapi import Depends, Request, WebSocket
+from fastapi import Depends, Path, Request, WebSocket
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.ext.asyncio import AsyncSession
 
@@ -27,6 +27,8 @@ def get_ws_runtime(websocket: WebSocket) -> Runtime:
 
 
 RuntimeDep = Annotated[Runtime, Depends(get_runtime)]
+# ids in paths are the 32-hex-character ids this service hands out
+IdPath = Annotated[str, Path(pattern=r"^[0-9a-f]{32}$")]
 
 
 async def get_sql(rt: RuntimeDep) -> AsyncIterator[AsyncSession]:
@@ -34,7 +36,9 @@ async def get_sql(rt: RuntimeDep) -> AsyncIterator[AsyncSession]:
         yield session
 
 
-SqlDep = Annotated[AsyncSession, Depends(get_sql)]
+# scope="function": the transaction commits before the response leaves, so nothing is
+# acknowledged that could still fail to commit
+SqlDep = Annotated[AsyncSession, Depends(get_sql, scope="function")]
 
 
 def get_bearer(

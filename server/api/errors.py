@@ -27,7 +27,8 @@ EVENT_TAGS = frozenset({"step", "wifi", "ble", "mag"})
 def _clean_loc(loc: tuple[Any, ...] | list[Any]) -> list[Any]:
     out: list[Any] = []
     for item in loc:
-        if item in EVENT_TAGS and out and isinstance(out[-1], int):
+        after_event = len(out) >= 2 and isinstance(out[-1], int) and out[-2] == "events"
+        if item in EVENT_TAGS and after_event:
             continue
         out.append(item)
     return out

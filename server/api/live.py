@@ -20,7 +20,7 @@ from pydantic import ValidationError
 
 from server.api import schemas as sc
 from server.api.convert import to_events
-from server.api.deps import get_ws_runtime
+from server.api.deps import IdPath, get_ws_runtime
 from server.api.errors import service_detail, validation_detail
 from server.services import sessions
 from server.services.errors import ServiceError, Unauthorized
@@ -55,7 +55,7 @@ def _token(ws: WebSocket, query_token: str | None) -> str:
 @router.websocket("/{session_id}/live")
 async def live(
     websocket: WebSocket,
-    session_id: str,
+    session_id: IdPath,
     rt: Annotated[Runtime, Depends(get_ws_runtime)],
     token: Annotated[str | None, Query()] = None,
 ) -> None:
@@ -87,7 +87,7 @@ async def live(
         tg.cancel_scope.cancel()
 
 
-async def _read(sock: _Socket, rt: Runtime, session_id: str, secret: str) -> None:
+async def _read(sock: _Socket, rt: Runtime, session_id: IdPath, secret: str) -> None:
     while True:
         text = await sock.ws.receive_text()
         try:

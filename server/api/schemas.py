@@ -10,13 +10,29 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
 
 MAX_EVENTS_PER_BATCH = 2000
 MAX_READINGS_PER_SCAN = 2048  # malls with every SSID per radio reach 500+
 
 FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
-TimestampMs = Annotated[int, Field(ge=0, description="milliseconds since the epoch")]
+# below 2**53: exact as a float, and far inside int64
+TimestampMs = Annotated[int, Field(ge=0, le=2**53, description="milliseconds since the epoch")]
+# local coordinates: a building frame is never 100 km across
+Coordinate = Annotated[float, Field(ge=-100_000, le=100_000, allow_inf_nan=False)]
+# ids we hand out are 32 hex characters
+Id = Annotated[str, Field(pattern=r"^[0-9a-f]{32}$", description="an id this service made")]
+# emitter ids: printable ASCII without spaces (BSSIDs, "uuid:major:minor")
+EmitterId = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[!-~]+$")]
+
+
+def _plain_text(value: str) -> str:
+    if any(ord(c) < 32 or ord(c) == 127 or 0xD800 <= ord(c) <= 0xDFFF for c in value):
+        raise ValueError("control characters and unpaired surrogates are not allowed")
+    return value
+
+
+Name = Annotated[str, Field(min_length=1, max_length=200), AfterValidator(_plain_text)]
 
 
 class Strict(BaseModel):
@@ -27,7 +43,7 @@ class Strict(BaseModel):
 
 
 class SiteCreate(Strict):
-    name: Annotated[str, Field(min_length=1, max_length=200)]
+    name: Name
 
 
 class SiteRead(Strict):
@@ -42,7 +58,7 @@ class SiteList(Strict):
 
 
 class BuildingCreate(Strict):
-    name: Annotated[str, Field(min_length=1, max_length=200)]
+    name: Name
     origin_lat: Annotated[float | None, Field(ge=-90, le=90, allow_inf_nan=False)] = None
     origin_lon: Annotated[float | None, Field(ge=-180, le=180, allow_inf_nan=False)] = None
     rotation_rad: FiniteFloat = Field(
@@ -67,7 +83,7 @@ class BuildingList(Strict):
 
 class FloorCreate(Strict):
     level: Annotated[int, Field(ge=-20, le=200)]
-    name: Annotated[str | None, Field(max_length=200)] = None
+    name: Name | None = None
 
 
 class FloorRead(Strict):
@@ -96,12 +112,12 @@ class FloorPlan(BaseModel):
 
 
 class WifiReading(Strict):
-    bssid: Annotated[str, Field(min_length=1, max_length=64)]
+    bssid: EmitterId
     rssi_dbm: Annotated[float, Field(ge=-130, le=0, allow_inf_nan=False)]
 
 
 class BleReading(Strict):
-    id: Annotated[str, Field(min_length=1, max_length=128)]
+    id: EmitterId
     rssi_dbm: Annotated[float, Field(ge=-130, le=0, allow_inf_nan=False)]
 
 
@@ -165,8 +181,8 @@ class FixOut(Strict):
 
 
 class SessionCreate(Strict):
-    site_id: str
-    engine: Annotated[str, Field(min_length=1, max_length=64)] = "step_ekf"
+    site_id: Id
+    engine: Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[a-z0-9_]+$")] = "step_ekf"
 
 
 class SessionCreated(Strict):
@@ -202,8 +218,8 @@ class BatchOut(Strict):
 
 
 class SurveyPoint(Strict):
-    x_m: FiniteFloat
-    y_m: FiniteFloat
+    x_m: Coordinate
+    y_m: Coordinate
     floor: int = Field(description="floor level")
     t: TimestampMs | None = None
     wifi: Annotated[list[WifiReading], Field(max_length=MAX_READINGS_PER_SCAN)] = []
@@ -235,7 +251,7 @@ class RadioMapList(Strict):
 
 
 class LocateIn(Strict):
-    site_id: str
+    site_id: Id
     wifi: Annotated[list[WifiReading], Field(max_length=MAX_READINGS_PER_SCAN)] = []
     ble: Annotated[list[BleReading], Field(max_length=MAX_READINGS_PER_SCAN)] = []
 

@@ -6,7 +6,7 @@ from fastapi import APIRouter, Response, status
 
 from server.api import schemas as sc
 from server.api.convert import to_events
-from server.api.deps import BearerDep, RuntimeDep
+from server.api.deps import BearerDep, IdPath, RuntimeDep
 from server.services import sessions
 
 router = APIRouter(prefix="/v1/sessions", tags=["sessions"])
@@ -26,7 +26,7 @@ async def create_session(body: sc.SessionCreate, rt: RuntimeDep) -> sc.SessionCr
 
 @router.post("/{session_id}/batches")
 async def post_batch(
-    session_id: str, body: sc.BatchIn, rt: RuntimeDep, token: BearerDep
+    session_id: IdPath, body: sc.BatchIn, rt: RuntimeDep, token: BearerDep
 ) -> sc.BatchOut:
     result = await sessions.apply_batch(rt, session_id, token, body.seq, to_events(body.events))
     return sc.BatchOut(
@@ -38,7 +38,7 @@ async def post_batch(
 
 
 @router.get("/{session_id}")
-async def get_session(session_id: str, rt: RuntimeDep, token: BearerDep) -> sc.SessionRead:
+async def get_session(session_id: IdPath, rt: RuntimeDep, token: BearerDep) -> sc.SessionRead:
     info = await sessions.get_session(rt, session_id, token)
     return sc.SessionRead(
         id=info.id,
@@ -51,6 +51,6 @@ async def get_session(session_id: str, rt: RuntimeDep, token: BearerDep) -> sc.S
 
 
 @router.delete("/{session_id}", status_code=status.HTTP_204_NO_CONTENT)
-async def end_session(session_id: str, rt: RuntimeDep, token: BearerDep) -> Response:
+async def end_session(session_id: IdPath, rt: RuntimeDep, token: BearerDep) -> Response:
     await sessions.end_session(rt, session_id, token)
     return Response(status_code=status.HTTP_204_NO_CONTENT)

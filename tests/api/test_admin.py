@@ -79,12 +79,60 @@ async def test_site_building_floor_round_trip(
 async def test_missing_things_are_404_naming_the_field(
     client: httpx.AsyncClient, admin: dict[str, str]
 ) -> None:
-    r = await client.get("/v1/sites/nope", headers=admin)
+    unknown = "0" * 32
+    r = await client.get(f"/v1/sites/{unknown}", headers=admin)
     assert r.status_code == 404
     assert "site_id" in r.json()["message"]
-    r = await client.post("/v1/buildings/nope/floors", json={"level": 0}, headers=admin)
+    r = await client.post(f"/v1/buildings/{unknown}/floors", json={"level": 0}, headers=admin)
     assert r.status_code == 404
     assert "building_id" in r.json()["message"]
+    # something that cannot be an id of ours is refused before any lookup
+    for bad in ("nope", "%00", "a" * 33):
+        r = await client.get(f"/v1/sites/{bad}", headers=admin)
+        assert r.status_code == 422
+        assert "site_id" in r.json()["message"]
+
+
+@pytest.mark.parametrize(
+    ("body", "field"),
+    [
+        ({"name": "a\u0000b"}, "name"),
+        ({"name": "\ud800"}, "name"),
+        ({"name": ""}, "name"),
+    ],
+)
+async def test_bad_names_are_422(
+    client: httpx.AsyncClient, admin: dict[str, str], body: dict[str, str], field: str
+) -> None:
+    import json
+
+    raw = json.dumps(body)  # \u escapes: the control character arrives as such
+    r = await client.post(
+        "/v1/sites", content=raw, headers={**admin, "content-type": "application/json"}
+    )
+    assert r.status_code == 422, r.text
+    assert field in r.json()["message"]
+
+
+async def test_survey_errors_name_the_reading(
+    client: httpx.AsyncClient, admin: dict[str, str]
+) -> None:
+    site = await build_toy_site(client, admin)
+    url = f"/v1/buildings/{site.building_id}/survey"
+    body = {
+        "points": [{"x_m": 0, "y_m": 0, "floor": 0, "wifi": [{"bssid": "a b", "rssi_dbm": -50}]}]
+    }
+    r = await client.post(url, json=body, headers=admin)
+    assert r.status_code == 422
+    assert "points.0.wifi.0.bssid" in r.json()["message"]
+    far = {"points": [{"x_m": 1e39, "y_m": 0, "floor": 0}]}
+    r = await client.post(url, json=far, headers=admin)
+    assert r.status_code == 422
+    assert "points.0.x_m" in r.json()["message"]
+    late = {"points": [{"x_m": 0, "y_m": 0, "floor": 0, "t": 2**63}]}
+    r = await client.post(url, json=late, headers=admin)
+    assert r.status_code == 422
+    assert "points.0.t" in r.json()["message"]
 
 
 async def test_survey_builds_new_versions(client: httpx.AsyncClient, admin: dict[str, str]) -> None:

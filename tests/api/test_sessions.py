@@ -168,6 +168,11 @@ async def test_other_sessions_token_is_forbidden(client: httpx.AsyncClient, site
         ),
         ({"type": "wifi", "readings": []}, "events.1.t"),
         ({"type": "mag", "t": T0}, "events.1"),
+        ({"type": "step", "t": 2**63, "length_m": 0.7, "heading_rad": 0.0}, "events.1.t"),
+        (
+            {"type": "ble", "t": T0, "readings": [{"id": "a\u0000", "rssi_dbm": -60}]},
+            "events.1.readings.0.id",
+        ),
     ],
 )
 async def test_malformed_events_get_422_naming_the_field(
