@@ -11,12 +11,14 @@ Fan-out goes through the session store's pub/sub, so any replica can serve the s
 from __future__ import annotations
 
 import contextlib
+import logging
 from typing import Annotated, Any
 
 import anyio
 import orjson
 from fastapi import APIRouter, Depends, Query, WebSocket, WebSocketDisconnect
 from pydantic import ValidationError
+from uvicorn.protocols.utils import ClientDisconnected
 
 from server.api import schemas as sc
 from server.api.convert import to_events
@@ -29,6 +31,9 @@ from server.services.runtime import Runtime
 router = APIRouter(prefix="/v1/sessions", tags=["sessions"])
 
 CLOSE_CODES = {401: 4401, 403: 4403, 404: 4404}
+# what a send or receive raises once the client has gone
+GONE = (WebSocketDisconnect, ClientDisconnected, RuntimeError)
+logger = logging.getLogger(__name__)
 
 
 class _Socket:
@@ -73,23 +78,30 @@ async def live(
         await sock.send({"type": "ready", "session_id": session_id})
 
         async def forward() -> None:
-            async for message in messages:
-                if message.get("closed"):
-                    break
-                for fix in message["fixes"]:
-                    await sock.send({"type": "fix", "seq": message["seq"], "fix": fix})
+            # the client may be gone by the time a fix arrives: that ends the socket quietly
+            with contextlib.suppress(*GONE):
+                async for message in messages:
+                    if message.get("closed"):
+                        break
+                    for fix in message["fixes"]:
+                        await sock.send({"type": "fix", "seq": message["seq"], "fix": fix})
+                await websocket.close(code=1000)
             tg.cancel_scope.cancel()
-            await websocket.close(code=1000)
 
         tg.start_soon(forward)
-        with contextlib.suppress(WebSocketDisconnect):
+        with contextlib.suppress(*GONE):
             await _read(sock, rt, session_id, secret)
         tg.cancel_scope.cancel()
 
 
-async def _read(sock: _Socket, rt: Runtime, session_id: IdPath, secret: str) -> None:
+async def _read(sock: _Socket, rt: Runtime, session_id: str, secret: str) -> None:
     while True:
-        text = await sock.ws.receive_text()
+        message = await sock.ws.receive()
+        if message["type"] == "websocket.disconnect":
+            return
+        text = message.get("text")
+        if text is None:
+            text = (message.get("bytes") or b"").decode("utf-8", errors="replace")
         try:
             batch = sc.LiveBatch.model_validate_json(text)
         except ValidationError as exc:
@@ -102,6 +114,12 @@ async def _read(sock: _Socket, rt: Runtime, session_id: IdPath, secret: str) -> 
             )
         except ServiceError as exc:
             await sock.send({"type": "error", "status": exc.status, **service_detail(exc)})
+            continue
+        except Exception:  # one bad batch must not end the socket; its state is unchanged
+            logger.exception("batch over the live socket failed")
+            await sock.send(
+                {"type": "error", "status": 500, "message": "internal error; batch not applied"}
+            )
             continue
         await sock.send(
             {

@@ -79,11 +79,26 @@ async def test_fixes_posted_over_http_arrive_on_the_socket(live_url: str) -> Non
             assert len(result["fixes"]) == 1
 
             # invalid input over the socket is an error message, the socket stays open
-            await ws.send(json.dumps({"type": "batch", "seq": 3, "events": [{"type": "step"}]}))
+            await ws.send(json.dumps({"type": "batch", "seq": 4, "events": [{"type": "step"}]}))
             err = await _recv(ws)
             assert err["type"] == "error"
             assert err["status"] == 422
             assert "events.0.t" in err["message"]
+
+            # a binary frame is read as UTF-8 text, like a text frame
+            await ws.send(
+                json.dumps(
+                    {
+                        "type": "batch",
+                        "seq": 3,
+                        "events": [
+                            {"type": "step", "t": T0 + 1800, "length_m": 0.7, "heading_rad": 0.0}
+                        ],
+                    }
+                ).encode()
+            )
+            got = [await _recv(ws), await _recv(ws)]
+            assert sorted(m["type"] for m in got) == ["batch_result", "fix"]
 
             # ending the session closes the socket
             r = await client.delete(
