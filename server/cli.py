@@ -63,6 +63,14 @@ def serve(
     workers: Annotated[int, typer.Option(help="uvicorn worker processes")] = 1,
 ) -> None:
     """Run the API server."""
+    settings = get_settings()
+    if workers > 1 and settings.redis_url is None:
+        raise typer.BadParameter(
+            "several workers need a shared session store: set INDOORPOS_REDIS_URL",
+            param_hint="--workers",
+        )
+    if settings.resolved_database_url.startswith("sqlite"):
+        db.migrate(settings.resolved_database_url)  # once, before any worker starts
     uvicorn.run(
         "server.app:create_app",
         factory=True,

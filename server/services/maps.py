@@ -104,7 +104,8 @@ async def add_survey(
 ) -> RadioMapVersion:
     """Store labelled fingerprints and build the building's next radio map version from every
     survey point it has (see ``gridding.build_radio_map`` for the gridding rules)."""
-    building = await repo.get_building(s, building_id)
+    # one rebuild per building at a time: each sees every point the previous one stored
+    building = await repo.lock_building(s, building_id)
     if building is None:
         raise NotFound(f"building {building_id} not found", field="building_id")
     floor_by_level = {f.level: f for f in await repo.list_floors(s, building_id)}

@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
 
+import anyio
 from sqlalchemy.ext.asyncio import AsyncEngine, AsyncSession, async_sessionmaker
 
 from server.config import Settings
+from server.services.errors import Conflict
 from server.services.maps import MapCache
 from server.storage import db
 from server.storage.session_store import SessionStore, make_session_store
@@ -22,11 +25,24 @@ class Runtime:
     store: SessionStore
     maps: MapCache
 
+    # SQLite allows one writer; an embedded process takes turns rather than failing
+    sqlite_lock: anyio.Lock | None = None
+
     @asynccontextmanager
     async def transaction(self) -> AsyncIterator[AsyncSession]:
-        """A SQL session that commits on success and rolls back on error."""
-        async with self.sql() as session, session.begin():
-            yield session
+        """A SQL session that commits on success and rolls back on error; a write that
+        collides with an existing row is a Conflict."""
+        async with contextlib.AsyncExitStack() as stack:
+            if self.sqlite_lock is not None:
+                await stack.enter_async_context(self.sqlite_lock)
+            try:
+                async with db.transaction(self.sql) as session:
+                    yield session
+            except db.Duplicate as exc:
+                raise Conflict(
+                    "this conflicts with existing data (or a concurrent request); "
+                    "read it back and retry"
+                ) from exc
 
 
 @asynccontextmanager
@@ -40,6 +56,7 @@ async def open_runtime(settings: Settings) -> AsyncIterator[Runtime]:
             sql=db.session_factory(engine),
             store=store,
             maps=MapCache(settings.map_cache_size),
+            sqlite_lock=anyio.Lock() if engine.dialect.name == "sqlite" else None,
         )
     finally:
         await store.close()

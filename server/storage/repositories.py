@@ -61,6 +61,12 @@ async def get_building(s: AsyncSession, building_id: str) -> Building | None:
     return await s.get(Building, building_id)
 
 
+async def lock_building(s: AsyncSession, building_id: str) -> Building | None:
+    """The building row, locked until the transaction ends (map rebuilds take turns)."""
+    stmt = select(Building).where(Building.id == building_id).with_for_update()
+    return (await s.scalars(stmt)).one_or_none()
+
+
 async def create_floor(s: AsyncSession, building_id: str, level: int, name: str | None) -> Floor:
     floor = Floor(building_id=building_id, level=level, name=name)
     s.add(floor)

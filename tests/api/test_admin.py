@@ -195,3 +195,35 @@ async def test_health(client: httpx.AsyncClient) -> None:
     r = await client.get("/readyz")
     assert r.status_code == 200
     assert r.json() == {"status": "ok"}
+
+
+async def test_concurrent_admin_writes_conflict_or_take_turns(
+    client: httpx.AsyncClient, admin: dict[str, str]
+) -> None:
+    import asyncio
+
+    site = await build_toy_site(client, admin)
+    floors = await asyncio.gather(
+        *(
+            client.post(
+                f"/v1/buildings/{site.building_id}/floors", json={"level": 9}, headers=admin
+            )
+            for _ in range(4)
+        )
+    )
+    assert sorted(r.status_code for r in floors) == [201, 409, 409, 409]
+    point = {
+        "points": [{"x_m": 3.0, "y_m": 3.0, "floor": 0, "wifi": [{"bssid": "aa", "rssi_dbm": -50}]}]
+    }
+    surveys = await asyncio.gather(
+        *(
+            client.post(f"/v1/buildings/{site.building_id}/survey", json=point, headers=admin)
+            for _ in range(4)
+        )
+    )
+    assert [r.status_code for r in surveys] == [201] * 4
+    versions = sorted(r.json()["version"] for r in surveys)
+    assert versions == [2, 3, 4, 5]
+    counts = sorted(r.json()["n_survey_points"] for r in surveys)
+    first = counts[0]
+    assert counts == [first, first + 1, first + 2, first + 3]  # each saw the ones before
