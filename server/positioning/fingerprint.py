@@ -271,3 +271,22 @@ def wknn(
         weights=weights,
         distances_db=dist[sel],
     )
+
+
+def in_place_order(radio_map: RadioMap) -> RadioMap:
+    """The same map with its reference points sorted by (floor, x, y).
+
+    WKNN breaks ties in signal distance by RP position in the map, and ties are common
+    (RSS comes in whole dBm). Sorting by place makes the answer independent of the order
+    in which a map was built or stored, so a map rebuilt from SQL answers exactly as the
+    one built in memory from the same scans.
+    """
+    order = np.lexsort((radio_map.rp_xy[:, 1], radio_map.rp_xy[:, 0], radio_map.rp_floor))
+    return RadioMap(
+        rp_xy=radio_map.rp_xy[order],
+        rp_floor=radio_map.rp_floor[order],
+        mean_dbm=radio_map.mean_dbm[order],
+        var_db2=radio_map.var_db2[order],
+        count=radio_map.count[order],
+        emitters=radio_map.emitters,
+    )

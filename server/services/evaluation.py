@@ -30,7 +30,13 @@ from server.positioning.engines import get_engine
 from server.positioning.engines.base import FloorRef, SiteMaps
 from server.positioning.engines.step_ekf import StepEkfParams
 from server.positioning.events import BleEvent, Event, Fix, RadioReading, WifiEvent, radio_key
-from server.positioning.fingerprint import MISSING_DBM, RadioMap, scan_vector, wknn
+from server.positioning.fingerprint import (
+    MISSING_DBM,
+    RadioMap,
+    in_place_order,
+    scan_vector,
+    wknn,
+)
 from server.positioning.mapping.gridding import build_radio_map
 from server.positioning.mapping.labelled import interpolate_track
 from server.positioning.mapping.matrices import readings_matrix
@@ -142,7 +148,7 @@ def build_site_maps(
         labelled.add_trace(trace, floor_index)
         if progress:
             progress("maps", done, len(train))
-    radio = labelled.radio_map() if labelled.events else None
+    radio = in_place_order(labelled.radio_map()) if labelled.events else None
     return SiteMaps(site_floors(site), radio, version="train"), labelled, bad_lines
 
 

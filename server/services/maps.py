@@ -13,7 +13,7 @@ from sqlalchemy.ext.asyncio import AsyncSession
 
 from server.positioning.engines.base import FloorRef, SiteMaps
 from server.positioning.events import radio_key
-from server.positioning.fingerprint import MISSING_DBM, RadioMap
+from server.positioning.fingerprint import MISSING_DBM, RadioMap, in_place_order
 from server.positioning.mapping.gridding import build_radio_map
 from server.positioning.mapping.matrices import merge_radio_maps, readings_matrix
 from server.services.errors import Invalid, NotFound
@@ -90,7 +90,9 @@ async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None
                 emitters=tuple(radio_key(kind, key) for kind, key in arrays.emitters),
             )
         )
-    return SiteMaps(floors=refs, radio=merge_radio_maps(parts), version=version)
+    merged = merge_radio_maps(parts)
+    radio = in_place_order(merged) if merged is not None else None
+    return SiteMaps(floors=refs, radio=radio, version=version)
 
 
 async def site_maps(s: AsyncSession, cache: MapCache, site_id: str) -> SiteMaps:
