@@ -5,19 +5,34 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+import numpy as np
+from numpy.typing import NDArray
+
 from server.api import schemas as sc
 from server.positioning.events import (
     BleEvent,
     Event,
     Fix,
+    ImuEvent,
     MagEvent,
     RadioReading,
     StepEvent,
     WifiEvent,
 )
 
+WireEvent = sc.StepIn | sc.WifiIn | sc.BleIn | sc.MagIn | sc.ImuIn
 
-def to_event(e: sc.StepIn | sc.WifiIn | sc.BleIn | sc.MagIn) -> Event:
+
+def _samples(rows: Sequence[tuple[float, ...]], width: int) -> NDArray[np.float64]:
+    return np.array(rows, dtype=np.float64).reshape(-1, width)
+
+
+def _rows(samples: NDArray[np.float64]) -> list[list[float | int]]:
+    """Sample rows on the wire: the time as an integer, the values as they are."""
+    return [[int(row[0]), *row[1:]] for row in samples.tolist()]
+
+
+def to_event(e: WireEvent) -> Event:
     match e:
         case sc.StepIn():
             return StepEvent(e.t, e.length_m, e.heading_rad, e.confidence)
@@ -27,9 +42,19 @@ def to_event(e: sc.StepIn | sc.WifiIn | sc.BleIn | sc.MagIn) -> Event:
             return BleEvent(e.t, tuple(RadioReading(r.id, r.rssi_dbm) for r in e.readings))
         case sc.MagIn():
             return MagEvent(e.t, e.field_ut, e.magnitude_ut)
+        case sc.ImuIn():
+            return ImuEvent(
+                e.t,
+                accel=_samples(e.accel, 4),
+                gyro=_samples(e.gyro, 4),
+                magnetic=_samples(e.magnetic, 4),
+                magnetic_calibrated=e.magnetic_calibrated,
+                rotation=_samples(e.rotation, 5),
+                pressure=_samples(e.pressure, 2),
+            )
 
 
-def to_events(events: Sequence[sc.StepIn | sc.WifiIn | sc.BleIn | sc.MagIn]) -> list[Event]:
+def to_events(events: Sequence[WireEvent]) -> list[Event]:
     return [to_event(e) for e in events]
 
 
@@ -64,6 +89,13 @@ def to_wire(event: Event) -> dict[str, Any]:
                 "t": event.t_ms,
                 "field_ut": list(event.field_ut) if event.field_ut else None,
                 "magnitude_ut": event.magnitude_ut,
+            }
+        case ImuEvent():
+            return {
+                "type": "imu",
+                "t": event.t_ms,
+                **{name: _rows(samples) for name, samples in event.sensors().items()},
+                "magnetic_calibrated": event.magnetic_calibrated,
             }
 
 

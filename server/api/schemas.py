@@ -7,13 +7,28 @@ Floors on the wire are integer levels; buildings and floors are ids.
 
 from __future__ import annotations
 
+import math
 from datetime import datetime
 from typing import Annotated, Any, Literal
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
 MAX_EVENTS_PER_BATCH = 2000
 MAX_READINGS_PER_SCAN = 2048  # malls with every SSID per radio reach 500+
+# raw motion samples: one sensor at 200 Hz for a whole minute fits an event, and a batch
+# holds a minute of all five sensors at 200 Hz
+MAX_IMU_ROWS_PER_SENSOR = 12_000
+MAX_IMU_ROWS_PER_BATCH = 60_000
+MAX_IMU_SPAN_MS = 60_000  # no sample later than t + this
+MAX_IMU_RATE_HZ = 500  # mean rate of one sensor over its samples in one event
 
 FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
 # below 2**53: exact as a float, and far inside int64
@@ -154,7 +169,99 @@ class MagIn(Strict):
         return self
 
 
-EventIn = Annotated[StepIn | WifiIn | BleIn | MagIn, Field(discriminator="type")]
+# plausible ranges: accelerometers saturate at 16 g, gyroscopes at 2000 °/s; raw
+# (uncalibrated) magnetometers report several hundred µT of hard-iron bias
+Accel = Annotated[float, Field(ge=-160, le=160, allow_inf_nan=False)]
+Gyro = Annotated[float, Field(ge=-35, le=35, allow_inf_nan=False)]
+Magnetic = Annotated[float, Field(ge=-5000, le=5000, allow_inf_nan=False)]
+Quaternion = Annotated[float, Field(ge=-1, le=1, allow_inf_nan=False)]
+Pressure = Annotated[float, Field(ge=300, le=1100, allow_inf_nan=False)]
+UNIT_NORM_TOLERANCE = 0.1  # how far |q| of a rotation row may be from 1
+
+
+class ImuIn(Strict):
+    """Raw motion samples of the phone from ``t`` on, for engines that detect steps and
+    track the attitude themselves (the others accept and ignore them).
+
+    Each sensor is a list of rows, the sample time (integer ms since the epoch, phone
+    clock) first; per sensor the times increase strictly, lie in ``[t, t + 60000]`` and
+    come at most 500 Hz on average. Axes are the phone's (Android: x right, y towards the
+    top edge, z out of the screen). A sensor not sent is an empty list; the event holds at
+    least one sample.
+    """
+
+    type: Literal["imu"]
+    t: TimestampMs = Field(description="start of the block: no sample is earlier")
+    accel: list[tuple[TimestampMs, Accel, Accel, Accel]] = Field(
+        [],
+        max_length=MAX_IMU_ROWS_PER_SENSOR,
+        description="[t, x, y, z]: specific force in m/s², gravity included",
+    )
+    gyro: list[tuple[TimestampMs, Gyro, Gyro, Gyro]] = Field(
+        [], max_length=MAX_IMU_ROWS_PER_SENSOR, description="[t, x, y, z]: angular rate in rad/s"
+    )
+    magnetic: list[tuple[TimestampMs, Magnetic, Magnetic, Magnetic]] = Field(
+        [], max_length=MAX_IMU_ROWS_PER_SENSOR, description="[t, x, y, z]: magnetic field in µT"
+    )
+    magnetic_calibrated: bool = Field(
+        True, description="false when magnetic still holds the hard-iron bias (uncalibrated)"
+    )
+    rotation: list[tuple[TimestampMs, Quaternion, Quaternion, Quaternion, Quaternion]] = Field(
+        [],
+        max_length=MAX_IMU_ROWS_PER_SENSOR,
+        description="[t, x, y, z, w]: unit quaternion (norm 1 ± 0.1) of the phone in the "
+        "east-north-up frame: Android's rotation vector, with w = sqrt(1 - x² - y² - z²) "
+        "when the phone gives only x, y, z",
+    )
+    pressure: list[tuple[TimestampMs, Pressure]] = Field(
+        [], max_length=MAX_IMU_ROWS_PER_SENSOR, description="[t, hPa]: barometric pressure"
+    )
+
+    @field_validator("accel", "gyro", "magnetic", "rotation", "pressure")
+    @classmethod
+    def _times(cls, rows: list[tuple[Any, ...]], info: ValidationInfo) -> list[tuple[Any, ...]]:
+        if not rows:
+            return rows
+        times = [row[0] for row in rows]
+        t = info.data.get("t")  # absent when t itself is invalid
+        if t is not None and not t <= times[0] <= times[-1] <= t + MAX_IMU_SPAN_MS:
+            raise ValueError(
+                f"sample times must lie in [t, t + {MAX_IMU_SPAN_MS}]: t = {t}, "
+                f"samples from {times[0]} to {times[-1]}"
+            )
+        for i in range(1, len(times)):
+            if times[i] <= times[i - 1]:
+                raise ValueError(f"sample times must increase (monotonic time): row {i}")
+        span_ms = times[-1] - times[0]
+        if (len(times) - 1) * 1000 > MAX_IMU_RATE_HZ * span_ms:
+            rate = (len(times) - 1) * 1000 / span_ms
+            raise ValueError(f"{rate:.0f} Hz: more than {MAX_IMU_RATE_HZ} Hz on average")
+        return rows
+
+    @field_validator("rotation")
+    @classmethod
+    def _unit(
+        cls, rows: list[tuple[int, float, float, float, float]]
+    ) -> list[tuple[int, float, float, float, float]]:
+        for i, (_, x, y, z, w) in enumerate(rows):
+            if abs(math.sqrt(x * x + y * y + z * z + w * w) - 1.0) > UNIT_NORM_TOLERANCE:
+                raise ValueError(f"row {i} is not a unit quaternion")
+        return rows
+
+    @model_validator(mode="after")
+    def _has_samples(self) -> ImuIn:
+        if not self.n_rows:
+            raise ValueError("an imu event holds at least one sample")
+        return self
+
+    @property
+    def n_rows(self) -> int:
+        """Samples of all sensors."""
+        sensors = (self.accel, self.gyro, self.magnetic, self.rotation, self.pressure)
+        return sum(len(rows) for rows in sensors)
+
+
+EventIn = Annotated[StepIn | WifiIn | BleIn | MagIn | ImuIn, Field(discriminator="type")]
 
 
 # ---------------------------------------------------------------- fixes
@@ -204,7 +311,23 @@ class SessionRead(Strict):
 
 class BatchIn(Strict):
     seq: Annotated[int, Field(ge=1, description="1, 2, 3, ... per session")]
-    events: Annotated[list[EventIn], Field(max_length=MAX_EVENTS_PER_BATCH)]
+    events: Annotated[
+        list[EventIn],
+        Field(
+            max_length=MAX_EVENTS_PER_BATCH,
+            description=f"at most {MAX_IMU_ROWS_PER_BATCH} imu sample rows in all",
+        ),
+    ]
+
+    @field_validator("events")
+    @classmethod
+    def _imu_rows(cls, events: list[Any]) -> list[Any]:
+        n_rows = sum(e.n_rows for e in events if isinstance(e, ImuIn))
+        if n_rows > MAX_IMU_ROWS_PER_BATCH:
+            raise ValueError(
+                f"{n_rows} imu sample rows: at most {MAX_IMU_ROWS_PER_BATCH} in one batch"
+            )
+        return events
 
 
 class BatchOut(Strict):

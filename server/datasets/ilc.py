@@ -64,7 +64,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from server.positioning.events import BleEvent, RadioReading, WifiEvent
+from server.positioning.events import BleEvent, Event, ImuEvent, RadioReading, WifiEvent
 
 WIFI_MAX_AGE_MS: int | None = None
 """Oldest ``last_seen`` kept in a WiFi scan, in ms before the scan time (None: keep all).
@@ -78,6 +78,10 @@ are near: on an inner validation split of site2's training paths (20 % of them, 
 never the test paths) WKNN had a mean error of 16.8 m keeping every row against 17.7 m
 with a 4 s limit, so the default keeps them.
 """
+
+IMU_BLOCK_MS = 1000
+"""Phone time covered by one ``ImuEvent`` of ``IlcTrace.imu_events``: a phone posting raw
+samples about once a second (as the evaluation replays batches)."""
 
 _RECORD_START = re.compile(r"(?=\d{13}\tTYPE_)")
 
@@ -173,6 +177,62 @@ class IlcTrace:
     def radio_events(self) -> list[WifiEvent | BleEvent]:
         """WiFi and BLE events merged and sorted by time (stable: WiFi first on ties)."""
         events: list[WifiEvent | BleEvent] = [*self.wifi, *self.ble]
+        events.sort(key=lambda e: e.t_ms)
+        return events
+
+    def imu_events(self, block_ms: int = IMU_BLOCK_MS) -> list[ImuEvent]:
+        """The motion samples cut into blocks of ``block_ms`` phone time, as a phone that
+        sends raw samples would post them.
+
+        Block ``k`` holds the samples of every stream with ``t0 + k * block_ms <= t <
+        t0 + (k + 1) * block_ms``, ``t0`` being the first sample of any stream, and its
+        ``t_ms`` is that start; blocks without any sample are left out. Each sample is in
+        exactly one block, except one logged at the same millisecond as the previous
+        sample of its stream (the event model needs increasing times; site2 has none).
+
+        Rotation rows gain ``w = sqrt(1 - x² - y² - z²)`` (clipped at 0), as Android's
+        ``SensorManager.getQuaternionFromVector`` completes a three-value rotation vector.
+        ``magnetic_calibrated`` is always true: a stream taken from uncalibrated records
+        (see ``uncalibrated``) had the phone's hard-iron estimate subtracted on reading.
+
+        Raises
+        ------
+        ValueError
+            When ``block_ms`` is not positive.
+        """
+        if block_ms <= 0:
+            raise ValueError(f"block_ms must be positive, not {block_ms}")
+        accel, gyro, magnetic, rotation = (
+            _increasing(a)
+            for a in (self.accel, self.gyro, self.magnetic, _with_scalar_part(self.rotation))
+        )
+        streams = (accel, gyro, magnetic, rotation)
+        firsts = [a[0, 0] for a in streams if a.shape[0]]
+        if not firsts:
+            return []
+        t0 = int(min(firsts))
+        block_of = [(a[:, 0].astype(np.int64) - t0) // block_ms for a in streams]
+        blocks = np.unique(np.concatenate(block_of))
+        # piece i of a stream: its samples in blocks[i] (blocks[1:] are where pieces start)
+        pieces = [
+            np.split(a, np.searchsorted(b, blocks[1:]))
+            for a, b in zip(streams, block_of, strict=True)
+        ]
+        return [
+            ImuEvent(t0 + k * block_ms, accel=ac, gyro=gy, magnetic=ma, rotation=ro)
+            for k, ac, gy, ma, ro in zip(blocks.tolist(), *pieces, strict=True)
+        ]
+
+    def events(self, imu: bool = False, block_ms: int = IMU_BLOCK_MS) -> list[Event]:
+        """Radio events and, with ``imu``, the blocks of ``imu_events(block_ms)``, sorted
+        by time (stable: on a tie WiFi, then BLE, then the block).
+
+        A block is placed at its start: a scan taken while its samples were logged comes
+        after the whole block, as in a batch a phone posts.
+        """
+        events: list[Event] = [*self.radio_events()]
+        if imu:
+            events += self.imu_events(block_ms)
         events.sort(key=lambda e: e.t_ms)
         return events
 
@@ -405,6 +465,19 @@ class _TraceParser:
             self.bad_lines += int(np.count_nonzero(~finite))
             a = a[finite]
         return a[np.argsort(a[:, 0], kind="stable")]
+
+
+def _with_scalar_part(rotation: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(n, 4) ``[t, x, y, z]`` rotation-vector rows as (n, 5) ``[t, x, y, z, w]``."""
+    w = np.sqrt(np.clip(1.0 - np.sum(rotation[:, 1:4] ** 2, axis=1), 0.0, None))
+    return np.column_stack([rotation[:, :4], w])
+
+
+def _increasing(samples: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Time-sorted rows without those at the same time as the row before."""
+    keep = np.ones(samples.shape[0], dtype=bool)
+    keep[1:] = np.diff(samples[:, 0]) > 0
+    return samples if keep.all() else samples[keep]
 
 
 def _keep_strongest(scan: dict[str, float], emitter: str, rssi: float) -> None:

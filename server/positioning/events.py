@@ -13,6 +13,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
+from numpy.typing import NDArray
+
 
 @dataclass(frozen=True, slots=True)
 class StepEvent:
@@ -53,7 +56,53 @@ class MagEvent:
     magnitude_ut: float | None = None
 
 
-Event = StepEvent | WifiEvent | BleEvent | MagEvent
+def _no_samples(width: int) -> NDArray[np.float64]:
+    return np.empty((0, width), dtype=np.float64)
+
+
+@dataclass(frozen=True, eq=False)
+class ImuEvent:
+    """A block of raw motion samples from the phone, each sensor at its own times.
+
+    Every array has one row per sample, the sample time (ms since the epoch, phone clock)
+    first and strictly increasing; a sensor the phone did not send has zero rows. Axes are
+    the phone's (Android: x right, y towards the top edge, z out of the screen).
+
+    ``t_ms`` is the start of the block: no sample in it is earlier.
+    """
+
+    t_ms: int
+    accel: NDArray[np.float64] = field(default_factory=lambda: _no_samples(4))
+    """[t_ms, x, y, z] specific force in m/s², gravity included."""
+    gyro: NDArray[np.float64] = field(default_factory=lambda: _no_samples(4))
+    """[t_ms, x, y, z] angular rate in rad/s (right-handed about each axis)."""
+    magnetic: NDArray[np.float64] = field(default_factory=lambda: _no_samples(4))
+    """[t_ms, x, y, z] magnetic field in µT."""
+    magnetic_calibrated: bool = True
+    """False when ``magnetic`` still holds the hard-iron bias (Android's uncalibrated)."""
+    rotation: NDArray[np.float64] = field(default_factory=lambda: _no_samples(5))
+    """[t_ms, x, y, z, w] unit quaternion of the phone in the east-north-up frame."""
+    pressure: NDArray[np.float64] = field(default_factory=lambda: _no_samples(2))
+    """[t_ms, hPa] barometric pressure."""
+
+    @property
+    def t_end_ms(self) -> int:
+        """Time of the latest sample of any sensor (``t_ms`` when there is none)."""
+        ends = [a[-1, 0] for a in self.sensors().values() if a.shape[0]]
+        return int(max(ends)) if ends else self.t_ms
+
+    def sensors(self) -> dict[str, NDArray[np.float64]]:
+        """The sample arrays by name."""
+        return {
+            "accel": self.accel,
+            "gyro": self.gyro,
+            "magnetic": self.magnetic,
+            "rotation": self.rotation,
+            "pressure": self.pressure,
+        }
+
+
+Event = StepEvent | WifiEvent | BleEvent | MagEvent | ImuEvent
 
 
 @dataclass(frozen=True, slots=True)

@@ -204,6 +204,7 @@ def wknn(
     scan: ScanVector,
     k: int = 4,
     candidates: NDArray[np.integer] | NDArray[np.bool_] | None = None,
+    penalty_db: NDArray[np.float64] | None = None,
 ) -> WknnFix | None:
     """Weighted K-nearest-neighbour position, floor and spread of a scan.
 
@@ -219,6 +220,9 @@ def wknn(
     candidates : ndarray, shape (n_cand,) int or (n_rp,) bool, optional
         RP indices (or a mask over RPs) to search, e.g. a partition around the previous
         position; all RPs when None.
+    penalty_db : ndarray, shape (n_rp,), optional
+        Non-negative cost per RP added to its signal distance before neighbours are
+        chosen and weighted, e.g. the motion-consistency terms of ``papers/003_*`` eq 13-14.
 
     Returns
     -------
@@ -245,6 +249,8 @@ def wknn(
         return None
 
     dist = signal_distances(radio_map, scan, cand)
+    if penalty_db is not None:
+        dist = dist + penalty_db[cand]
     inv = 1.0 / np.maximum(dist, DISTANCE_EPS_DB)
     floors = radio_map.rp_floor[cand].astype(np.int64)
 

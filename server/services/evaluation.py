@@ -5,9 +5,11 @@ path ids into training and test sets. Radio maps come from the training traces o
 scan is placed by linear interpolation between the surveyor's waypoints and the scans are
 gridded by the same code the survey API uses (``gridding.build_radio_map``, cells of
 ``TRACE_CELL_M``). Each test trace is then replayed causally through the engine in
-batches of ``BATCH_MS`` of phone time, as a phone would post them; the engine never sees
-waypoints or the true floor and searches every floor of the site. The estimate at a
-waypoint is the last fix at or before its timestamp (none yet: counted as missing).
+batches of ``BATCH_MS`` of phone time, as a phone would post them: its WiFi and BLE scans,
+and for engines that read raw motion samples its IMU samples in blocks of ``BATCH_MS``
+(``trace_events``). The engine never sees waypoints or the true floor and searches every
+floor of the site. The estimate at a waypoint is the last fix at or before its timestamp
+(none yet: counted as missing).
 
 UJIIndoorLoc-style data (``evaluate_uji``): every training fingerprint is a reference
 point (no gridding: the published baselines match against raw fingerprints), floors are
@@ -150,6 +152,13 @@ def build_site_maps(
             progress("maps", done, len(train))
     radio = in_place_order(labelled.radio_map()) if labelled.events else None
     return SiteMaps(site_floors(site), radio, version="train"), labelled, bad_lines
+
+
+def trace_events(trace: IlcTrace, engine: str) -> list[Event]:
+    """What a phone running ``engine`` posts of a trace: its scans and, when the engine
+    reads raw motion samples (``"imu"`` in its ``uses``), the IMU blocks too; other
+    engines would ignore them, so they are left out and replay stays fast."""
+    return trace.events(imu="imu" in get_engine(engine).uses, block_ms=BATCH_MS)
 
 
 def batches(events: Sequence[Event], batch_ms: int = BATCH_MS) -> list[list[Event]]:
@@ -303,7 +312,7 @@ def evaluate_ilc(
         if progress:
             progress("read test traces", done, len(split.test))
     replayer = replayer or in_process_replayer(split_seed, progress)
-    fixes = replayer(engine, maps, labelled, [list[Event](t.radio_events()) for _, t in traces])
+    fixes = replayer(engine, maps, labelled, [trace_events(t, engine) for _, t in traces])
     results = [
         PathResult(
             trace.path_id,

@@ -28,7 +28,7 @@ import orjson
 
 from server.positioning.engines import ENGINES, get_engine
 from server.positioning.engines.base import EngineSpec, SiteMaps
-from server.positioning.events import Event, Fix
+from server.positioning.events import Event, Fix, ImuEvent
 from server.services.errors import Conflict, Forbidden, Invalid, NotFound
 from server.services.maps import site_maps
 from server.services.runtime import Runtime
@@ -154,8 +154,21 @@ def _digest(secret: str) -> str:
 
 
 def events_digest(events: Sequence[Event]) -> bytes:
-    """A fingerprint of a batch's content, to tell a true retry from a reused ``seq``."""
-    return hashlib.sha256(repr(tuple(events)).encode()).digest()
+    """A fingerprint of a batch's content, to tell a true retry from a reused ``seq``.
+
+    Sample arrays go in as raw bytes: their ``repr`` elides the middle of long arrays
+    and is slow.
+    """
+    h = hashlib.sha256()
+    for event in events:
+        if isinstance(event, ImuEvent):
+            h.update(repr(("imu", event.t_ms, event.magnetic_calibrated)).encode())
+            for samples in event.sensors().values():
+                h.update(repr(samples.shape).encode())
+                h.update(np.ascontiguousarray(samples, dtype=np.float64).tobytes())
+        else:
+            h.update(repr(event).encode())
+    return h.digest()
 
 
 def fix_to_wire(fix: Fix, maps: SiteMaps, engine: str) -> dict[str, Any]:

@@ -161,7 +161,7 @@ async def test_other_sessions_token_is_forbidden(client: httpx.AsyncClient, site
             {"type": "step", "t": T0, "length_m": 0.7, "heading_rad": float("nan")},
             "events.1.heading_rad",
         ),
-        ({"type": "imu", "t": T0}, "events.1.type"),
+        ({"type": "teleport", "t": T0}, "events.1.type"),
         (
             {"type": "wifi", "t": T0, "readings": [{"bssid": "aa", "rssi_dbm": float("nan")}]},
             "events.1.readings.0.rssi_dbm",

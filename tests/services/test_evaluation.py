@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -11,7 +13,8 @@ from typer.testing import CliRunner
 
 from server.cli import app
 from server.datasets.ilc import IlcFloor, IlcSite, IlcTrace, read_site
-from server.positioning.events import Fix, StepEvent
+from server.positioning.engines import ENGINES, get_engine
+from server.positioning.events import Event, Fix, ImuEvent, RadioReading, StepEvent, WifiEvent
 from server.services import evaluation
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
@@ -63,27 +66,33 @@ def _fix(t_ms: int, x_m: float, floor: int = 0) -> Fix:
     return Fix(t_ms, x_m, 0.0, floor, None, (4.0, 0.0, 0.0, 4.0), "wifi")
 
 
+def _trace(**fields: Any) -> IlcTrace:
+    none = np.zeros((0, 4))
+    default: dict[str, Any] = {
+        "path_id": "p",
+        "floor": "F1",
+        "site_id": None,
+        "waypoint_t_ms": np.array([100, 200, 300], dtype=np.int64),
+        "waypoint_xy_m": np.array([[0.0, 0.0], [5.0, 0.0], [9.0, 0.0]]),
+        "wifi": (),
+        "ble": (),
+        "accel": none,
+        "gyro": none,
+        "magnetic": none,
+        "rotation": none,
+        "uncalibrated": frozenset(),
+        "bad_lines": 0,
+        "joined_lines": 0,
+        "stale_wifi_readings": 0,
+        "skipped_types": {},
+        "t_first_ms": 0,
+        "t_last_ms": 300,
+    }
+    return IlcTrace(**{**default, **fields})
+
+
 def test_estimate_is_the_last_fix_at_or_before_the_waypoint() -> None:
-    trace = IlcTrace(
-        path_id="p",
-        floor="F1",
-        site_id=None,
-        waypoint_t_ms=np.array([100, 200, 300], dtype=np.int64),
-        waypoint_xy_m=np.array([[0.0, 0.0], [5.0, 0.0], [9.0, 0.0]]),
-        wifi=(),
-        ble=(),
-        accel=np.zeros((0, 4)),
-        gyro=np.zeros((0, 4)),
-        magnetic=np.zeros((0, 4)),
-        rotation=np.zeros((0, 4)),
-        uncalibrated=frozenset(),
-        bad_lines=0,
-        joined_lines=0,
-        stale_wifi_readings=0,
-        skipped_types={},
-        t_first_ms=0,
-        t_last_ms=300,
-    )
+    trace = _trace()
     fixes = [_fix(250, 7.0, floor=1), _fix(150, 4.0), _fix(200, 5.5)]
     est = evaluation.estimates_at_waypoints(trace, 0, fixes)
     assert np.isnan(est.est_xy_m[0]).all()  # nothing yet at t=100
@@ -97,6 +106,60 @@ def test_batches_cut_phone_time() -> None:
     events = [StepEvent(t, 0.7, 0.0) for t in (0, 400, 999, 1000, 2600)]
     cut = evaluation.batches(events, batch_ms=1000)
     assert [[e.t_ms for e in b] for b in cut] == [[0, 400, 999], [1000], [2600]]
+
+
+@pytest.fixture
+def imu_engine(monkeypatch: pytest.MonkeyPatch) -> str:
+    """An engine that declares it reads raw IMU samples (step_ekf's code under it)."""
+    spec = replace(get_engine("step_ekf"), name="imu_probe", uses=frozenset({"imu", "wifi"}))
+    monkeypatch.setitem(ENGINES, spec.name, spec)
+    return spec.name
+
+
+def _scan(t_ms: int) -> WifiEvent:
+    return WifiEvent(t_ms, (RadioReading("02:00:00:00:00:01", -60.0),))
+
+
+def test_imu_blocks_are_replayed_only_to_engines_that_read_them(imu_engine: str) -> None:
+    t = np.arange(0, 3000, 20, dtype=np.float64)
+    accel = np.column_stack([t, np.zeros_like(t), np.zeros_like(t), np.full_like(t, 9.8)])
+    trace = _trace(wifi=(_scan(0), _scan(2000)), accel=accel)
+    assert evaluation.trace_events(trace, "step_ekf") == trace.radio_events()
+    assert evaluation.trace_events(trace, "wknn") == trace.radio_events()
+    events = evaluation.trace_events(trace, imu_engine)
+    assert [(type(e).__name__, e.t_ms) for e in events] == [
+        ("WifiEvent", 0),
+        ("ImuEvent", 0),
+        ("ImuEvent", 1000),
+        ("WifiEvent", 2000),
+        ("ImuEvent", 2000),
+    ]
+    blocks = [e for e in events if isinstance(e, ImuEvent)]
+    np.testing.assert_array_equal(np.concatenate([b.accel for b in blocks]), accel)
+    # a replay batch spans as much phone time as a block: one block per batch at most
+    for batch in evaluation.batches(events):
+        assert sum(isinstance(e, ImuEvent) for e in batch) <= 1
+
+
+@needs_data
+def test_evaluate_ilc_replays_imu_blocks_to_an_engine_that_reads_them(imu_engine: str) -> None:
+    seen: dict[str, list[list[Event]]] = {}
+
+    def capture(
+        engine: str, _maps: object, _labelled: object, traces: list[list[Event]]
+    ) -> list[list[Fix]]:
+        seen[engine] = traces
+        return [[] for _ in traces]
+
+    for engine in ("wknn", imu_engine):
+        evaluation.evaluate_ilc(SITE2 / "F4", engine, replayer=capture)
+    assert len(seen["wknn"]) == len(seen[imu_engine]) > 0
+    for radio, everything in zip(seen["wknn"], seen[imu_engine], strict=True):
+        assert not any(isinstance(e, ImuEvent) for e in radio)
+        assert [e for e in everything if not isinstance(e, ImuEvent)] == radio
+        blocks = [e for e in everything if isinstance(e, ImuEvent)]
+        assert len(blocks) >= 5
+        assert all(b.accel.shape[0] > 0 for b in blocks)
 
 
 @needs_data

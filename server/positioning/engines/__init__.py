@@ -5,10 +5,12 @@
 
 from __future__ import annotations
 
-from server.positioning.engines import step_ekf, wknn
+from server.positioning.engines import step_ekf, two_stage_ekf, wknn
 from server.positioning.engines.base import EngineSpec
 
-ENGINES: dict[str, EngineSpec] = {"step_ekf": step_ekf.SPEC, "wknn": wknn.SPEC}
+ENGINES: dict[str, EngineSpec] = {
+    spec.name: spec for spec in (step_ekf.SPEC, two_stage_ekf.SPEC, wknn.SPEC)
+}
 
 
 def get_engine(name: str) -> EngineSpec:

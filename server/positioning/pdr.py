@@ -1,0 +1,608 @@
+"""Pedestrian dead reckoning from raw accelerometer samples: steps, their lengths, turns.
+
+Step detection, two detectors on one pipeline
+---------------------------------------------
+Samples are first put on a uniform grid of ``grid_ms`` at fixed multiples of absolute
+time (linear interpolation), so the result does not depend on the phone's rate or on how
+the samples were cut into batches. On the grid:
+
+* gravity ``g`` is the running mean of the acceleration magnitude (a first-order
+  low-pass with ``gravity_tau_s``; ``papers/002_*`` eq 6 averages the magnitude while the
+  phone is static, and walking averages to the same value);
+* the detector signal is
+
+  - ``"cui"``: the magnitude minus gravity, ``a_i - g`` (``papers/002_*`` eq 5);
+  - ``"mansour"``: the acceleration along the vertical minus gravity (``papers/003_*``
+    section III: "peak and valley of the vertical acceleration relative to the surface of
+    the Earth"), the vertical being the low-passed acceleration direction;
+
+* the signal is smoothed by a centred moving average over ``2N + 1`` grid samples
+  (``papers/002_*`` eq 7), which is also the low-pass filter of ``papers/003_*`` III.
+
+Then local extrema of the smoothed signal drive one of two state machines:
+
+* ``"cui"`` (``papers/002_*`` section 5.1): a step at every peak above
+  ``threshold_ms2`` at least ``min_step_ms`` after the previous one;
+* ``"mansour"`` (``papers/003_*`` section III): a peak above ``+threshold_ms2``
+  (0.65 m/s² in the paper) must be followed by a valley below ``-threshold_ms2`` between
+  ``min_peak_valley_ms`` (the paper's 100 ms) and ``max_peak_valley_ms`` later; extra
+  extremes of the same sign within ``false_extreme_ms`` are false extremes and only the
+  largest counts; steps are at least ``min_step_ms`` apart (the 0.2 s shortest gait
+  cycle of the paper).
+
+Everything is incremental: the state carries the last raw sample, the filter memories,
+the un-smoothed tail and the state machine, so a step that straddles two batches is found
+once, at the same time and with the same length as if the samples had come in one batch.
+
+Step length
+-----------
+From the step's peak-to-valley range ``Δa`` of the smoothed signal:
+
+* ``"weinberg"``: ``S = K (Δa)^(1/4)`` (``papers/002_*`` eq 8) with ``K = 0.861`` (their
+  Table 2). Their K reproduces their trained 0.6 m steps only for ``Δa`` in units of g
+  (``(0.6 / 0.861)^4 = 0.236``), so ``Δa`` is divided by g here;
+* ``"mansour"``: ``sl = m (Δa)^(1/4)`` clamped to [0.6, 0.9] m with ``m = 0.55`` and
+  ``Δa`` in m/s² (``papers/003_*`` eq 1).
+
+``calibrated_step_m`` is ``papers/003_*`` eq 18 (and the step-length update of
+``papers/004_*`` Algorithm 2): the distance between two known points walked in a
+straight line divided by the number of steps between them.
+
+Turns and straight walking
+--------------------------
+``TurnDetector`` follows ``papers/003_*`` section III: per step, ``Δh_max`` is the largest
+heading difference within a sliding window of the last ``window_steps`` step headings;
+while it stays at or below ``λ_l`` the walk is straight; above ``λ_l`` a turn is suspected
+and only declared once the heading has changed by more than ``λ_h`` since the last
+straight step. The paper gives no values; we use 10° and 30° (a straight corridor walk
+with a hand-held phone sways a few degrees; corridor turns are 45-90°).
+
+``ransac_line`` / ``project_to_line`` are ``papers/003_*`` eq 2-3: a straight-line model of
+the step positions of a straight stretch, found by RANSAC, and outlying step positions
+(more than 1.5 m from it) moved onto the line.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, replace
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.signal import lfilter
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+G = 9.80665
+
+Detector = Literal["mansour", "cui"]
+LengthModel = Literal["mansour", "weinberg"]
+
+
+@dataclass(frozen=True)
+class PdrParams:
+    """Step detection and step length parameters (paper values where the paper has one)."""
+
+    detector: Detector = "mansour"
+    length_model: LengthModel = "mansour"
+    grid_ms: int = 20  # 50 Hz grid, the rate of the phones in papers/003_* and ILC 2.0
+    half_window: int = 5  # N of papers/002_* eq 7: 11 samples, 0.22 s
+    gravity_tau_s: float = 5.0
+    vertical_tau_s: float = 1.0  # low-pass giving the vertical for the "mansour" signal
+    threshold_ms2: float = 0.65  # papers/003_* III
+    min_peak_valley_ms: int = 100  # papers/003_* III
+    max_peak_valley_ms: int = 800  # half of the longest gait cycle, 1.6 s (papers/003_*)
+    min_step_ms: int = 200  # shortest gait cycle, 0.2 s (papers/003_* III)
+    false_extreme_ms: int = 150
+    weinberg_k: float = 0.861  # papers/002_* Table 2
+    mansour_m: float = 0.55  # papers/003_* eq 1
+    min_step_m: float = 0.6  # papers/003_* eq 1
+    max_step_m: float = 0.9  # papers/003_* eq 1
+    max_gap_ms: int = 2000  # a longer gap between samples restarts the detector
+
+    def __post_init__(self) -> None:
+        if self.detector not in ("mansour", "cui"):
+            raise ValueError(f"detector must be 'mansour' or 'cui', got {self.detector!r}")
+        if self.length_model not in ("mansour", "weinberg"):
+            raise ValueError(
+                f"length_model must be 'mansour' or 'weinberg', got {self.length_model!r}"
+            )
+        if self.grid_ms < 1 or self.half_window < 1:
+            raise ValueError("grid_ms and half_window must be at least 1")
+        if not self.min_step_m <= self.max_step_m:
+            raise ValueError("min_step_m must not exceed max_step_m")
+
+
+@dataclass(frozen=True)
+class Steps:
+    """Steps found in a batch, in time order.
+
+    Attributes
+    ----------
+    t_ms : ndarray, shape (k,), int64
+        Time of each step (its completing extreme on the grid).
+    accel_range : ndarray, shape (k,), float64
+        Peak-to-valley range of the smoothed signal over the step, m/s².
+    gravity : ndarray, shape (k,), float64
+        The gravity estimate at the step, m/s².
+    """
+
+    t_ms: IntArray
+    accel_range: FloatArray
+    gravity: FloatArray
+
+    def __len__(self) -> int:
+        return int(self.t_ms.size)
+
+
+_NO_STEPS = Steps(np.empty(0, np.int64), np.empty(0), np.empty(0))
+
+
+@dataclass(frozen=True)
+class DetectorState:
+    """Everything the detector carries from one batch to the next (small, fixed size
+    apart from ``tail``, which holds at most ``2N + 2`` values)."""
+
+    last_raw: FloatArray  # (4,) [t_ms, x, y, z] of the last raw sample; t NaN before any
+    next_grid_ms: float  # next grid time to produce; NaN before any sample
+    gravity_lp: FloatArray  # (1,) last low-passed magnitude (the gravity estimate)
+    vertical_lp: FloatArray  # (3,) last low-passed acceleration vector
+    initialized: bool
+    tail_t: FloatArray  # grid times whose raw signal is kept for the moving average
+    tail_v: FloatArray  # raw signal at tail_t
+    tail_g: FloatArray  # gravity at tail_t
+    smooth: FloatArray  # (2, 3) last two smoothed [t, value, gravity]; NaN rows when absent
+    machine: FloatArray  # state machine, see _MACHINE
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        return {
+            "last_raw": self.last_raw,
+            "next_grid_ms": np.array(self.next_grid_ms),
+            "gravity_lp": self.gravity_lp,
+            "vertical_lp": self.vertical_lp,
+            "initialized": np.array(self.initialized, dtype=np.int8),
+            "tail_t": self.tail_t,
+            "tail_v": self.tail_v,
+            "tail_g": self.tail_g,
+            "smooth": self.smooth,
+            "machine": self.machine,
+        }
+
+    @classmethod
+    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> DetectorState:
+        def f(name: str) -> FloatArray:
+            return np.array(arrays[name], dtype=np.float64)
+
+        state = cls(
+            last_raw=f("last_raw"),
+            next_grid_ms=float(arrays["next_grid_ms"]),
+            gravity_lp=f("gravity_lp"),
+            vertical_lp=f("vertical_lp"),
+            initialized=bool(arrays["initialized"]),
+            tail_t=f("tail_t"),
+            tail_v=f("tail_v"),
+            tail_g=f("tail_g"),
+            smooth=f("smooth"),
+            machine=f("machine"),
+        )
+        if state.last_raw.shape != (4,) or state.machine.shape != (len(_MACHINE),):
+            raise ValueError("step detector state has the wrong shape")
+        return state
+
+
+# slots of DetectorState.machine
+_MACHINE = (
+    "phase",  # 0: waiting for a peak, 1: have a peak, 2: have a valley (mansour)
+    "peak_t",
+    "peak_v",
+    "valley_t",
+    "valley_v",
+    "valley_g",
+    "last_step_t",  # time of the last step (-inf before any)
+    "run_min",  # cui: minimum of the signal since the last peak
+)
+_I = {name: i for i, name in enumerate(_MACHINE)}
+
+
+def initial_detector() -> DetectorState:
+    machine = np.full(len(_MACHINE), np.nan)
+    machine[_I["phase"]] = 0.0
+    machine[_I["last_step_t"]] = -np.inf
+    machine[_I["run_min"]] = np.inf
+    return DetectorState(
+        last_raw=np.full(4, np.nan),
+        next_grid_ms=math.nan,
+        gravity_lp=np.full(1, G),
+        vertical_lp=np.array([0.0, 0.0, G]),
+        initialized=False,
+        tail_t=np.empty(0),
+        tail_v=np.empty(0),
+        tail_g=np.empty(0),
+        smooth=np.full((2, 3), np.nan),
+        machine=machine,
+    )
+
+
+def _low_pass(x: FloatArray, tau_s: float, grid_ms: int, y0: FloatArray) -> FloatArray:
+    """First-order low-pass ``y_k = y_{k-1} + alpha (x_k - y_{k-1})`` along axis 0,
+    continuing from the previous outputs ``y0`` (one per column)."""
+    alpha = 1.0 - math.exp(-grid_ms / 1000.0 / tau_s)
+    zi = (1.0 - alpha) * np.atleast_1d(y0)[None, :]
+    y = lfilter([alpha], [1.0, alpha - 1.0], x.reshape(x.shape[0], -1), axis=0, zi=zi)[0]
+    return np.asarray(y, dtype=np.float64).reshape(x.shape)
+
+
+def _resample(
+    state: DetectorState, accel: FloatArray, params: PdrParams
+) -> tuple[FloatArray, FloatArray, float, FloatArray]:
+    """Grid times and accelerations between the last grid time and the newest sample."""
+    t = accel[:, 0]
+    xyz = accel[:, 1:4]
+    if not math.isnan(state.last_raw[0]):
+        t = np.concatenate([[state.last_raw[0]], t])
+        xyz = np.vstack([state.last_raw[1:], xyz])
+    if math.isnan(state.next_grid_ms):
+        start = math.ceil(t[0] / params.grid_ms) * params.grid_ms
+    else:
+        start = state.next_grid_ms
+    grid = np.arange(start, t[-1] + 0.5, params.grid_ms, dtype=np.float64)
+    grid = grid[grid <= t[-1]]
+    values = np.column_stack([np.interp(grid, t, xyz[:, i]) for i in range(3)])
+    next_grid = float(grid[-1] + params.grid_ms) if grid.size else start
+    return grid, values, next_grid, np.concatenate([[t[-1]], xyz[-1]])
+
+
+def _signal(
+    state: DetectorState, values: FloatArray, params: PdrParams
+) -> tuple[FloatArray, FloatArray, DetectorState]:
+    """Detector signal and gravity per grid sample, with the filter memories advanced."""
+    magnitude = np.linalg.norm(values, axis=1)
+    # gravity starts at its nominal value (the first sample may be mid-stride); the
+    # vertical starts along the first sample
+    g0 = state.gravity_lp if state.initialized else np.array([G])
+    v0 = state.vertical_lp if state.initialized else values[0]
+    gravity = _low_pass(magnitude, params.gravity_tau_s, params.grid_ms, g0)
+    if params.detector == "cui":
+        signal = magnitude - gravity
+        vertical_lp = v0
+    else:
+        down = _low_pass(values, params.vertical_tau_s, params.grid_ms, v0)
+        vertical_lp = down[-1]
+        up = down / np.maximum(np.linalg.norm(down, axis=1, keepdims=True), 1e-9)
+        signal = np.einsum("ij,ij->i", values, up) - gravity
+    new = replace(
+        state, gravity_lp=gravity[-1:].copy(), vertical_lp=vertical_lp.copy(), initialized=True
+    )
+    return np.asarray(signal, dtype=np.float64), np.asarray(gravity, dtype=np.float64), new
+
+
+def detect_steps(
+    state: DetectorState, accel: FloatArray, params: PdrParams
+) -> tuple[DetectorState, Steps]:
+    """Find the steps completed by a new block of accelerometer samples.
+
+    Parameters
+    ----------
+    state : DetectorState
+        From the previous block (``initial_detector()`` at the start).
+    accel : ndarray, shape (n, 4)
+        ``[t_ms, x, y, z]`` in m/s², gravity included, times strictly increasing and
+        after the previous block's.
+    params : PdrParams
+
+    Returns
+    -------
+    state : DetectorState
+    steps : Steps
+        Steps whose completing extreme is now certain. A step near the end of the block
+        may only come out with the next block.
+    """
+    if accel.shape[0] == 0:
+        return state, _NO_STEPS
+    if not math.isnan(state.last_raw[0]) and accel[0, 0] - state.last_raw[0] > params.max_gap_ms:
+        state = initial_detector()  # a long gap: nothing before it belongs to a step
+    grid, values, next_grid, last_raw = _resample(state, accel, params)
+    state = replace(state, next_grid_ms=next_grid, last_raw=last_raw)
+    if grid.size == 0:
+        return state, _NO_STEPS
+    signal, gravity, state = _signal(state, values, params)
+
+    # centred moving average (papers/002_* eq 7) over the carried tail plus the new values
+    n = params.half_window
+    t_all = np.concatenate([state.tail_t, grid])
+    v_all = np.concatenate([state.tail_v, signal])
+    g_all = np.concatenate([state.tail_g, gravity])
+    width = 2 * n + 1
+    if v_all.size >= width:
+        window = np.convolve(v_all, np.ones(width) / width, mode="valid")
+        centre_t = t_all[n : n + window.size]
+        centre_g = g_all[n : n + window.size]
+        keep = v_all.size - (width - 1)
+        tail_t, tail_v, tail_g = t_all[keep:], v_all[keep:], g_all[keep:]
+    else:
+        window = centre_t = centre_g = np.empty(0)
+        tail_t, tail_v, tail_g = t_all, v_all, g_all
+    state = replace(state, tail_t=tail_t, tail_v=tail_v, tail_g=tail_g)
+
+    # extrema need one smoothed value on each side: prepend the two carried ones
+    carried = state.smooth[~np.isnan(state.smooth[:, 0])]
+    smooth = np.vstack([carried, np.column_stack([centre_t, window, centre_g])])
+    state = replace(state, smooth=np.vstack([np.full((2, 3), np.nan), smooth])[-2:])
+    if smooth.shape[0] < 3:
+        return state, _NO_STEPS
+    s_v = smooth[:, 1]
+    mid = s_v[1:-1]
+    is_max = (mid > s_v[:-2]) & (mid >= s_v[2:])
+    is_min = (mid < s_v[:-2]) & (mid <= s_v[2:])
+    idx = np.flatnonzero(is_max | is_min) + 1
+    machine, steps = _run_machine(
+        state.machine.copy(),
+        smooth[idx],
+        is_max[idx - 1],
+        float(smooth[-2, 0]),  # the newest time whose extremum status is known
+        params,
+    )
+    state = replace(state, machine=machine)
+    return state, steps
+
+
+def _run_machine(
+    m: FloatArray,
+    extrema: FloatArray,
+    maxima: NDArray[np.bool_],
+    known_until: float,
+    params: PdrParams,
+) -> tuple[FloatArray, Steps]:
+    """Feed the extrema (rows ``[t, value, gravity]``, in time order) to the detector's
+    state machine."""
+    times, values, gravity = extrema[:, 0], extrema[:, 1], extrema[:, 2]
+    out_t: list[int] = []
+    out_range: list[float] = []
+    out_g: list[float] = []
+    thr = params.threshold_ms2
+
+    def emit(t: float, rng: float, g: float) -> None:
+        out_t.append(round(t))
+        out_range.append(rng)
+        out_g.append(g)
+        m[_I["last_step_t"]] = t
+
+    if params.detector == "cui":
+        for t, v, is_max, g in zip(times, values, maxima, gravity, strict=True):
+            if not is_max:
+                m[_I["run_min"]] = min(m[_I["run_min"]], v)
+                continue
+            if v > thr and t - m[_I["last_step_t"]] >= params.min_step_ms:
+                low = m[_I["run_min"]]
+                emit(t, v - low if math.isfinite(low) else 2.0 * v, g)
+                m[_I["run_min"]] = math.inf
+        return m, _steps(out_t, out_range, out_g)
+
+    for t, v, is_max, g in zip(times, values, maxima, gravity, strict=True):
+        phase = m[_I["phase"]]
+        if phase == 2 and t - m[_I["valley_t"]] > params.false_extreme_ms:
+            _emit_valley(m, emit, params.min_step_ms)
+            phase = 0
+        if is_max and v > thr:
+            if phase == 1 and t - m[_I["peak_t"]] <= params.false_extreme_ms:
+                if v > m[_I["peak_v"]]:  # a false extreme: keep the larger peak
+                    m[_I["peak_t"]], m[_I["peak_v"]] = t, v
+            elif phase != 2:
+                m[_I["phase"]], m[_I["peak_t"]], m[_I["peak_v"]] = 1, t, v
+        elif not is_max and v < -thr:
+            if phase == 2:
+                if v < m[_I["valley_v"]]:  # a false extreme: keep the deeper valley
+                    m[_I["valley_t"]], m[_I["valley_v"]], m[_I["valley_g"]] = t, v, g
+            elif phase == 1:
+                gap = t - m[_I["peak_t"]]
+                if gap > params.max_peak_valley_ms:
+                    m[_I["phase"]] = 0  # the peak was too long ago to pair with this valley
+                elif gap >= params.min_peak_valley_ms:
+                    m[_I["phase"]], m[_I["valley_t"]], m[_I["valley_v"]] = 2, t, v
+                    m[_I["valley_g"]] = g
+    if m[_I["phase"]] == 2 and known_until - m[_I["valley_t"]] > params.false_extreme_ms:
+        _emit_valley(m, emit, params.min_step_ms)
+    return m, _steps(out_t, out_range, out_g)
+
+
+def _emit_valley(
+    m: FloatArray, emit: Callable[[float, float, float], None], min_step_ms: float
+) -> None:
+    """Close a peak-valley pair as a step unless it follows the last step too soon."""
+    t = m[_I["valley_t"]]
+    if t - m[_I["last_step_t"]] >= min_step_ms:
+        emit(t, m[_I["peak_v"]] - m[_I["valley_v"]], m[_I["valley_g"]])
+    m[_I["phase"]] = 0
+
+
+def _steps(t: list[int], rng: list[float], g: list[float]) -> Steps:
+    if not t:
+        return _NO_STEPS
+    return Steps(np.array(t, dtype=np.int64), np.array(rng), np.array(g))
+
+
+def step_lengths(steps: Steps, params: PdrParams, scale: float = 1.0) -> FloatArray:
+    """Length of each step in metres (``papers/002_*`` eq 8 or ``papers/003_*`` eq 1).
+
+    ``scale`` multiplies K or m: 1 for the paper's value, a per-session calibration
+    otherwise (see ``calibrated_scale``).
+    """
+    rng = np.maximum(steps.accel_range, 0.0)
+    if params.length_model == "weinberg":
+        g = np.where(np.isfinite(steps.gravity), steps.gravity, G)
+        return np.asarray(scale * params.weinberg_k * (rng / g) ** 0.25, dtype=np.float64)
+    raw = scale * params.mansour_m * rng**0.25
+    return np.asarray(
+        np.clip(raw, params.min_step_m * scale, params.max_step_m * scale), dtype=np.float64
+    )
+
+
+def calibrated_step_m(distance_m: float, n_steps: int) -> float:
+    """``papers/003_*`` eq 18: the straight distance between two known points over the
+    number of steps taken between them.
+
+    Raises
+    ------
+    ValueError
+        When no step was taken or the distance is not positive and finite.
+    """
+    if n_steps < 1:
+        raise ValueError(f"n_steps must be at least 1, got {n_steps}")
+    if not (math.isfinite(distance_m) and distance_m > 0):
+        raise ValueError(f"distance_m must be positive and finite, got {distance_m}")
+    return distance_m / n_steps
+
+
+# ---------------------------------------------------------------- turns and straight lines
+
+STRAIGHT, SUSPECT, TURN = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class TurnParams:
+    """``papers/003_*`` section III turn detection; the paper gives no λ values."""
+
+    window_steps: int = 5
+    lambda_low_rad: float = math.radians(10.0)  # λ_l: heading sway allowed on a straight
+    lambda_high_rad: float = math.radians(30.0)  # λ_h: total change that makes a turn
+
+    def __post_init__(self) -> None:
+        if self.window_steps < 2:
+            raise ValueError(f"window_steps must be at least 2, got {self.window_steps}")
+        if not 0 < self.lambda_low_rad < self.lambda_high_rad:
+            raise ValueError("need 0 < lambda_low_rad < lambda_high_rad")
+
+
+@dataclass(frozen=True)
+class TurnState:
+    """Recent step headings (unwrapped, NaN-padded, oldest first), the heading of the
+    last straight step and the current status."""
+
+    recent: FloatArray
+    reference: float
+    status: int
+    segment: int  # increases whenever a new straight-line model starts
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        return {
+            "recent": self.recent,
+            "reference": np.array(self.reference),
+            "status": np.array(self.status, dtype=np.int64),
+            "segment": np.array(self.segment, dtype=np.int64),
+        }
+
+    @classmethod
+    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> TurnState:
+        return cls(
+            recent=np.array(arrays["recent"], dtype=np.float64),
+            reference=float(arrays["reference"]),
+            status=int(arrays["status"]),
+            segment=int(arrays["segment"]),
+        )
+
+
+def initial_turns(params: TurnParams) -> TurnState:
+    return TurnState(np.full(params.window_steps, np.nan), math.nan, STRAIGHT, 0)
+
+
+def classify_steps(
+    state: TurnState, headings: FloatArray, params: TurnParams
+) -> tuple[TurnState, NDArray[np.int64], NDArray[np.int64]]:
+    """Label each step straight, suspected turn or turn (``papers/003_*`` section III).
+
+    Parameters
+    ----------
+    state : TurnState
+    headings : ndarray, shape (k,)
+        Gyro heading at each step, radians (any continuous or wrapped form).
+    params : TurnParams
+
+    Returns
+    -------
+    state : TurnState
+    status : ndarray, shape (k,), int64
+        ``STRAIGHT`` while ``Δh_max <= λ_l``, ``SUSPECT`` above it, ``TURN`` once the
+        heading has moved more than ``λ_h`` from the last straight step.
+    segment : ndarray, shape (k,), int64
+        Straight-line model id of each step: a new one starts when the walk is straight
+        again after a suspected turn or a turn.
+    """
+    recent = state.recent.copy()
+    reference, current, segment = state.reference, state.status, state.segment
+    status = np.empty(headings.size, dtype=np.int64)
+    segments = np.empty(headings.size, dtype=np.int64)
+    for i, h in enumerate(np.asarray(headings, dtype=np.float64)):
+        last = recent[-1]
+        if not math.isnan(last):
+            h = last + float(np.angle(np.exp(1j * (h - last))))  # unwrap onto the window
+        recent = np.roll(recent, -1)
+        recent[-1] = h
+        known = recent[~np.isnan(recent)]
+        spread = float(known.max() - known.min())
+        if spread <= params.lambda_low_rad:
+            if current != STRAIGHT:
+                segment += 1
+            current, reference = STRAIGHT, h
+        elif math.isnan(reference) or abs(h - reference) > params.lambda_high_rad:
+            current = TURN
+        elif current != TURN:
+            current = SUSPECT
+        status[i], segments[i] = current, segment
+    return TurnState(recent, reference, current, segment), status, segments
+
+
+def ransac_line(
+    points: FloatArray,
+    threshold_m: float = 1.5,
+    rng: np.random.Generator | None = None,
+    max_pairs: int = 500,
+) -> tuple[float, float, float] | None:
+    """Line ``a x + b y + c = 0`` (with ``a² + b² = 1``) through the most step positions
+    within ``threshold_m`` (RANSAC, ``papers/003_*`` section III), refitted by total
+    least squares to its inliers.
+
+    Every pair of points is tried when there are at most ``max_pairs`` of them, otherwise
+    ``max_pairs`` pairs drawn with ``rng``. None for fewer than two distinct points.
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    n = pts.shape[0]
+    if n < 2:
+        return None
+    i, j = np.triu_indices(n, k=1)
+    if i.size > max_pairs:
+        if rng is None:
+            raise ValueError("rng is needed to sample pairs from this many points")
+        pick = rng.choice(i.size, size=max_pairs, replace=False)
+        i, j = i[pick], j[pick]
+    d = pts[j] - pts[i]
+    length = np.hypot(d[:, 0], d[:, 1])
+    ok = length > 1e-9
+    if not ok.any():
+        return None
+    i, d, length = i[ok], d[ok], length[ok]
+    normal = np.column_stack([-d[:, 1], d[:, 0]]) / length[:, None]
+    c = -np.einsum("ij,ij->i", normal, pts[i])
+    dist = np.abs(pts @ normal.T + c)  # (n, pairs)
+    best = int(np.argmax((dist <= threshold_m).sum(axis=0)))
+    inliers = pts[dist[:, best] <= threshold_m]
+    centre = inliers.mean(axis=0)
+    _, _, vt = np.linalg.svd(inliers - centre)
+    a, b = float(vt[-1, 0]), float(vt[-1, 1])  # normal: the direction of least spread
+    return a, b, float(-(a * centre[0] + b * centre[1]))
+
+
+def project_to_line(
+    points: FloatArray, line: tuple[float, float, float], threshold_m: float = 1.5
+) -> FloatArray:
+    """Move points farther than ``threshold_m`` from the line onto it (``papers/003_*``
+    eq 2-3: the perpendicular distance and the foot of the perpendicular)."""
+    a, b, c = line
+    pts = np.array(points, dtype=np.float64)
+    norm2 = a * a + b * b
+    signed = (pts @ np.array([a, b]) + c) / math.sqrt(norm2)  # eq 2 without the abs
+    far = np.abs(signed) > threshold_m
+    pts[far] -= np.outer(signed[far] / math.sqrt(norm2), [a, b])
+    return pts

@@ -1,0 +1,177 @@
+"""Raw IMU blocks in, steps out: each with its time, length, phone heading and turn status.
+
+This joins the pieces of PDR for the fusion engines, across batches:
+
+* steps and their lengths from the accelerometer (``server.positioning.pdr``);
+* the phone heading from one of three sources (``server.positioning.attitude``):
+
+  - ``"attitude"``: the yaw of the attitude-determination EKF (``papers/002_*`` eq 9-17),
+    gyro-driven with roll and pitch from gravity;
+  - ``"fused"``: gyro integration corrected by the compass during quasi-static magnetic
+    field periods (``papers/003_*`` section III);
+  - ``"rotation"``: the phone's rotation vector where it sends one, ``"fused"``
+    otherwise;
+
+* turn and straight-walk labels per step (``papers/003_*`` section III).
+
+The heading of a step is the phone heading at the step's time, interpolated from a short
+history carried in the state, so a step found one batch late still gets the heading of its
+own moment. Headings are clockwise from the source's north (magnetic north for the
+compass, an arbitrary but fixed origin for the gyro-only yaw); the engines use their
+changes and learn the offset to the map frame themselves.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from server.positioning import attitude as att
+from server.positioning import pdr
+from server.positioning.events import ImuEvent
+
+FloatArray = NDArray[np.float64]
+
+HeadingSource = Literal["attitude", "fused", "rotation"]
+
+HISTORY_MS = 3000  # longer than any step can wait for its completing extreme
+
+
+@dataclass(frozen=True)
+class TrackerParams:
+    heading: HeadingSource = "fused"
+    steps: pdr.PdrParams = field(default_factory=pdr.PdrParams)
+    turns: pdr.TurnParams = field(default_factory=pdr.TurnParams)
+    attitude: att.AttitudeParams = field(default_factory=att.AttitudeParams)
+    fusion: att.HeadingParams = field(default_factory=att.HeadingParams)
+    step_scale: float = 1.0  # multiplies the step-length model (per-person calibration)
+
+    def __post_init__(self) -> None:
+        if self.heading not in ("attitude", "fused", "rotation"):
+            raise ValueError(f"heading must be attitude, fused or rotation, got {self.heading!r}")
+        if not (math.isfinite(self.step_scale) and self.step_scale > 0):
+            raise ValueError(f"step_scale must be positive, got {self.step_scale}")
+
+
+@dataclass(frozen=True)
+class StepBlock:
+    """Steps found in one IMU block, in time order (all arrays shape (k,))."""
+
+    t_ms: NDArray[np.int64]
+    length_m: FloatArray
+    heading_rad: FloatArray  # phone heading, clockwise, wrapped to (-pi, pi]
+    status: NDArray[np.int64]  # pdr.STRAIGHT / SUSPECT / TURN
+    segment: NDArray[np.int64]
+
+    def __len__(self) -> int:
+        return int(self.t_ms.size)
+
+
+@dataclass(frozen=True)
+class TrackerState:
+    detector: pdr.DetectorState
+    turns: pdr.TurnState
+    attitude: att.AttitudeState
+    fusion: att.HeadingState
+    history: FloatArray  # (m, 2) [t_ms, unwrapped heading] of the last HISTORY_MS
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        out: dict[str, np.ndarray] = {"history": self.history}
+        for prefix, part in (
+            ("det.", self.detector.to_arrays()),
+            ("turn.", self.turns.to_arrays()),
+            ("att.", self.attitude.to_arrays()),
+            ("fus.", self.fusion.to_arrays()),
+        ):
+            out.update({prefix + k: v for k, v in part.items()})
+        return out
+
+    @classmethod
+    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> TrackerState:
+        def part(prefix: str) -> dict[str, np.ndarray]:
+            return {k[len(prefix) :]: v for k, v in arrays.items() if k.startswith(prefix)}
+
+        history = np.array(arrays["history"], dtype=np.float64).reshape(-1, 2)
+        return cls(
+            detector=pdr.DetectorState.from_arrays(part("det.")),
+            turns=pdr.TurnState.from_arrays(part("turn.")),
+            attitude=att.AttitudeState.from_arrays(part("att.")),
+            fusion=att.HeadingState.from_arrays(part("fus.")),
+            history=history,
+        )
+
+
+def initial_tracker(params: TrackerParams) -> TrackerState:
+    return TrackerState(
+        detector=pdr.initial_detector(),
+        turns=pdr.initial_turns(params.turns),
+        attitude=att.initial_attitude(params.attitude),
+        fusion=att.initial_heading(params.fusion),
+        history=np.empty((0, 2)),
+    )
+
+
+def _headings(
+    state: TrackerState, imu: ImuEvent, params: TrackerParams
+) -> tuple[TrackerState, FloatArray]:
+    """Phone heading samples ``[t_ms, heading]`` of the block from the chosen source."""
+    if params.heading == "rotation" and imu.rotation.shape[0]:
+        return state, att.rotation_heading(imu.rotation)
+    if imu.gyro.shape[0] == 0:
+        return state, np.empty((0, 2))
+    if params.heading == "attitude":
+        attitude, euler = att.attitude_ekf(state.attitude, imu.gyro, imu.accel, params.attitude)
+        heading = np.column_stack([euler[:, 0], att.heading_from_yaw(euler[:, 1])])
+        return replace(state, attitude=attitude), heading
+    fusion, fused = att.fuse_heading(state.fusion, imu.gyro, imu.accel, imu.magnetic, params.fusion)
+    return replace(state, fusion=fusion), fused[:, :2]
+
+
+def _extend_history(history: FloatArray, samples: FloatArray) -> FloatArray:
+    """Append heading samples, unwrapped to continue the history, and drop old ones."""
+    if samples.shape[0] == 0:
+        return history
+    t = samples[:, 0]
+    keep = t > history[-1, 0] if history.shape[0] else np.ones(t.size, dtype=bool)
+    t, h = t[keep], samples[keep, 1]
+    if t.size == 0:
+        return history
+    # continue from the last kept value, not from the wrapped one
+    h = np.unwrap(np.concatenate([history[-1:, 1], h]))[history.shape[0] > 0 :]
+    out = np.vstack([history, np.column_stack([t, h])])
+    recent: FloatArray = out[out[:, 0] >= out[-1, 0] - HISTORY_MS]
+    return recent
+
+
+def track(
+    state: TrackerState, imu: ImuEvent, params: TrackerParams
+) -> tuple[TrackerState, StepBlock]:
+    """Advance the tracker by one IMU block; the steps it completes come out."""
+    state, heading_samples = _headings(state, imu, params)
+    history = _extend_history(state.history, heading_samples)
+    detector, steps = pdr.detect_steps(state.detector, imu.accel, params.steps)
+    state = replace(state, detector=detector, history=history)
+    if len(steps) == 0:
+        empty = np.empty(0, dtype=np.int64)
+        return state, StepBlock(empty, np.empty(0), np.empty(0), empty, empty)
+    if history.shape[0]:
+        heading = np.interp(steps.t_ms.astype(np.float64), history[:, 0], history[:, 1])
+    else:
+        heading = np.full(len(steps), np.nan)
+    lengths = pdr.step_lengths(steps, params.steps, params.step_scale)
+    known = ~np.isnan(heading)
+    status = np.full(len(steps), pdr.STRAIGHT, dtype=np.int64)
+    segment = np.full(len(steps), state.turns.segment, dtype=np.int64)
+    turns = state.turns
+    if known.any():
+        turns, status[known], segment[known] = pdr.classify_steps(
+            turns, heading[known], params.turns
+        )
+    wrapped = np.where(known, np.angle(np.exp(1j * np.nan_to_num(heading))), np.nan)
+    block = StepBlock(steps.t_ms, lengths, wrapped, status, segment)
+    return replace(state, turns=turns), block
