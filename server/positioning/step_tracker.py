@@ -24,16 +24,17 @@ changes and learn the offset to the map frame themselves.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
 from server.positioning import attitude as att
 from server.positioning import pdr
-from server.positioning.events import ImuEvent
+from server.positioning.events import BleEvent, Event, ImuEvent, WifiEvent
+from server.positioning.kalman import wrap_angle
 
 FloatArray = NDArray[np.float64]
 
@@ -64,7 +65,8 @@ class StepBlock:
 
     t_ms: NDArray[np.int64]
     length_m: FloatArray
-    heading_rad: FloatArray  # phone heading, clockwise, wrapped to (-pi, pi]
+    heading_rad: FloatArray  # phone heading from the chosen source, wrapped to (-pi, pi]
+    north_rad: FloatArray  # phone heading clockwise from north; NaN when not known
     status: NDArray[np.int64]  # pdr.STRAIGHT / SUSPECT / TURN
     segment: NDArray[np.int64]
 
@@ -79,9 +81,13 @@ class TrackerState:
     attitude: att.AttitudeState
     fusion: att.HeadingState
     history: FloatArray  # (m, 2) [t_ms, unwrapped heading] of the last HISTORY_MS
+    north_history: FloatArray  # (m, 2) the same for the north-referenced heading
 
     def to_arrays(self) -> dict[str, np.ndarray]:
-        out: dict[str, np.ndarray] = {"history": self.history}
+        out: dict[str, np.ndarray] = {
+            "history": self.history,
+            "north_history": self.north_history,
+        }
         for prefix, part in (
             ("det.", self.detector.to_arrays()),
             ("turn.", self.turns.to_arrays()),
@@ -96,13 +102,16 @@ class TrackerState:
         def part(prefix: str) -> dict[str, np.ndarray]:
             return {k[len(prefix) :]: v for k, v in arrays.items() if k.startswith(prefix)}
 
-        history = np.array(arrays["history"], dtype=np.float64).reshape(-1, 2)
+        def rows(name: str) -> FloatArray:
+            return np.array(arrays[name], dtype=np.float64).reshape(-1, 2)
+
         return cls(
             detector=pdr.DetectorState.from_arrays(part("det.")),
             turns=pdr.TurnState.from_arrays(part("turn.")),
             attitude=att.AttitudeState.from_arrays(part("att.")),
             fusion=att.HeadingState.from_arrays(part("fus.")),
-            history=history,
+            history=rows("history"),
+            north_history=rows("north_history"),
         )
 
 
@@ -113,23 +122,37 @@ def initial_tracker(params: TrackerParams) -> TrackerState:
         attitude=att.initial_attitude(params.attitude),
         fusion=att.initial_heading(params.fusion),
         history=np.empty((0, 2)),
+        north_history=np.empty((0, 2)),
     )
 
 
 def _headings(
     state: TrackerState, imu: ImuEvent, params: TrackerParams
-) -> tuple[TrackerState, FloatArray]:
-    """Phone heading samples ``[t_ms, heading]`` of the block from the chosen source."""
-    if params.heading == "rotation" and imu.rotation.shape[0]:
-        return state, att.rotation_heading(imu.rotation)
-    if imu.gyro.shape[0] == 0:
-        return state, np.empty((0, 2))
+) -> tuple[TrackerState, FloatArray, FloatArray]:
+    """Heading samples ``[t_ms, heading]`` of the block: from the chosen source, and
+    referenced to north (rotation vector, else the compass-aided fusion once it has seen
+    the compass; no rows when neither is known)."""
+    none = np.empty((0, 2))
+    north = none
+    if imu.gyro.shape[0]:
+        was_referenced = state.fusion.initialized
+        fusion, fused = att.fuse_heading(
+            state.fusion, imu.gyro, imu.accel, imu.magnetic, params.fusion
+        )
+        state = replace(state, fusion=fusion)
+        if was_referenced:
+            north = fused[:, :2]
+    if imu.rotation.shape[0]:
+        north = att.rotation_heading(imu.rotation)
     if params.heading == "attitude":
+        if imu.gyro.shape[0] == 0:
+            return state, none, north
         attitude, euler = att.attitude_ekf(state.attitude, imu.gyro, imu.accel, params.attitude)
         heading = np.column_stack([euler[:, 0], att.heading_from_yaw(euler[:, 1])])
-        return replace(state, attitude=attitude), heading
-    fusion, fused = att.fuse_heading(state.fusion, imu.gyro, imu.accel, imu.magnetic, params.fusion)
-    return replace(state, fusion=fusion), fused[:, :2]
+        return replace(state, attitude=attitude), heading, north
+    if params.heading == "rotation" and imu.rotation.shape[0]:
+        return state, north, north
+    return state, (fused[:, :2] if imu.gyro.shape[0] else none), north
 
 
 def _extend_history(history: FloatArray, samples: FloatArray) -> FloatArray:
@@ -152,17 +175,16 @@ def track(
     state: TrackerState, imu: ImuEvent, params: TrackerParams
 ) -> tuple[TrackerState, StepBlock]:
     """Advance the tracker by one IMU block; the steps it completes come out."""
-    state, heading_samples = _headings(state, imu, params)
+    state, heading_samples, north_samples = _headings(state, imu, params)
     history = _extend_history(state.history, heading_samples)
+    north_history = _extend_history(state.north_history, north_samples)
     detector, steps = pdr.detect_steps(state.detector, imu.accel, params.steps)
-    state = replace(state, detector=detector, history=history)
+    state = replace(state, detector=detector, history=history, north_history=north_history)
     if len(steps) == 0:
         empty = np.empty(0, dtype=np.int64)
-        return state, StepBlock(empty, np.empty(0), np.empty(0), empty, empty)
-    if history.shape[0]:
-        heading = np.interp(steps.t_ms.astype(np.float64), history[:, 0], history[:, 1])
-    else:
-        heading = np.full(len(steps), np.nan)
+        return state, StepBlock(empty, np.empty(0), np.empty(0), np.empty(0), empty, empty)
+    t = steps.t_ms.astype(np.float64)
+    heading = _at(history, t)
     lengths = pdr.step_lengths(steps, params.steps, params.step_scale)
     known = ~np.isnan(heading)
     status = np.full(len(steps), pdr.STRAIGHT, dtype=np.int64)
@@ -172,6 +194,55 @@ def track(
         turns, status[known], segment[known] = pdr.classify_steps(
             turns, heading[known], params.turns
         )
-    wrapped = np.where(known, np.angle(np.exp(1j * np.nan_to_num(heading))), np.nan)
-    block = StepBlock(steps.t_ms, lengths, wrapped, status, segment)
+    block = StepBlock(
+        steps.t_ms, lengths, _wrap(heading), _wrap(_at(north_history, t)), status, segment
+    )
     return replace(state, turns=turns), block
+
+
+def _at(history: FloatArray, t: FloatArray) -> FloatArray:
+    """History interpolated at times ``t`` (NaN everywhere when it is empty)."""
+    if history.shape[0] == 0:
+        return np.full(t.size, np.nan)
+    return np.interp(t, history[:, 0], history[:, 1])
+
+
+def _wrap(angle: FloatArray) -> FloatArray:
+    """Wrap to (-pi, pi], keeping NaN."""
+    return np.where(np.isnan(angle), np.nan, wrap_angle(np.nan_to_num(angle)))
+
+
+class Step(NamedTuple):
+    """One step as the fusion engines consume it."""
+
+    t_ms: int
+    length_m: float
+    heading_rad: float  # from the tracker's heading source
+    north_rad: float  # clockwise from north; NaN when not known
+    straight: bool  # part of a straight walk (pdr.STRAIGHT)
+
+
+Scan = WifiEvent | BleEvent
+
+
+def timeline(
+    state: TrackerState, events: Sequence[Event], params: TrackerParams
+) -> tuple[TrackerState, list[Step | Scan]]:
+    """The batch's IMU blocks turned into steps, merged with its scans in time order (a
+    step before a scan of the same millisecond); other events are dropped."""
+    items: list[tuple[int, int, Step | Scan]] = []
+    imus = sorted((e for e in events if isinstance(e, ImuEvent)), key=lambda e: e.t_ms)
+    for imu in imus:
+        state, block = track(state, imu, params)
+        for i in range(len(block)):
+            step = Step(
+                int(block.t_ms[i]),
+                float(block.length_m[i]),
+                float(block.heading_rad[i]),
+                float(block.north_rad[i]),
+                bool(block.status[i] == pdr.STRAIGHT),
+            )
+            items.append((step.t_ms, 0, step))
+    items += [(e.t_ms, 1, e) for e in events if isinstance(e, WifiEvent | BleEvent)]
+    items.sort(key=lambda item: (item[0], item[1]))
+    return state, [item for _, _, item in items]

@@ -70,7 +70,7 @@ class MapCache:
 
 async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None) -> SiteMaps:
     floors = await repo.list_site_floors(s, site_id)
-    refs = tuple(FloorRef(b.id, f.id, f.level) for f, b in floors)
+    refs = tuple(FloorRef(b.id, f.id, f.level, b.rotation_rad) for f, b in floors)
     building_ids = list(dict.fromkeys(b.id for _, b in floors))
     latest = [m for b in building_ids if (m := await repo.latest_radio_map(s, b)) is not None]
     version = "|".join([f.floor_id for f in refs] + [m.id for m in latest])

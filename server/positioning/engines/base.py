@@ -25,6 +25,7 @@ class FloorRef:
     building_id: str
     floor_id: str
     level: int
+    rotation_rad: float = 0.0  # bearing of the building's y axis, clockwise from north
 
 
 @dataclass(frozen=True)
