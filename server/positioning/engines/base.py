@@ -28,6 +28,19 @@ class FloorRef:
     rotation_rad: float = 0.0  # bearing of the building's y axis, clockwise from north
 
 
+@dataclass(frozen=True, slots=True)
+class Anchor:
+    """A place the phone can tell it is at: a BLE beacon at a known position, such as an
+    elevator or an entrance (``papers/003_*`` section IV-B); it is passed when the beacon
+    is heard at or above ``rssi_dbm``."""
+
+    floor: int
+    x_m: float
+    y_m: float
+    emitter: str  # radio-map key of the beacon, "ble:<id>"
+    rssi_dbm: float = -65.0
+
+
 @dataclass(frozen=True)
 class SiteMaps:
     """Everything an engine may read about a site: its floors and its maps."""
@@ -35,6 +48,7 @@ class SiteMaps:
     floors: tuple[FloorRef, ...]
     radio: RadioMap | None
     version: str  # changes whenever any map of the site changes
+    anchors: tuple[Anchor, ...] = ()
 
 
 class EngineState(Protocol):

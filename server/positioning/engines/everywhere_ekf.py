@@ -1,0 +1,436 @@
+"""``everywhere_ekf``: the online positioning of Mansour et al.'s *Everywhere* framework.
+
+PDR (``papers/003_*`` section III, ``server.positioning.pdr``): peak/valley step detection
+on the vertical acceleration, step lengths from eq 1, the heading from gyro integration
+fused with the compass during quasi-static magnetic field periods, and the turn /
+straight-walk labels from ``Δh_max`` with ``λ_l``, ``λ_h``.
+
+Fingerprinting with PDR-aided selection of the K nearest reference points (section V.A,
+eq 11-14). When every step since the previous scan was straight walking and the last two
+fingerprint positions are known, each reference point ``i`` is charged, on top of its
+signal distance, with
+
+* ``ξ_Δd = | |RP_i - FP_{t-1}| - Σ sl_k |`` (eq 13): how far the distance from the last
+  fingerprint position to it is from the distance walked since, and
+* ``ξ_ΔH = |bearing(FP_{t-1} -> RP_i) - bearing(FP_{t-2} -> FP_{t-1})|`` (eq 14): how much
+  the direction to it turns away from the direction of walking,
+
+summed as in the paper (metres and radians added to decibels; ``aid_distance_db_per_m``
+and ``aid_heading_db_per_rad`` are 1). During turns, when static, or without two earlier
+positions the selection is plain signal matching.
+
+The EKF (section V.B, eq 15-17) keeps ``[x, y, s, h]``: position, step-length correction
+``s`` (a step moves ``(1 + s) d``) and heading in the map frame. At each step (eq 15, with
+the heading after the step's turn)::
+
+    h_t = h_{t-1} + Δh_t
+    x_t = x_{t-1} + (1 + s) d_t sin(h_t)
+    y_t = y_{t-1} + (1 + s) d_t cos(h_t)
+    s_t = s_{t-1}
+
+with the transition matrix of eq 16. Writing the filter on the full state rather than on
+the error state ``[δE, δN, δs, δh]`` gives the same estimates (the error-state form is its
+linearisation about the PDR solution) and lets the engine share the EKF steps of
+``server.positioning.kalman``. A fingerprint position updates ``x, y`` with the variance of
+eq 17 (floored, ``min_fix_var_m2``).
+
+The heading starts from the phone's north-referenced heading (its fused compass, or
+rotation vector) turned into the building frame; ``Δh_t`` is the change of the fused
+heading between steps.
+
+Calibration at anchors (eq 18-22): a floor plan may mark anchors, places with a BLE
+beacon (elevators, entrances) at known positions (``SiteMaps.anchors``). An anchor is
+passed when its beacon is heard at or above its threshold; the position is then updated
+at the anchor. When the walk from the previous anchor was straight, the step length is
+calibrated (eq 18-19: the anchor distance over the number of steps, as a measurement of
+``s`` with ``r_3 = 0.005``) and so is the heading (eq 20-21: the angle between the
+measured and the true direction from the previous anchor, ``r_4 = 0.001``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from server.positioning.engines import radio_fusion as rf
+from server.positioning.engines.base import Anchor, EngineSpec, SiteMaps
+from server.positioning.events import BleEvent, Event, Fix, radio_key
+from server.positioning.fingerprint import RadioMap, WknnFix, wknn
+from server.positioning.kalman import predict_ekf, update, wrap_angle
+from server.positioning.step_tracker import (
+    Scan,
+    Step,
+    TrackerParams,
+    TrackerState,
+    initial_tracker,
+    timeline,
+)
+
+FloatArray = NDArray[np.float64]
+
+_H_SCALE = np.array([[0.0, 0.0, 1.0, 0.0]])
+_H_HEADING = np.array([[0.0, 0.0, 0.0, 1.0]])
+
+
+@dataclass(frozen=True)
+class EverywhereParams:
+    tracker: TrackerParams = field(default_factory=TrackerParams)
+    k: int = 4  # neighbours of eq 11
+    aid_distance_db_per_m: float = 1.0  # weight of ξ_Δd (eq 13) against the signal distance
+    aid_heading_db_per_rad: float = 1.0  # weight of ξ_ΔH (eq 14)
+    q_x_m2: float = 0.01  # the paper gives no values: papers/002_* eq 22
+    q_y_m2: float = 0.01
+    q_scale: float = 0.0001
+    q_heading_rad2: float = 0.01
+    p0_scale: float = 0.01
+    p0_north_heading_rad2: float = math.radians(20.0) ** 2
+    r_step_scale: float = 0.005  # eq 19
+    r_anchor_heading_rad2: float = 0.001  # eq 21
+    anchor_var_m2: float = 1.0
+    anchor_min_steps: int = 5  # shorter walks between anchors calibrate nothing
+    min_fix_var_m2: float = 4.0  # as in step_ekf
+    gate_chi2: float = 13.82  # chi2(2 dof), 99.9 %
+    max_rejects: int = 6  # as in two_stage_ekf
+
+    def __post_init__(self) -> None:
+        if self.k < 1 or self.max_rejects < 1 or self.anchor_min_steps < 1:
+            raise ValueError("k, max_rejects and anchor_min_steps must be at least 1")
+        rf.check_positive(
+            min_fix_var_m2=self.min_fix_var_m2,
+            gate_chi2=self.gate_chi2,
+            r_step_scale=self.r_step_scale,
+            r_anchor_heading_rad2=self.r_anchor_heading_rad2,
+            anchor_var_m2=self.anchor_var_m2,
+            p0_north_heading_rad2=self.p0_north_heading_rad2,
+        )
+        if self.aid_distance_db_per_m < 0 or self.aid_heading_db_per_rad < 0:
+            raise ValueError("the aiding weights must not be negative")
+
+    @property
+    def process_noise(self) -> FloatArray:
+        return np.diag([self.q_x_m2, self.q_y_m2, self.q_scale, self.q_heading_rad2])
+
+
+@dataclass(frozen=True)
+class EverywhereState:
+    tracker: TrackerState
+    x: FloatArray  # [x_m, y_m, scale_correction, heading_rad]
+    P: FloatArray
+    floor: int
+    initialized: bool
+    heading_known: bool
+    last_phone_heading: float  # fused heading of the previous step (NaN before any)
+    rejects: int
+    fp: FloatArray  # (2, 2) fingerprint positions at t-2 and t-1, NaN when unknown
+    walked_m: float  # PDR distance since the last scan
+    straight: bool  # every step since the last scan was straight walking
+    anchor: int  # index of the last anchor passed (-1: none)
+    anchor_steps: int  # steps since it
+    anchor_walked_m: float  # uncorrected PDR distance since it
+    anchor_straight: bool  # every step since it was straight walking
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        out = {"trk." + k: v for k, v in self.tracker.to_arrays().items()}
+        out.update(
+            x=self.x,
+            P=self.P,
+            floor=np.array(self.floor),
+            initialized=np.array(self.initialized, dtype=np.int8),
+            heading_known=np.array(self.heading_known, dtype=np.int8),
+            last_phone_heading=np.array(self.last_phone_heading),
+            rejects=np.array(self.rejects),
+            fp=self.fp,
+            walked_m=np.array(self.walked_m),
+            straight=np.array(self.straight, dtype=np.int8),
+            anchor=np.array(self.anchor),
+            anchor_steps=np.array(self.anchor_steps),
+            anchor_walked_m=np.array(self.anchor_walked_m),
+            anchor_straight=np.array(self.anchor_straight, dtype=np.int8),
+        )
+        return out
+
+    @classmethod
+    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> EverywhereState:
+        tracker = {k[4:]: v for k, v in arrays.items() if k.startswith("trk.")}
+        x = np.array(arrays["x"], dtype=np.float64)
+        P = np.array(arrays["P"], dtype=np.float64)
+        fp = np.array(arrays["fp"], dtype=np.float64)
+        if x.shape != (4,) or P.shape != (4, 4) or fp.shape != (2, 2):
+            raise ValueError("everywhere_ekf state needs x (4,), P (4, 4) and fp (2, 2)")
+        return cls(
+            tracker=TrackerState.from_arrays(tracker),
+            x=x,
+            P=P,
+            floor=int(arrays["floor"]),
+            initialized=bool(arrays["initialized"]),
+            heading_known=bool(arrays["heading_known"]),
+            last_phone_heading=float(arrays["last_phone_heading"]),
+            rejects=int(arrays["rejects"]),
+            fp=fp,
+            walked_m=float(arrays["walked_m"]),
+            straight=bool(arrays["straight"]),
+            anchor=int(arrays["anchor"]),
+            anchor_steps=int(arrays["anchor_steps"]),
+            anchor_walked_m=float(arrays["anchor_walked_m"]),
+            anchor_straight=bool(arrays["anchor_straight"]),
+        )
+
+
+def initial_state(params: EverywhereParams) -> EverywhereState:
+    return EverywhereState(
+        tracker=initial_tracker(params.tracker),
+        x=np.zeros(4),
+        P=np.diag([params.min_fix_var_m2] * 2 + [params.p0_scale, math.pi**2]),
+        floor=-1,
+        initialized=False,
+        heading_known=False,
+        last_phone_heading=math.nan,
+        rejects=0,
+        fp=np.full((2, 2), np.nan),
+        walked_m=0.0,
+        straight=False,
+        anchor=-1,
+        anchor_steps=0,
+        anchor_walked_m=0.0,
+        anchor_straight=False,
+    )
+
+
+def _fix(state: EverywhereState, t_ms: int, source: str, diagnostics: dict[str, float]) -> Fix:
+    return rf.to_fix(state.x, state.P, state.floor, state.heading_known, t_ms, source, diagnostics)
+
+
+def _on_step(
+    state: EverywhereState, step: Step, maps: SiteMaps, params: EverywhereParams
+) -> tuple[EverywhereState, Fix | None]:
+    turn = 0.0
+    if math.isfinite(step.heading_rad) and math.isfinite(state.last_phone_heading):
+        turn = float(wrap_angle(step.heading_rad - state.last_phone_heading))
+    if math.isfinite(step.heading_rad):
+        state = replace(state, last_phone_heading=step.heading_rad)
+    state = replace(
+        state,
+        walked_m=state.walked_m + step.length_m * (1.0 + float(state.x[2])),
+        straight=state.straight and step.straight,
+        anchor_steps=state.anchor_steps + 1,
+        anchor_walked_m=state.anchor_walked_m + step.length_m,
+        anchor_straight=state.anchor_straight and step.straight,
+    )
+    if not state.initialized:
+        return state, None
+    x, P = state.x, state.P
+    if not state.heading_known and math.isfinite(step.north_rad):
+        rotation = maps.floors[state.floor].rotation_rad if state.floor < len(maps.floors) else 0.0
+        north = float(wrap_angle(step.north_rad - rotation))
+        x, P = rf.set_heading(x, P, north, params.p0_north_heading_rad2)
+        state = replace(state, heading_known=True)
+        turn = 0.0
+    d = step.length_m
+    if not state.heading_known:
+        x = x.copy()
+        x[3] = wrap_angle(x[3] + turn)
+        P = rf.widen(P, (1.0 + float(x[2])) * d)
+    else:
+        scale, h = 1.0 + x[2], x[3] + turn
+        s, c = math.sin(h), math.cos(h)
+        A = np.array(  # eq 16
+            [
+                [1.0, 0.0, d * s, scale * d * c],
+                [0.0, 1.0, d * c, -scale * d * s],
+                [0.0, 0.0, 1.0, 0.0],
+                [0.0, 0.0, 0.0, 1.0],
+            ]
+        )
+        x_pred = np.array([x[0] + scale * d * s, x[1] + scale * d * c, x[2], wrap_angle(h)])
+        x, P = predict_ekf(x_pred, P, A, params.process_noise)
+    new = replace(state, x=x, P=P)
+    return new, _fix(new, step.t_ms, "step", {"step_length_m": float((1.0 + x[2]) * d)})
+
+
+def aiding_penalty(
+    radio: RadioMap, fp: FloatArray, walked_m: float, params: EverywhereParams
+) -> FloatArray:
+    """``ξ_Δd + ξ_ΔH`` per reference point (``papers/003_*`` eq 13-14), weighted to dB.
+
+    ``fp`` holds the fingerprint positions at t-2 and t-1; ``walked_m`` the PDR distance
+    since t-1.
+    """
+    rp = radio.rp_xy.astype(np.float64)
+    to_rp = rp - fp[1]
+    xi_d = np.abs(np.hypot(to_rp[:, 0], to_rp[:, 1]) - walked_m)  # eq 13
+    walking = fp[1] - fp[0]
+    bearing_walk = math.atan2(float(walking[0]), float(walking[1]))
+    bearing_rp = np.arctan2(to_rp[:, 0], to_rp[:, 1])
+    xi_h = np.abs(wrap_angle(bearing_rp - bearing_walk))  # eq 14, wrapped
+    penalty: FloatArray = params.aid_distance_db_per_m * xi_d + params.aid_heading_db_per_rad * xi_h
+    return penalty
+
+
+def _remember_fp(state: EverywhereState, x_m: float, y_m: float) -> EverywhereState:
+    fp = np.array([state.fp[1], [x_m, y_m]])
+    return replace(state, fp=fp, walked_m=0.0, straight=True)
+
+
+def _on_scan(
+    state: EverywhereState, event: Scan, maps: SiteMaps, params: EverywhereParams
+) -> tuple[EverywhereState, Fix | None]:
+    if isinstance(event, BleEvent) and maps.anchors:
+        state, anchor_fix = _on_anchor(state, event, maps, params)
+        if anchor_fix is not None:
+            return state, anchor_fix
+    if maps.radio is None:
+        return state, None
+    m = rf.match(maps.radio, event, params.k)
+    if m is None:
+        return state, None
+    whole = m.whole
+    diagnostics = {"n_matched": float(m.scan.n_matched)}
+    if state.initialized and whole.floor != state.floor:
+        diagnostics["floor_change"] = 1.0
+    state = replace(state, floor=whole.floor)
+    rejects = 0
+    if state.initialized:
+        rejects = rf.rejects_after(
+            state.x, state.P, whole, state.rejects, params.min_fix_var_m2, params.gate_chi2
+        )
+    if not state.initialized or rejects >= params.max_rejects:
+        if state.initialized:
+            diagnostics["reinitialised"] = 1.0
+        x, P = rf.place(state.x, state.P, whole, params.min_fix_var_m2)
+        new = _remember_fp(replace(state, x=x, P=P, initialized=True, rejects=0), *_xy(whole))
+        return new, _fix(new, m.t_ms, m.kind, diagnostics)
+
+    found = whole
+    aided = state.straight and state.walked_m > 0.0 and not np.isnan(state.fp).any()
+    if aided:
+        penalty = aiding_penalty(maps.radio, state.fp, state.walked_m, params)
+        found = wknn(maps.radio, m.scan, k=params.k, penalty_db=penalty) or whole
+        diagnostics["aided"] = 1.0
+    u = rf.position_update(state.x, state.P, found, params.min_fix_var_m2)
+    diagnostics["mahalanobis2"] = u.mahalanobis2
+    state = _remember_fp(replace(state, x=u.x, P=u.P, rejects=rejects), *_xy(found))
+    return state, _fix(state, m.t_ms, m.kind, diagnostics)
+
+
+def _xy(found: WknnFix) -> tuple[float, float]:
+    return found.x_m, found.y_m
+
+
+def _passed_anchor(maps: SiteMaps, event: BleEvent) -> int | None:
+    """Index of the anchor whose beacon this scan hears at or above its threshold (the
+    strongest such one); None when there is none."""
+    heard = {radio_key("ble", r.emitter): r.rssi_dbm for r in event.readings}
+    best: tuple[float, int] | None = None
+    for i, anchor in enumerate(maps.anchors):
+        rssi = heard.get(anchor.emitter)
+        if rssi is not None and rssi >= anchor.rssi_dbm and (best is None or rssi > best[0]):
+            best = (rssi, i)
+    return None if best is None else best[1]
+
+
+def _on_anchor(
+    state: EverywhereState, event: BleEvent, maps: SiteMaps, params: EverywhereParams
+) -> tuple[EverywhereState, Fix | None]:
+    """Position (and, after a straight walk from the previous anchor, step length and
+    heading) update at an anchor (``papers/003_*`` eq 18-21)."""
+    index = _passed_anchor(maps, event)
+    if index is None or index == state.anchor:
+        return state, None
+    anchor: Anchor = maps.anchors[index]
+    diagnostics = {"anchor": float(index)}
+    x, P = state.x, state.P
+    if state.initialized and state.heading_known and 0 <= state.anchor < len(maps.anchors):
+        previous = maps.anchors[state.anchor]
+        if (
+            state.anchor_straight
+            and state.anchor_steps >= params.anchor_min_steps
+            and previous.floor == anchor.floor
+        ):
+            true_m = math.hypot(anchor.x_m - previous.x_m, anchor.y_m - previous.y_m)
+            # eq 18-19: the calibrated step over the PDR step, as a correction of s
+            scale = true_m / state.anchor_walked_m - 1.0
+            u = update(x, P, z=[scale], H=_H_SCALE, R=np.array([[params.r_step_scale]]))
+            x, P = u.x, u.P
+            # eq 20-21: measured minus true bearing from the previous anchor
+            bearing_true = math.atan2(anchor.x_m - previous.x_m, anchor.y_m - previous.y_m)
+            bearing_meas = math.atan2(x[0] - previous.x_m, x[1] - previous.y_m)
+            error = float(wrap_angle(bearing_meas - bearing_true))
+            h = update(
+                x,
+                P,
+                z=[float(wrap_angle(x[3] - error))],
+                H=_H_HEADING,
+                R=np.array([[params.r_anchor_heading_rad2]]),
+                residual=lambda z, zp: wrap_angle(z - zp),
+            )
+            x, P = h.x, h.P
+            x[3] = wrap_angle(x[3])
+            diagnostics["step_scale"] = scale
+            diagnostics["heading_error_rad"] = error
+    if state.initialized:
+        u = update(
+            x,
+            P,
+            z=[anchor.x_m, anchor.y_m],
+            H=rf.H_POSITION,
+            R=params.anchor_var_m2 * np.eye(2),
+        )
+        x, P = u.x, u.P
+    else:
+        x, P = x.copy(), P.copy()
+        x[:2] = anchor.x_m, anchor.y_m
+        P[:2, :] = P[:, :2] = 0.0
+        P[0, 0] = P[1, 1] = params.anchor_var_m2
+    new = replace(
+        state,
+        x=x,
+        P=P,
+        floor=anchor.floor,
+        initialized=True,
+        rejects=0,
+        anchor=index,
+        anchor_steps=0,
+        anchor_walked_m=0.0,
+        anchor_straight=True,
+    )
+    return new, _fix(new, event.t_ms, "anchor", diagnostics)
+
+
+def run(
+    state: EverywhereState,
+    events: Sequence[Event],
+    maps: SiteMaps,
+    params: EverywhereParams,
+    rng: np.random.Generator,
+) -> tuple[EverywhereState, list[Fix]]:
+    """Process a batch: raw IMU blocks become steps, then steps and scans in time order.
+
+    Step events sent by the phone are ignored: this engine finds its own steps.
+    """
+    del rng  # deterministic
+    tracker, items = timeline(state.tracker, events, params.tracker)
+    state = replace(state, tracker=tracker)
+    fixes: list[Fix] = []
+    for item in items:
+        fix: Fix | None
+        if isinstance(item, Step):
+            state, fix = _on_step(state, item, maps, params)
+        else:
+            state, fix = _on_scan(state, item, maps, params)
+        if fix is not None:
+            fixes.append(fix)
+    return state, fixes
+
+
+SPEC = EngineSpec(
+    name="everywhere_ekf",
+    params_type=EverywhereParams,
+    initial_state=initial_state,
+    from_arrays=EverywhereState.from_arrays,
+    run=run,
+    uses=frozenset({"imu", "wifi", "ble"}),
+)
