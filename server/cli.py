@@ -9,6 +9,7 @@ import socket
 import threading
 import time
 from collections.abc import Callable
+from enum import StrEnum
 from pathlib import Path
 from typing import Annotated
 
@@ -309,6 +310,70 @@ def evaluate_ilc(
     if plots is not None:
         written = evaluation.write_ilc_plots(runs, plots)
         console.print(f"{len(written)} figures written to {plots}")
+
+
+class StepDetector(StrEnum):
+    mansour = "mansour"
+    cui = "cui"
+
+
+class StepLength(StrEnum):
+    mansour = "mansour"
+    weinberg = "weinberg"
+
+
+class HeadingChoice(StrEnum):
+    fused = "fused"
+    rotation = "rotation"
+    attitude = "attitude"
+
+
+@evaluate_app.command("pdr")
+def evaluate_pdr(
+    site_dir: Annotated[
+        Path, typer.Argument(exists=True, file_okay=False, help="ILC site or floor directory")
+    ],
+    detector: Annotated[StepDetector, typer.Option(help="step detector")] = StepDetector.mansour,
+    length_model: Annotated[
+        StepLength, typer.Option(help="step-length model")
+    ] = StepLength.mansour,
+    heading: Annotated[
+        HeadingChoice, typer.Option(help="heading source of the tracker")
+    ] = HeadingChoice.fused,
+    json_path: Annotated[Path | None, typer.Option("--json", help="write the metrics here")] = None,
+    split_seed: Annotated[int, typer.Option(help="seed of the per-floor path split")] = 0,
+    train_fraction: Annotated[float, typer.Option(min=0.05, max=0.95)] = 0.8,
+) -> None:
+    """PDR alone on ILC 2.0 traces: walked-distance error of step detection against the
+    waypoints, and dead-reckoning drift from the first waypoint."""
+    from server.positioning.step_tracker import TrackerParams
+    from server.services import pdr_evaluation
+
+    params = pdr_evaluation.with_detector(
+        TrackerParams(heading=heading.value), detector.value, length_model.value
+    )
+    with _progress_bar() as bar:
+        tasks: dict[str, TaskID] = {}
+
+        def progress(stage: str, done: int, total: int) -> None:
+            if stage not in tasks:
+                tasks[stage] = bar.add_task(stage, total=total)
+            bar.update(tasks[stage], completed=done, total=total)
+
+        result = pdr_evaluation.evaluate_pdr(
+            site_dir,
+            params,
+            split_seed=split_seed,
+            train_fraction=train_fraction,
+            progress=progress,
+        )
+    flat = {k: v for k, v in result.items() if not isinstance(v, dict | list)}
+    for part in ("distance_paper", "distance_trained", "dead_reckoning"):
+        flat.update({f"{part}.{k}": v for k, v in result[part].items()})
+    _print_report(f"PDR on {site_dir.name}", flat)
+    if json_path is not None:
+        json_path.write_text(json.dumps(result, indent=2) + "\n")
+        console.print(f"metrics written to {json_path}")
 
 
 @evaluate_app.command("uji")

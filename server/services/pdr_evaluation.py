@@ -1,21 +1,26 @@
-"""How far the phone walked by our step detection, against the ILC 2.0 waypoints.
+"""PDR alone on ILC 2.0 traces: how far the phone walked, and how far dead reckoning drifts.
 
-For each trace, the steps found in its raw accelerometer samples between its first and
-last waypoint give a walked distance; the waypoint polyline gives the true distance (a
-lower bound: people do not walk exactly straight between waypoints). The per-trace error
-is ``detected / true - 1``.
+Each test trace's raw IMU goes through the step tracker (``server.positioning.step_tracker``)
+in blocks of one second, as a phone would post it. Two things are measured:
 
-The step-length model (Weinberg's K of ``papers/002_*`` eq 8 or Mansour's m of
-``papers/003_*`` eq 1, with its clamp) is scaled the way Cui trains K (their Table 2): one
-factor, the median ratio of true to detected distance over the training traces of the
-split only, then applied unchanged to the test traces. Both the paper model and the
-trained one are reported.
+* **Walked distance.** The steps between the first and the last waypoint give a walked
+  distance; the waypoint polyline gives the true one (a lower bound: people do not walk
+  exactly straight between waypoints). The per-trace error is ``detected / true - 1``.
+  The step-length model (Weinberg's K of ``papers/002_*`` eq 8 or Mansour's m of
+  ``papers/003_*`` eq 1, with its clamp) is scaled the way Cui trains K (their Table 2):
+  by one factor, the median ratio of true to detected distance over the *training* traces
+  of the split, then applied unchanged to the test traces. Both the paper model and the
+  trained one are reported.
+* **Dead-reckoning drift.** Starting at the first waypoint, each step moves the position
+  by its (trained) length along the phone's north-referenced heading (the building frame
+  of ILC 2.0 is north-aligned; magnetic declination is not corrected). The error at each
+  later waypoint is reported, and its ratio to the distance walked since the start.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -23,76 +28,101 @@ import numpy as np
 from numpy.typing import NDArray
 
 from server.datasets.ilc import IlcTrace, read_site, read_trace
-from server.positioning.pdr import PdrParams, Steps, detect_steps, initial_detector, step_lengths
+from server.positioning.pdr import Detector, LengthModel
+from server.positioning.step_tracker import (
+    StepBlock,
+    TrackerParams,
+    initial_tracker,
+    track,
+)
 from server.services.evaluation import split_site
 
 Progress = Callable[[str, int, int], None]
 
 MIN_PATH_M = 5.0  # shorter walks say more about the waypoint spacing than about steps
-BLOCK_MS = 1000  # samples go to the detector in blocks, as a phone would send them
+BLOCK_MS = 1000
 
 
 @dataclass(frozen=True)
-class TraceDistance:
+class TraceSteps:
+    """Steps of one trace between its first and last waypoint, and the truth."""
+
     path_id: str
     floor: str
     true_m: float
-    detected_m: float  # with the paper constant
-    n_steps: int
-    duration_s: float
+    t_ms: NDArray[np.int64]
+    length_m: NDArray[np.float64]  # paper model
+    north_rad: NDArray[np.float64]
+    waypoint_t_ms: NDArray[np.int64]
+    waypoint_xy_m: NDArray[np.float64]
+
+    @property
+    def detected_m(self) -> float:
+        return float(self.length_m.sum())
 
 
-def trace_steps(trace: IlcTrace, params: PdrParams, block_ms: int = BLOCK_MS) -> Steps:
-    """All steps of a trace, its accelerometer fed in blocks of ``block_ms``."""
-    state = initial_detector()
-    parts: list[Steps] = []
-    accel = trace.accel
-    if accel.shape[0] == 0:
-        return Steps(np.empty(0, np.int64), np.empty(0), np.empty(0))
-    edges = np.arange(accel[0, 0], accel[-1, 0] + block_ms, block_ms)
-    cuts = np.searchsorted(accel[:, 0], edges[1:], side="left")
-    for block in np.split(accel, cuts):
-        state, found = detect_steps(state, block, params)
-        parts.append(found)
-    return Steps(
-        np.concatenate([p.t_ms for p in parts]),
-        np.concatenate([p.accel_range for p in parts]),
-        np.concatenate([p.gravity for p in parts]),
-    )
-
-
-def trace_distance(trace: IlcTrace, params: PdrParams) -> TraceDistance | None:
-    """Detected and true walked distance between the first and last waypoint; None when
-    the trace has under two waypoints or walks less than ``MIN_PATH_M``."""
+def trace_steps(trace: IlcTrace, params: TrackerParams) -> TraceSteps | None:
+    """The tracker run over a trace; None when it has under two waypoints or walks less
+    than ``MIN_PATH_M``."""
     wp_t = trace.waypoint_t_ms
     if wp_t.size < 2:
         return None
     true_m = float(np.linalg.norm(np.diff(trace.waypoint_xy_m, axis=0), axis=1).sum())
     if true_m < MIN_PATH_M:
         return None
-    steps = trace_steps(trace, params)
-    inside = (steps.t_ms > wp_t[0]) & (steps.t_ms <= wp_t[-1])
-    lengths = step_lengths(steps, params)
-    return TraceDistance(
+    state = initial_tracker(params)
+    blocks: list[StepBlock] = []
+    for imu in trace.imu_events(BLOCK_MS):
+        state, block = track(state, imu, params)
+        blocks.append(block)
+    t = np.concatenate([b.t_ms for b in blocks]) if blocks else np.empty(0, np.int64)
+    inside = (t > wp_t[0]) & (t <= wp_t[-1])
+
+    def cat(name: str) -> NDArray[np.float64]:
+        parts = [np.asarray(getattr(b, name), dtype=np.float64) for b in blocks]
+        return np.concatenate(parts)[inside] if parts else np.empty(0)
+
+    return TraceSteps(
         path_id=trace.path_id,
         floor=trace.floor,
         true_m=true_m,
-        detected_m=float(lengths[inside].sum()),
-        n_steps=int(inside.sum()),
-        duration_s=float(wp_t[-1] - wp_t[0]) / 1000.0,
+        t_ms=t[inside],
+        length_m=cat("length_m"),
+        north_rad=cat("north_rad"),
+        waypoint_t_ms=wp_t,
+        waypoint_xy_m=trace.waypoint_xy_m,
     )
 
 
-def _distances(
+def dead_reckon(steps: TraceSteps, scale: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Errors at the waypoints after the first, dead reckoning from it, and the distance
+    walked to each. Steps without a known heading do not move the position."""
+    heading = np.nan_to_num(steps.north_rad)
+    length = scale * steps.length_m
+    moved = length * ~np.isnan(steps.north_rad)
+    # position and distance after 0, 1, ..., k steps
+    xy = steps.waypoint_xy_m[0] + np.vstack(
+        [
+            np.zeros((1, 2)),
+            np.cumsum(np.column_stack([moved * np.sin(heading), moved * np.cos(heading)]), axis=0),
+        ]
+    )
+    walked = np.concatenate([[0.0], np.cumsum(length)])
+    taken = np.searchsorted(steps.t_ms, steps.waypoint_t_ms[1:], side="right")
+    errors = np.linalg.norm(xy[taken] - steps.waypoint_xy_m[1:], axis=1)
+    return errors, walked[taken]
+
+
+def _read(
     paths: Sequence[tuple[int, Path]],
     floors: Sequence[str],
-    params: PdrParams,
+    params: TrackerParams,
     what: str,
     progress: Progress | None,
-) -> list[TraceDistance]:
-    out: list[TraceDistance] = []
+) -> list[TraceSteps]:
+    out: list[TraceSteps] = []
     for done, (index, path) in enumerate(paths, start=1):
-        found = trace_distance(read_trace(path, floors[index]), params)
+        found = trace_steps(read_trace(path, floors[index]), params)
         if found is not None:
             out.append(found)
         if progress is not None:
@@ -100,11 +130,8 @@ def _distances(
     return out
 
 
-def _errors(rows: Sequence[TraceDistance], scale: float) -> NDArray[np.float64]:
-    return np.array([scale * r.detected_m / r.true_m - 1.0 for r in rows])
-
-
-def _summary(errors: NDArray[np.float64]) -> dict[str, float]:
+def _distance_summary(rows: Sequence[TraceSteps], scale: float) -> dict[str, float]:
+    errors = np.array([scale * r.detected_m / r.true_m - 1.0 for r in rows])
     a = np.abs(errors)
     return {
         "median_abs_error": float(np.median(a)),
@@ -114,38 +141,57 @@ def _summary(errors: NDArray[np.float64]) -> dict[str, float]:
     }
 
 
-def evaluate_step_distance(
+def evaluate_pdr(
     site_dir: Path,
-    params: PdrParams,
+    params: TrackerParams | None = None,
     *,
     split_seed: int = 0,
     train_fraction: float = 0.8,
     progress: Progress | None = None,
 ) -> dict[str, Any]:
-    """Per-trace distance error of step detection on an ILC site's test traces.
+    """Walked-distance error and dead-reckoning drift on an ILC site's test traces.
 
-    Returns a JSON-ready dict: the settings, the trained scale, summaries with the paper
-    constant and with the trained one, and the per-trace rows of the test traces.
+    Returns a JSON-ready dict: the settings, the trained scale, distance-error summaries
+    with the paper model and the trained one, dead-reckoning errors, and per-trace rows.
+
+    Raises
+    ------
+    ValueError
+        When the split leaves no usable training or test trace.
     """
+    params = params or TrackerParams()
     site = read_site(site_dir)
     split = split_site(site, split_seed, train_fraction)
     floors = [f.name for f in site.floors]
-    train = _distances(split.train, floors, params, "train", progress)
-    test = _distances(split.test, floors, params, "test", progress)
+    train = _read(split.train, floors, params, "train traces", progress)
+    test = _read(split.test, floors, params, "test traces", progress)
     if not train or not test:
         raise ValueError("the split left no usable training or test trace")
-    # trained like papers/002_* Table 2: one constant for the population of walkers
-    scale = float(np.median([r.true_m / r.detected_m for r in train if r.detected_m > 0]))
+    ratios = [r.true_m / r.detected_m for r in train if r.detected_m > 0]
+    scale = float(np.median(ratios)) if ratios else 1.0
+
+    dr = [dead_reckon(r, scale) for r in test]
+    errors = np.concatenate([e for e, _ in dr])
+    walked = np.concatenate([d for _, d in dr])
+    far = walked > 0
     return {
-        "detector": params.detector,
-        "length_model": params.length_model,
+        "detector": params.steps.detector,
+        "length_model": params.steps.length_model,
+        "heading": params.heading,
         "split_seed": split_seed,
         "train_fraction": train_fraction,
         "n_train": len(train),
         "n_test": len(test),
         "trained_scale": scale,
-        "paper": _summary(_errors(test, 1.0)),
-        "trained": _summary(_errors(test, scale)),
+        "distance_paper": _distance_summary(test, 1.0),
+        "distance_trained": _distance_summary(test, scale),
+        "dead_reckoning": {
+            "n_points": int(errors.size),
+            "mean_m": float(errors.mean()),
+            "p50_m": float(np.median(errors)),
+            "p90_m": float(np.quantile(errors, 0.9)),
+            "median_error_per_walked": float(np.median(errors[far] / walked[far])),
+        },
         "traces": [
             {
                 "path_id": r.path_id,
@@ -153,9 +199,17 @@ def evaluate_step_distance(
                 "true_m": round(r.true_m, 2),
                 "detected_m": round(r.detected_m, 2),
                 "trained_m": round(scale * r.detected_m, 2),
-                "n_steps": r.n_steps,
-                "duration_s": round(r.duration_s, 1),
+                "n_steps": int(r.t_ms.size),
+                "dead_reckoning_final_m": round(float(e[-1]), 2) if e.size else None,
             }
-            for r in test
+            for r, (e, _) in zip(test, dr, strict=True)
         ],
     }
+
+
+def with_detector(
+    params: TrackerParams, detector: Detector, length_model: LengthModel
+) -> TrackerParams:
+    """``params`` with another step detector and step-length model."""
+    steps = replace(params.steps, detector=detector, length_model=length_model)
+    return replace(params, steps=steps)
