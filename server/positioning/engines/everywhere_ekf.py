@@ -204,6 +204,24 @@ def _fix(state: EverywhereState, t_ms: int, source: str, diagnostics: dict[str, 
     return rf.to_fix(state.x, state.P, state.floor, state.heading_known, t_ms, source, diagnostics)
 
 
+def step_motion(x: FloatArray, length_m: float, turn_rad: float) -> tuple[FloatArray, FloatArray]:
+    """Eq 15 for one step of PDR length ``length_m`` after a turn of ``turn_rad``: the
+    predicted state and the transition matrix of eq 16 (its Jacobian)."""
+    d = length_m
+    scale, h = 1.0 + x[2], x[3] + turn_rad
+    s, c = math.sin(h), math.cos(h)
+    A = np.array(
+        [
+            [1.0, 0.0, d * s, scale * d * c],
+            [0.0, 1.0, d * c, -scale * d * s],
+            [0.0, 0.0, 1.0, 0.0],
+            [0.0, 0.0, 0.0, 1.0],
+        ]
+    )
+    x_pred = np.array([x[0] + scale * d * s, x[1] + scale * d * c, x[2], wrap_angle(h)])
+    return x_pred, A
+
+
 def _on_step(
     state: EverywhereState, step: Step, maps: SiteMaps, params: EverywhereParams
 ) -> tuple[EverywhereState, Fix | None]:
@@ -235,17 +253,7 @@ def _on_step(
         x[3] = wrap_angle(x[3] + turn)
         P = rf.widen(P, (1.0 + float(x[2])) * d)
     else:
-        scale, h = 1.0 + x[2], x[3] + turn
-        s, c = math.sin(h), math.cos(h)
-        A = np.array(  # eq 16
-            [
-                [1.0, 0.0, d * s, scale * d * c],
-                [0.0, 1.0, d * c, -scale * d * s],
-                [0.0, 0.0, 1.0, 0.0],
-                [0.0, 0.0, 0.0, 1.0],
-            ]
-        )
-        x_pred = np.array([x[0] + scale * d * s, x[1] + scale * d * c, x[2], wrap_angle(h)])
+        x_pred, A = step_motion(x, d, turn)
         x, P = predict_ekf(x_pred, P, A, params.process_noise)
     new = replace(state, x=x, P=P)
     return new, _fix(new, step.t_ms, "step", {"step_length_m": float((1.0 + x[2]) * d)})
@@ -413,7 +421,13 @@ def run(
     """
     del rng  # deterministic
     tracker, items = timeline(state.tracker, events, params.tracker)
-    state = replace(state, tracker=tracker)
+    return apply(replace(state, tracker=tracker), items, maps, params)
+
+
+def apply(
+    state: EverywhereState, items: Sequence[Step | Scan], maps: SiteMaps, params: EverywhereParams
+) -> tuple[EverywhereState, list[Fix]]:
+    """Steps and scans, in the order given, through the filter."""
     fixes: list[Fix] = []
     for item in items:
         fix: Fix | None

@@ -177,6 +177,23 @@ def _fix(state: TwoStageState, t_ms: int, source: str, diagnostics: dict[str, fl
     return rf.to_fix(state.x, state.P, state.floor, state.heading_known, t_ms, source, diagnostics)
 
 
+def step_motion(x: FloatArray, turn_rad: float) -> tuple[FloatArray, FloatArray]:
+    """Eq 21 for one step after a turn of ``turn_rad``: the predicted state and the
+    Jacobian of the motion model."""
+    length, psi = x[2], x[3] + turn_rad
+    s, c = math.sin(psi), math.cos(psi)
+    F = np.array(
+        [
+            [1.0, 0.0, s, length * c],
+            [0.0, 1.0, c, -length * s],
+            [0.0, 0.0, 1.0, 0.0],
+            [0.0, 0.0, 0.0, 1.0],
+        ]
+    )
+    x_pred = np.array([x[0] + length * s, x[1] + length * c, length, wrap_angle(psi)])
+    return x_pred, F
+
+
 def _on_step(
     state: TwoStageState, step: Step, maps: SiteMaps, params: TwoStageParams
 ) -> tuple[TwoStageState, Fix | None]:
@@ -202,17 +219,7 @@ def _on_step(
         x[3] = wrap_angle(x[3] + turn)
         P = rf.widen(P, float(x[2]))
     else:
-        length, psi = x[2], x[3] + turn
-        s, c = math.sin(psi), math.cos(psi)
-        F = np.array(
-            [
-                [1.0, 0.0, s, length * c],
-                [0.0, 1.0, c, -length * s],
-                [0.0, 0.0, 1.0, 0.0],
-                [0.0, 0.0, 0.0, 1.0],
-            ]
-        )
-        x_pred = np.array([x[0] + length * s, x[1] + length * c, length, wrap_angle(psi)])
+        x_pred, F = step_motion(x, turn)
         x, P = predict_ekf(x_pred, P, F, params.process_noise)
     u = update(x, P, z=[step.length_m], H=_H_STEP, R=np.array([[params.r_step_m2]]))
     new = replace(state, x=u.x, P=u.P)
@@ -319,7 +326,13 @@ def run(
     """
     del rng  # deterministic
     tracker, items = timeline(state.tracker, events, params.tracker)
-    state = replace(state, tracker=tracker)
+    return apply(replace(state, tracker=tracker), items, maps, params)
+
+
+def apply(
+    state: TwoStageState, items: Sequence[Step | Scan], maps: SiteMaps, params: TwoStageParams
+) -> tuple[TwoStageState, list[Fix]]:
+    """Steps and scans, in the order given, through the filter."""
     fixes: list[Fix] = []
     for item in items:
         fix: Fix | None
