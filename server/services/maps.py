@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import time
 from collections import OrderedDict
 from collections.abc import Sequence
@@ -11,7 +12,8 @@ import anyio
 import numpy as np
 from sqlalchemy.ext.asyncio import AsyncSession
 
-from server.positioning.engines.base import FloorRef, SiteMaps
+from server.positioning.anchors import anchors_from_plan
+from server.positioning.engines.base import Anchor, FloorRef, SiteMaps
 from server.positioning.events import radio_key
 from server.positioning.fingerprint import MISSING_DBM, RadioMap, in_place_order
 from server.positioning.mapping.gridding import build_radio_map
@@ -68,12 +70,20 @@ class MapCache:
             return maps
 
 
+def _digest(anchors: tuple[Anchor, ...]) -> str:
+    return hashlib.sha256(repr(anchors).encode()).hexdigest()[:16]
+
+
 async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None) -> SiteMaps:
     floors = await repo.list_site_floors(s, site_id)
     refs = tuple(FloorRef(b.id, f.id, f.level, b.rotation_rad) for f, b in floors)
     building_ids = list(dict.fromkeys(b.id for _, b in floors))
     latest = [m for b in building_ids if (m := await repo.latest_radio_map(s, b)) is not None]
-    version = "|".join([f.floor_id for f in refs] + [m.id for m in latest])
+    anchors = tuple(
+        a for i, (f, _) in enumerate(floors) for a in anchors_from_plan(f.plan_geojson, i)
+    )
+    # a new plan can move anchors without a new radio map
+    version = "|".join([f.floor_id for f in refs] + [m.id for m in latest] + [_digest(anchors)])
     if cached is not None and cached.version == version:
         return cached
     floor_index = {f.floor_id: i for i, f in enumerate(refs)}
@@ -92,7 +102,7 @@ async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None
         )
     merged = merge_radio_maps(parts)
     radio = in_place_order(merged) if merged is not None else None
-    return SiteMaps(floors=refs, radio=radio, version=version)
+    return SiteMaps(floors=refs, radio=radio, version=version, anchors=anchors)
 
 
 async def site_maps(s: AsyncSession, cache: MapCache, site_id: str) -> SiteMaps:

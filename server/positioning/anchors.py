@@ -1,0 +1,50 @@
+"""Anchors read from a floor plan: points where a BLE beacon marks a known place.
+
+A floor plan (GeoJSON in the building frame, metres) marks an anchor with a ``Point``
+feature whose properties name the beacon::
+
+    {"type": "Feature",
+     "geometry": {"type": "Point", "coordinates": [12.5, 40.0]},
+     "properties": {"anchor": "elevator", "beacon": "<BLE id>", "rssi_dbm": -65}}
+
+``rssi_dbm`` (optional, default -65) is the level at which the phone counts as being at
+the anchor (``papers/003_*`` section IV-B: a smoothed RSS peak above a threshold). Other
+features, and anchor points that are malformed, are skipped.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+from server.positioning.engines.base import Anchor
+from server.positioning.events import radio_key
+
+DEFAULT_RSSI_DBM = -65.0
+
+
+def anchors_from_plan(plan: Mapping[str, Any] | None, floor: int) -> tuple[Anchor, ...]:
+    """The anchors a floor plan marks, on floor index ``floor``."""
+    if not plan:
+        return ()
+    found: list[Anchor] = []
+    for feature in plan.get("features") or ():
+        if not isinstance(feature, Mapping):
+            continue
+        props = feature.get("properties") or {}
+        geometry = feature.get("geometry") or {}
+        if not (isinstance(props, Mapping) and isinstance(geometry, Mapping)):
+            continue
+        beacon = props.get("beacon")
+        coords: Any = geometry.get("coordinates")
+        if geometry.get("type") != "Point" or not isinstance(beacon, str) or not beacon:
+            continue
+        try:
+            x, y = float(coords[0]), float(coords[1])
+            rssi = float(props.get("rssi_dbm", DEFAULT_RSSI_DBM))
+        except (TypeError, ValueError, IndexError):
+            continue
+        if all(math.isfinite(v) for v in (x, y, rssi)):
+            found.append(Anchor(floor, x, y, radio_key("ble", beacon), rssi))
+    return tuple(found)
