@@ -271,12 +271,28 @@ def evaluate_ilc(
             "the test traces are not read",
         ),
     ] = False,
+    param: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="NAME=VALUE: an engine parameter other than its default (repeatable; "
+            "in-process replay only)"
+        ),
+    ] = None,
 ) -> None:
     """Replay ILC 2.0 test traces through engines, with maps built from training traces."""
     from server.services import evaluation
 
     if via_http and not admin_key:
         raise typer.BadParameter("--via-http needs --admin-key (or INDOORPOS_ADMIN_KEY)")
+    if via_http and param:
+        raise typer.BadParameter("sessions run engines on their defaults", param_hint="--param")
+    overrides = dict(p.partition("=")[::2] for p in param or [])
+    chosen = {}
+    for name in engine:
+        try:
+            chosen[name] = evaluation.engine_params(name, overrides) if overrides else None
+        except (KeyError, ValueError) as e:
+            raise typer.BadParameter(str(e.args[0]), param_hint="--param") from None
 
     runs = []
     with _progress_bar() as bar:
@@ -289,7 +305,11 @@ def evaluate_ilc(
 
         for name in engine:
             tasks.clear()
-            replayer = _http_replayer(via_http, admin_key or "", progress) if via_http else None
+            replayer = (
+                _http_replayer(via_http, admin_key or "", progress)
+                if via_http
+                else evaluation.in_process_replayer(split_seed, progress, chosen[name])
+            )
             runs.append(
                 evaluation.evaluate_ilc(
                     site_dir,
@@ -302,6 +322,8 @@ def evaluate_ilc(
                 )
             )
     for run in runs:
+        if overrides:
+            run.summary["params"] = overrides
         _print_report(f"ILC {run.site.name} · {run.summary['engine']}", run.summary)
     if json_path is not None:
         payload = runs[0].summary if len(runs) == 1 else {"runs": [r.summary for r in runs]}

@@ -18,7 +18,7 @@ point (no gridding: the published baselines match against raw fingerprints), flo
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -173,10 +173,41 @@ def batches(events: Sequence[Event], batch_ms: int = BATCH_MS) -> list[list[Even
     return out
 
 
-def replay(engine: str, events: Sequence[Event], maps: SiteMaps, seed: int) -> list[Fix]:
-    """Run an engine over a trace batch by batch, as the service would."""
+def engine_params(engine: str, overrides: Mapping[str, str] | None = None) -> Any:
+    """The engine's default parameters with some scalar ones replaced, the values given
+    as text (``{"k": "8"}``), for trying variants on a validation split.
+
+    Raises
+    ------
+    ValueError
+        Naming the parameter, when it does not exist, is not a number or flag, or its
+        value does not parse or is refused by the engine.
+    """
+    params = get_engine(engine).params_type()
+    changes: dict[str, Any] = {}
+    for name, text in (overrides or {}).items():
+        if name.startswith("_") or not hasattr(params, name):
+            raise ValueError(f"{engine} has no parameter {name!r}")
+        kind = type(getattr(params, name))
+        if kind not in (int, float, bool):
+            raise ValueError(f"parameter {name!r} of {engine} is not a number or flag")
+        try:
+            changes[name] = text.lower() in ("1", "true", "yes") if kind is bool else kind(text)
+        except ValueError:
+            raise ValueError(f"parameter {name!r}: {text!r} is not a {kind.__name__}") from None
+    try:
+        return replace(params, **changes)
+    except ValueError as e:
+        raise ValueError(f"parameters of {engine}: {e}") from None
+
+
+def replay(
+    engine: str, events: Sequence[Event], maps: SiteMaps, seed: int, params: Any = None
+) -> list[Fix]:
+    """Run an engine over a trace batch by batch, as the service would (with its default
+    parameters unless ``params`` is given)."""
     spec = get_engine(engine)
-    params = spec.params_type()
+    params = spec.params_type() if params is None else params
     state = spec.initial_state(params)
     fixes: list[Fix] = []
     for seq, batch in enumerate(batches(events), start=1):
@@ -270,13 +301,15 @@ def summarize(paths: Sequence[PathResult], **extra: Any) -> dict[str, Any]:
 Replayer = Callable[[str, SiteMaps, LabelledScans, list[list[Event]]], list[list[Fix]]]
 
 
-def in_process_replayer(seed: int, progress: Progress | None = None) -> Replayer:
+def in_process_replayer(
+    seed: int, progress: Progress | None = None, params: Any = None
+) -> Replayer:
     def run(
         engine: str, maps: SiteMaps, _labelled: LabelledScans, traces: list[list[Event]]
     ) -> list[list[Fix]]:
         out = []
         for done, events in enumerate(traces, start=1):
-            out.append(replay(engine, events, maps, seed=seed))
+            out.append(replay(engine, events, maps, seed=seed, params=params))
             if progress:
                 progress("replay", done, len(traces))
         return out

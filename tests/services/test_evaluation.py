@@ -224,3 +224,19 @@ def test_evaluate_a_small_site_with_plain_and_xz_traces(tmp_path: Path) -> None:
     assert report["train_paths"] == 8
     assert report["test_paths"] == 2
     assert report["n_points"] > 0
+
+
+def test_engine_params_replace_scalars_by_name() -> None:
+    from server.services.evaluation import engine_params
+
+    params = engine_params("two_stage_ekf", {"k": "8", "partition_radius_m": "5"})
+    assert (params.k, params.partition_radius_m) == (8, 5.0)
+    assert engine_params("wknn").k == 4
+    with pytest.raises(ValueError, match="no parameter 'nope'"):
+        engine_params("wknn", {"nope": "1"})
+    with pytest.raises(ValueError, match="'k': 'x' is not a int"):
+        engine_params("wknn", {"k": "x"})
+    with pytest.raises(ValueError, match="'tracker' of two_stage_ekf is not a number"):
+        engine_params("two_stage_ekf", {"tracker": "x"})
+    with pytest.raises(ValueError, match="k must be at least 1"):
+        engine_params("wknn", {"k": "0"})
