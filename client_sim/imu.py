@@ -139,6 +139,8 @@ class ImuTrace:
         Position east and north of the start, m.
     step_t_ms, peak_t_ms : ndarray, shape (k,), int64
         Valley (true step time) and peak of each step's bounce cycle.
+    t0_ms : int
+        Phone clock at the start of the walk.
     """
 
     accel: FloatArray

@@ -17,6 +17,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from websockets.asyncio.client import connect
 
+from client_sim.imu import Gait, blocks, synthesize_walk
 from server.api import convert
 from server.api import schemas as sc
 from server.datasets.ilc import read_trace
@@ -296,20 +297,14 @@ async def test_recorded_trace_posts_as_imu_batches(
 WALK_Y_M = 4.0
 STEP_M = 0.7
 STEP_HZ = 2.0
-IMU_HZ = 50
 TURN_S = (10.0, 11.0)  # standing, turning from east to west
+TURN_HEADINGS_RAD = (math.pi / 2, 3 * math.pi / 2)  # clockwise, through south
 WALK_S = 20.0
-FIELD_ENU_UT = np.array([0.0, 20.0, -40.0])  # north and down, as in Europe
 
 
 def heading_rad(t_s: float) -> float:
     """Clockwise from north: east, a half turn, then west."""
-    start, end = TURN_S
-    return math.pi / 2 + math.pi * min(max((t_s - start) / (end - start), 0.0), 1.0)
-
-
-def walking(t_s: float) -> bool:
-    return not TURN_S[0] <= t_s < TURN_S[1]
+    return float(np.interp(t_s, TURN_S, TURN_HEADINGS_RAD))
 
 
 def true_x_m(t_s: float) -> float:
@@ -319,44 +314,23 @@ def true_x_m(t_s: float) -> float:
 
 
 def walk_batches() -> list[list[Event]]:
-    """One batch per second: a block of raw samples of a phone held flat, pointing where
-    it walks, and a WiFi scan every two seconds."""
-    rng = np.random.default_rng(11)
+    """One batch per second: a block of raw samples (``client_sim.imu``, 50 Hz) of a phone
+    held flat, pointing where it walks, and a WiFi scan every two seconds."""
+    trace = synthesize_walk(
+        lambda t_s: np.interp(t_s, TURN_S, TURN_HEADINGS_RAD),
+        WALK_S,
+        np.random.default_rng(11),
+        walking=[(0.0, TURN_S[0]), (TURN_S[1], WALK_S)],
+        gait=Gait(cadence_hz=STEP_HZ, step_length_m=STEP_M, bounce_ms2=2.0),
+        t0_ms=T0,
+    )
     out = []
-    for second in range(int(WALK_S)):
-        t_s = second + np.arange(IMU_HZ) / IMU_HZ
-        t_ms = [T0 + round(1000 * t) for t in t_s]
-        h = np.array([heading_rad(t) for t in t_s])
-        moving = np.array([walking(t) for t in t_s])
-        bounce = np.where(moving, 2.0 * np.sin(2 * math.pi * STEP_HZ * t_s), 0.0)
-        accel = np.column_stack([np.zeros_like(t_s), np.zeros_like(t_s), G_MS2 + bounce])
-        accel += rng.normal(0.0, 0.05, accel.shape)
-        # the phone's axes turn by -h about up: device = R_z(h) . enu
-        field = np.column_stack(
-            [-FIELD_ENU_UT[1] * np.sin(h), FIELD_ENU_UT[1] * np.cos(h), np.full_like(h, -40.0)]
-        )
-        field += rng.normal(0.0, 0.3, field.shape)
-        turning = (t_s >= TURN_S[0]) & (t_s < TURN_S[1])
-        rate = np.where(turning, -math.pi / (TURN_S[1] - TURN_S[0]), 0.0)
-        gyro = np.column_stack([np.zeros_like(t_s), np.zeros_like(t_s), rate])
-        gyro += rng.normal(0.0, 0.003, gyro.shape)
-        quat = np.column_stack([np.zeros_like(h), np.zeros_like(h), np.sin(-h / 2), np.cos(-h / 2)])
-
-        def rows(values: np.ndarray, t_ms: list[int] = t_ms) -> list[list[float]]:
-            return [[t, *v] for t, v in zip(t_ms, values.tolist(), strict=True)]
-
-        block = {
-            "type": "imu",
-            "t": t_ms[0],
-            "accel": rows(accel),
-            "gyro": rows(gyro),
-            "magnetic": rows(field),
-            "rotation": rows(quat),
-        }
-        batch = [block]
+    for second, block in enumerate(blocks(trace)):
+        batch = [block.event()]
         if second % 2 == 0:
             batch.insert(0, scan(T0 + 1000 * second, true_x_m(second), WALK_Y_M))
         out.append(batch)
+    assert len(out) == WALK_S
     return out
 
 
