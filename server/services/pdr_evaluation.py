@@ -12,9 +12,11 @@ in blocks of one second, as a phone would post it. Two things are measured:
   of the split, then applied unchanged to the test traces. Both the paper model and the
   trained one are reported.
 * **Dead-reckoning drift.** Starting at the first waypoint, each step moves the position
-  by its (trained) length along the phone's north-referenced heading (the building frame
-  of ILC 2.0 is north-aligned; magnetic declination is not corrected). The error at each
-  later waypoint is reported, and its ratio to the distance walked since the start.
+  by its (trained) length along the tracker's heading, turned onto north once at the
+  first step (the building frame of ILC 2.0 is north-aligned; magnetic declination is not
+  corrected). So ``--heading attitude`` (gyro-driven) shows its drift, ``fused`` and
+  ``rotation`` how well the compass holds it. The error at each later waypoint is
+  reported, and its ratio to the distance walked since the start.
 """
 
 from __future__ import annotations
@@ -52,6 +54,7 @@ class TraceSteps:
     true_m: float
     t_ms: NDArray[np.int64]
     length_m: NDArray[np.float64]  # paper model
+    heading_rad: NDArray[np.float64]  # from the tracker's heading source
     north_rad: NDArray[np.float64]
     waypoint_t_ms: NDArray[np.int64]
     waypoint_xy_m: NDArray[np.float64]
@@ -88,6 +91,7 @@ def trace_steps(trace: IlcTrace, params: TrackerParams) -> TraceSteps | None:
         true_m=true_m,
         t_ms=t[inside],
         length_m=cat("length_m"),
+        heading_rad=cat("heading_rad"),
         north_rad=cat("north_rad"),
         waypoint_t_ms=wp_t,
         waypoint_xy_m=trace.waypoint_xy_m,
@@ -96,10 +100,22 @@ def trace_steps(trace: IlcTrace, params: TrackerParams) -> TraceSteps | None:
 
 def dead_reckon(steps: TraceSteps, scale: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Errors at the waypoints after the first, dead reckoning from it, and the distance
-    walked to each. Steps without a known heading do not move the position."""
-    heading = np.nan_to_num(steps.north_rad)
+    walked to each.
+
+    The heading of each step is the tracker's heading turned once, at the first step whose
+    north-referenced heading is known, onto north: a relative (gyro-only) source drifts
+    from there, a north-referenced one stays as good as its reference. Steps before that
+    do not move the position.
+    """
+    known = np.flatnonzero(~np.isnan(steps.north_rad) & ~np.isnan(steps.heading_rad))
     length = scale * steps.length_m
-    moved = length * ~np.isnan(steps.north_rad)
+    if known.size:
+        offset = steps.north_rad[known[0]] - steps.heading_rad[known[0]]
+        heading = np.nan_to_num(steps.heading_rad + offset)
+        moved = length * (np.arange(length.size) >= known[0]) * ~np.isnan(steps.heading_rad)
+    else:
+        heading = np.zeros(length.size)
+        moved = np.zeros(length.size)
     # position and distance after 0, 1, ..., k steps
     xy = steps.waypoint_xy_m[0] + np.vstack(
         [

@@ -29,18 +29,20 @@ def test_a_recorded_walk_is_measured_within_a_third() -> None:
 
 
 def test_dead_reckoning_by_hand() -> None:
-    """Four 1 m steps east then the waypoints: errors are the distances to the truth."""
+    """Four 1 m steps, the first before north is known, the last without a heading: only
+    the middle two move, east (the relative heading turned onto north at step 2)."""
     steps = TraceSteps(
         path_id="p",
         floor="F1",
         true_m=4.0,
         t_ms=np.array([T0 + 500 * i for i in range(1, 5)], dtype=np.int64),
         length_m=np.ones(4),
-        north_rad=np.array([np.pi / 2] * 3 + [np.nan]),  # the last step has no heading
+        heading_rad=np.array([0.0, 0.0, 0.0, np.nan]),  # a relative source; the last: none
+        north_rad=np.array([np.nan, np.pi / 2, np.pi / 2, np.nan]),
         waypoint_t_ms=np.array([T0, T0 + 1000, T0 + 2500], dtype=np.int64),
         waypoint_xy_m=np.array([[0.0, 0.0], [2.0, 1.0], [4.0, 0.0]]),
     )
     errors, walked = dead_reckon(steps, 0.5)
-    # after 2 steps at 0.5 m: (1, 0) against (2, 1); after 4: (1.5, 0) against (4, 0)
-    np.testing.assert_allclose(errors, [np.hypot(1.0, 1.0), 2.5])
+    # after 2 steps at 0.5 m: (0.5, 0) against (2, 1); after 4: (1, 0) against (4, 0)
+    np.testing.assert_allclose(errors, [np.hypot(1.5, 1.0), 3.0])
     np.testing.assert_allclose(walked, [1.0, 2.0])
