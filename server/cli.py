@@ -390,7 +390,12 @@ def evaluate_pdr(
             progress=progress,
         )
     flat = {k: v for k, v in result.items() if not isinstance(v, dict | list)}
-    for part in ("distance_paper", "distance_trained", "dead_reckoning"):
+    for part in (
+        "distance_paper",
+        "distance_trained",
+        "dead_reckoning",
+        "dead_reckoning_straightened",
+    ):
         flat.update({f"{part}.{k}": v for k, v in result[part].items()})
     _print_report(f"PDR on {site_dir.name}", flat)
     if json_path is not None:

@@ -606,3 +606,31 @@ def project_to_line(
     far = np.abs(signed) > threshold_m
     pts[far] -= np.outer(signed[far] / math.sqrt(norm2), [a, b])
     return pts
+
+
+def straighten_track(
+    xy: FloatArray,
+    status: NDArray[np.int64],
+    segment: NDArray[np.int64],
+    threshold_m: float = 1.5,
+    min_points: int = 4,
+    rng: np.random.Generator | None = None,
+) -> FloatArray:
+    """Step positions of a walked track with the outliers of each straight stretch moved
+    onto its RANSAC line (``papers/003_*`` section III, eq 2-3).
+
+    A stretch is the straight-walking steps (``status == STRAIGHT``) of one ``segment``;
+    stretches of fewer than ``min_points`` steps, and steps while turning, are left as
+    they are. This is the track generation of the crowdsourcing pipeline: it looks at a
+    whole stretch, so it is for walks already recorded, not for live tracking.
+    """
+    out = np.array(xy, dtype=np.float64)
+    straight = status == STRAIGHT
+    for seg in np.unique(segment[straight]):
+        rows = np.flatnonzero(straight & (segment == seg))
+        if rows.size < min_points:
+            continue
+        line = ransac_line(out[rows], threshold_m, rng)
+        if line is not None:
+            out[rows] = project_to_line(out[rows], line, threshold_m)
+    return out

@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from server.datasets.ilc import IlcTrace, read_site, read_trace
+from server.positioning import pdr
 from server.positioning.pdr import Detector, LengthModel
 from server.positioning.step_tracker import (
     StepBlock,
@@ -56,6 +57,8 @@ class TraceSteps:
     length_m: NDArray[np.float64]  # paper model
     heading_rad: NDArray[np.float64]  # from the tracker's heading source
     north_rad: NDArray[np.float64]
+    status: NDArray[np.int64]  # pdr.STRAIGHT / SUSPECT / TURN
+    segment: NDArray[np.int64]
     waypoint_t_ms: NDArray[np.int64]
     waypoint_xy_m: NDArray[np.float64]
 
@@ -93,19 +96,24 @@ def trace_steps(trace: IlcTrace, params: TrackerParams) -> TraceSteps | None:
         length_m=cat("length_m"),
         heading_rad=cat("heading_rad"),
         north_rad=cat("north_rad"),
+        status=cat("status").astype(np.int64),
+        segment=cat("segment").astype(np.int64),
         waypoint_t_ms=wp_t,
         waypoint_xy_m=trace.waypoint_xy_m,
     )
 
 
-def dead_reckon(steps: TraceSteps, scale: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def dead_reckon(
+    steps: TraceSteps, scale: float, straighten: bool = False
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Errors at the waypoints after the first, dead reckoning from it, and the distance
     walked to each.
 
     The heading of each step is the tracker's heading turned once, at the first step whose
     north-referenced heading is known, onto north: a relative (gyro-only) source drifts
     from there, a north-referenced one stays as good as its reference. Steps before that
-    do not move the position.
+    do not move the position. With ``straighten`` the track's straight stretches are
+    filtered with RANSAC (``pdr.straighten_track``, ``papers/003_*`` eq 2-3).
     """
     known = np.flatnonzero(~np.isnan(steps.north_rad) & ~np.isnan(steps.heading_rad))
     length = scale * steps.length_m
@@ -123,6 +131,8 @@ def dead_reckon(steps: TraceSteps, scale: float) -> tuple[NDArray[np.float64], N
             np.cumsum(np.column_stack([moved * np.sin(heading), moved * np.cos(heading)]), axis=0),
         ]
     )
+    if straighten:
+        xy[1:] = pdr.straighten_track(xy[1:], steps.status, steps.segment)
     walked = np.concatenate([[0.0], np.cumsum(length)])
     taken = np.searchsorted(steps.t_ms, steps.waypoint_t_ms[1:], side="right")
     errors = np.linalg.norm(xy[taken] - steps.waypoint_xy_m[1:], axis=1)
@@ -190,6 +200,7 @@ def evaluate_pdr(
     errors = np.concatenate([e for e, _ in dr])
     walked = np.concatenate([d for _, d in dr])
     far = walked > 0
+    straightened = np.concatenate([dead_reckon(r, scale, straighten=True)[0] for r in test])
     return {
         "detector": params.steps.detector,
         "length_model": params.steps.length_model,
@@ -207,6 +218,11 @@ def evaluate_pdr(
             "p50_m": float(np.median(errors)),
             "p90_m": float(np.quantile(errors, 0.9)),
             "median_error_per_walked": float(np.median(errors[far] / walked[far])),
+        },
+        "dead_reckoning_straightened": {
+            "mean_m": float(straightened.mean()),
+            "p50_m": float(np.median(straightened)),
+            "p90_m": float(np.quantile(straightened, 0.9)),
         },
         "traces": [
             {

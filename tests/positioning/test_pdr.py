@@ -38,6 +38,7 @@ from server.positioning.pdr import (
     project_to_line,
     ransac_line,
     step_lengths,
+    straighten_track,
 )
 
 FloatArray = NDArray[np.float64]
@@ -396,3 +397,17 @@ def test_pdr_params_are_validated(kwargs: dict[str, object], message: str) -> No
 def test_turn_params_are_validated(kwargs: dict[str, float], message: str) -> None:
     with pytest.raises(ValueError, match=message):
         TurnParams(**kwargs)  # type: ignore[arg-type]
+
+
+def test_straighten_track_moves_only_outliers_of_long_straight_stretches() -> None:
+    # ten straight steps along y = 0 with one 3 m off; a turn; then a 3-step stretch
+    xy = np.array(
+        [[float(i), 0.0] for i in range(10)] + [[10.0, 1.0], [10.0, 2.0], [10.0, 3.0], [10.0, 9.0]]
+    )
+    xy[4, 1] = 3.0
+    status = np.array([STRAIGHT] * 10 + [TURN] + [STRAIGHT] * 3)
+    segment = np.array([0] * 10 + [0] + [1] * 3)
+    out = straighten_track(xy, status, segment)
+    np.testing.assert_allclose(out[4], [4.0, 0.0], atol=1e-9)  # onto the line (eq 3)
+    np.testing.assert_allclose(np.delete(out[:10], 4, axis=0), np.delete(xy[:10], 4, axis=0))
+    np.testing.assert_array_equal(out[10:], xy[10:])  # a turn and a short stretch: as they were

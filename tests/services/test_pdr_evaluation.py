@@ -39,6 +39,8 @@ def test_dead_reckoning_by_hand() -> None:
         length_m=np.ones(4),
         heading_rad=np.array([0.0, 0.0, 0.0, np.nan]),  # a relative source; the last: none
         north_rad=np.array([np.nan, np.pi / 2, np.pi / 2, np.nan]),
+        status=np.zeros(4, dtype=np.int64),
+        segment=np.zeros(4, dtype=np.int64),
         waypoint_t_ms=np.array([T0, T0 + 1000, T0 + 2500], dtype=np.int64),
         waypoint_xy_m=np.array([[0.0, 0.0], [2.0, 1.0], [4.0, 0.0]]),
     )
