@@ -104,7 +104,7 @@ def trace_steps(trace: IlcTrace, params: TrackerParams) -> TraceSteps | None:
 
 
 def dead_reckon(
-    steps: TraceSteps, scale: float, straighten: bool = False
+    steps: TraceSteps, scale: float, rng: np.random.Generator | None = None
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Errors at the waypoints after the first, dead reckoning from it, and the distance
     walked to each.
@@ -112,8 +112,9 @@ def dead_reckon(
     The heading of each step is the tracker's heading turned once, at the first step whose
     north-referenced heading is known, onto north: a relative (gyro-only) source drifts
     from there, a north-referenced one stays as good as its reference. Steps before that
-    do not move the position. With ``straighten`` the track's straight stretches are
-    filtered with RANSAC (``pdr.straighten_track``, ``papers/003_*`` eq 2-3).
+    do not move the position. With an ``rng`` the track's straight stretches are filtered
+    with RANSAC (``pdr.straighten_track``, ``papers/003_*`` eq 2-3; the rng draws the
+    pairs of long stretches).
     """
     known = np.flatnonzero(~np.isnan(steps.north_rad) & ~np.isnan(steps.heading_rad))
     length = scale * steps.length_m
@@ -131,8 +132,8 @@ def dead_reckon(
             np.cumsum(np.column_stack([moved * np.sin(heading), moved * np.cos(heading)]), axis=0),
         ]
     )
-    if straighten:
-        xy[1:] = pdr.straighten_track(xy[1:], steps.status, steps.segment)
+    if rng is not None:
+        xy[1:] = pdr.straighten_track(xy[1:], steps.status, steps.segment, rng=rng)
     walked = np.concatenate([[0.0], np.cumsum(length)])
     taken = np.searchsorted(steps.t_ms, steps.waypoint_t_ms[1:], side="right")
     errors = np.linalg.norm(xy[taken] - steps.waypoint_xy_m[1:], axis=1)
@@ -200,7 +201,8 @@ def evaluate_pdr(
     errors = np.concatenate([e for e, _ in dr])
     walked = np.concatenate([d for _, d in dr])
     far = walked > 0
-    straightened = np.concatenate([dead_reckon(r, scale, straighten=True)[0] for r in test])
+    rng = np.random.default_rng(split_seed)
+    straightened = np.concatenate([dead_reckon(r, scale, rng)[0] for r in test])
     return {
         "detector": params.steps.detector,
         "length_model": params.steps.length_model,
