@@ -81,13 +81,19 @@ from server.positioning.kalman import wrap_angle
 FloatArray = NDArray[np.float64]
 
 G = 9.80665  # standard gravity, m/s²
+MAX_GAP_S = 1.0  # a longer gap between gyro samples is not integrated across
+MIN_GRAVITY_G = 0.1  # an accelerometer sample weaker than this has no direction to use
+MAX_ATTITUDE_VAR = 1e6  # beyond this the attitude filter has diverged and starts again
 
 _MIN_COS_PITCH = 1e-3  # |cos(theta)| floor in eq 12: the Z-Y-X kinematics are singular at ±90°
 _Matrix3 = tuple[float, float, float, float, float, float, float, float, float]
 
 
 def _wrap(angle: float) -> float:
-    """``wrap_angle`` for one float (the same formula, without numpy's per-call cost)."""
+    """``wrap_angle`` for one float (the same formula, without numpy's per-call cost);
+    a non-finite angle comes back as it is."""
+    if not math.isfinite(angle):
+        return angle
     return angle - 2.0 * math.pi * math.ceil((angle - math.pi) / (2.0 * math.pi))
 
 
@@ -532,9 +538,18 @@ def attitude_ekf(
     out = np.empty((len(g), 4))
     for k, (t_k, wx, wy, wz) in enumerate(g.tolist()):
         dt = (t_k - t_prev) / 1000.0 if math.isfinite(t_prev) else 0.0
-        D, P = _attitude_predict(D, P, omega if dt > 0.0 else [0.0, 0.0, 0.0], dt, params.q)
-        if fresh[k]:
-            D, P = _attitude_update(D, P, a_g[held[k]], params.r)
+        if not 0.0 <= dt <= MAX_GAP_S:
+            dt = 0.0  # a gap: nothing known about the turn across it
+        try:
+            D, P = _attitude_predict(D, P, omega if dt > 0.0 else [0.0, 0.0, 0.0], dt, params.q)
+            if fresh[k] and math.hypot(*a_g[held[k]]) >= MIN_GRAVITY_G:
+                D, P = _attitude_update(D, P, a_g[held[k]], params.r)
+        except (ZeroDivisionError, OverflowError):
+            D = [math.nan]
+        if not (all(map(math.isfinite, D)) and all(abs(v) < MAX_ATTITUDE_VAR for v in P)):
+            # diverged on implausible samples: start again from the initial attitude
+            D = [float(v) for v in params.d0]
+            P = _matrix3(np.diag(params.p0).ravel().tolist())
         out[k] = (t_k, D[0], D[1], D[2])
         omega = [wx, wy, wz]
         t_prev = t_k
@@ -829,8 +844,8 @@ def fuse_heading(
     r = params.r_compass_rad2
     out = np.empty((len(g), 3))
     for k, t_k in enumerate(t.tolist()):
-        w = rates[k]
-        if math.isfinite(t_prev):
+        w = rates[k] if math.isfinite(rates[k]) else 0.0  # no vertical: no known turn
+        if math.isfinite(t_prev) and 0.0 <= t_k - t_prev <= 1000.0 * MAX_GAP_S:
             dt = (t_k - t_prev) / 1000.0
             turn = (0.5 * (w_prev + w) - b) * dt  # counter-clockwise, bias removed
             h = _wrap(h - turn)

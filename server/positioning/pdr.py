@@ -302,6 +302,17 @@ def detect_steps(
     """
     if accel.shape[0] == 0:
         return state, _NO_STEPS
+    gaps = np.flatnonzero(np.diff(accel[:, 0]) > params.max_gap_ms) + 1
+    if gaps.size:  # a gap inside the block: each side on its own, the detector restarting
+        found = []
+        for part in np.split(accel, gaps):
+            state, part_steps = detect_steps(state, part, params)
+            found.append(part_steps)
+        return state, _steps(
+            [int(t) for f in found for t in f.t_ms],
+            [float(r) for f in found for r in f.accel_range],
+            [float(g) for f in found for g in f.gravity],
+        )
     if not math.isnan(state.last_raw[0]) and accel[0, 0] - state.last_raw[0] > params.max_gap_ms:
         state = initial_detector()  # a long gap: nothing before it belongs to a step
     grid, values, next_grid, last_raw = _resample(state, accel, params)
@@ -612,9 +623,9 @@ def straighten_track(
     xy: FloatArray,
     status: NDArray[np.int64],
     segment: NDArray[np.int64],
+    rng: np.random.Generator,
     threshold_m: float = 1.5,
     min_points: int = 4,
-    rng: np.random.Generator | None = None,
 ) -> FloatArray:
     """Step positions of a walked track with the outliers of each straight stretch moved
     onto its RANSAC line (``papers/003_*`` section III, eq 2-3).
@@ -622,7 +633,8 @@ def straighten_track(
     A stretch is the straight-walking steps (``status == STRAIGHT``) of one ``segment``;
     stretches of fewer than ``min_points`` steps, and steps while turning, are left as
     they are. This is the track generation of the crowdsourcing pipeline: it looks at a
-    whole stretch, so it is for walks already recorded, not for live tracking.
+    whole stretch, so it is for walks already recorded, not for live tracking. ``rng``
+    draws the RANSAC pairs of stretches too long to try every pair.
     """
     out = np.array(xy, dtype=np.float64)
     straight = status == STRAIGHT

@@ -82,11 +82,13 @@ class TrackerState:
     fusion: att.HeadingState
     history: FloatArray  # (m, 2) [t_ms, unwrapped heading] of the last HISTORY_MS
     north_history: FloatArray  # (m, 2) the same for the north-referenced heading
+    seen_ms: FloatArray  # (5,) newest sample time processed per sensor (-inf: none)
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         out: dict[str, np.ndarray] = {
             "history": self.history,
             "north_history": self.north_history,
+            "seen_ms": self.seen_ms,
         }
         for prefix, part in (
             ("det.", self.detector.to_arrays()),
@@ -112,6 +114,7 @@ class TrackerState:
             fusion=att.HeadingState.from_arrays(part("fus.")),
             history=rows("history"),
             north_history=rows("north_history"),
+            seen_ms=np.array(arrays["seen_ms"], dtype=np.float64),
         )
 
 
@@ -123,6 +126,7 @@ def initial_tracker(params: TrackerParams) -> TrackerState:
         fusion=att.initial_heading(params.fusion),
         history=np.empty((0, 2)),
         north_history=np.empty((0, 2)),
+        seen_ms=np.full(len(_SENSORS), -np.inf),
     )
 
 
@@ -156,7 +160,7 @@ def _headings(
 
 
 def _extend_history(history: FloatArray, samples: FloatArray) -> FloatArray:
-    """Append heading samples, unwrapped to continue the history, and drop old ones."""
+    """Append heading samples, unwrapped to continue the history."""
     if samples.shape[0] == 0:
         return history
     t = samples[:, 0]
@@ -166,20 +170,28 @@ def _extend_history(history: FloatArray, samples: FloatArray) -> FloatArray:
         return history
     # continue from the last kept value, not from the wrapped one
     h = np.unwrap(np.concatenate([history[-1:, 1], h]))[history.shape[0] > 0 :]
-    out = np.vstack([history, np.column_stack([t, h])])
-    recent: FloatArray = out[out[:, 0] >= out[-1, 0] - HISTORY_MS]
-    return recent
+    out: FloatArray = np.vstack([history, np.column_stack([t, h])])
+    return out
 
 
 def track(
     state: TrackerState, imu: ImuEvent, params: TrackerParams
 ) -> tuple[TrackerState, StepBlock]:
-    """Advance the tracker by one IMU block; the steps it completes come out."""
-    state, heading_samples, north_samples = _headings(state, imu, params)
+    """Advance the tracker by one IMU block; the steps it completes come out.
+
+    Samples at or before the newest already processed of their sensor (a block sent
+    twice, or overlapping the previous one) are dropped, so nothing is integrated twice.
+    An uncalibrated magnetometer (``magnetic_calibrated`` false) is not used: its
+    hard-iron offset would point the compass anywhere.
+    """
+    imu, seen = _new_samples(imu, state.seen_ms)
+    state, heading_samples, north_samples = _headings(replace(state, seen_ms=seen), imu, params)
     history = _extend_history(state.history, heading_samples)
     north_history = _extend_history(state.north_history, north_samples)
     detector, steps = pdr.detect_steps(state.detector, imu.accel, params.steps)
-    state = replace(state, detector=detector, history=history, north_history=north_history)
+    state = replace(
+        state, detector=detector, history=_recent(history), north_history=_recent(north_history)
+    )
     if len(steps) == 0:
         empty = np.empty(0, dtype=np.int64)
         return state, StepBlock(empty, np.empty(0), np.empty(0), np.empty(0), empty, empty)
@@ -198,6 +210,32 @@ def track(
         steps.t_ms, lengths, _wrap(heading), _wrap(_at(north_history, t)), status, segment
     )
     return replace(state, turns=turns), block
+
+
+_SENSORS = ("accel", "gyro", "magnetic", "rotation", "pressure")
+
+
+def _new_samples(imu: ImuEvent, seen_ms: FloatArray) -> tuple[ImuEvent, FloatArray]:
+    """The block without samples already processed, and the newest time per sensor."""
+    arrays = {}
+    seen = seen_ms.copy()
+    for i, name in enumerate(_SENSORS):
+        samples = getattr(imu, name)
+        samples = samples[samples[:, 0] > seen[i]] if samples.shape[0] else samples
+        if samples.shape[0]:
+            seen[i] = samples[-1, 0]
+        arrays[name] = samples
+    if not imu.magnetic_calibrated:
+        arrays["magnetic"] = arrays["magnetic"][:0]
+    return replace(imu, **arrays), seen
+
+
+def _recent(history: FloatArray) -> FloatArray:
+    """The last ``HISTORY_MS`` of a heading history."""
+    if history.shape[0] == 0:
+        return history
+    recent: FloatArray = history[history[:, 0] >= history[-1, 0] - HISTORY_MS]
+    return recent
 
 
 def _at(history: FloatArray, t: FloatArray) -> FloatArray:

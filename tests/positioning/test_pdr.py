@@ -407,7 +407,7 @@ def test_straighten_track_moves_only_outliers_of_long_straight_stretches() -> No
     xy[4, 1] = 3.0
     status = np.array([STRAIGHT] * 10 + [TURN] + [STRAIGHT] * 3)
     segment = np.array([0] * 10 + [0] + [1] * 3)
-    out = straighten_track(xy, status, segment)
+    out = straighten_track(xy, status, segment, np.random.default_rng(0))
     np.testing.assert_allclose(out[4], [4.0, 0.0], atol=1e-9)  # onto the line (eq 3)
     np.testing.assert_allclose(np.delete(out[:10], 4, axis=0), np.delete(xy[:10], 4, axis=0))
     np.testing.assert_array_equal(out[10:], xy[10:])  # a turn and a short stretch: as they were
