@@ -187,7 +187,10 @@ class ImuIn(Strict):
     clock) first; per sensor the times increase strictly, lie in ``[t, t + 60000]`` and
     come at most 500 Hz on average. Axes are the phone's (Android: x right, y towards the
     top edge, z out of the screen). A sensor not sent is an empty list; the event holds at
-    least one sample.
+    least one sample. Send each stretch of time's samples of all sensors in one event: the
+    heading filters read the accelerometer and magnetometer samples of events that also
+    carry gyroscope samples. Samples at or before ones already sent are ignored, and an
+    uncalibrated magnetometer (``magnetic_calibrated`` false) is not used for the heading.
     """
 
     type: Literal["imu"]

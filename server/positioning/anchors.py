@@ -8,8 +8,10 @@ feature whose properties name the beacon::
      "properties": {"anchor": "elevator", "beacon": "<BLE id>", "rssi_dbm": -65}}
 
 ``rssi_dbm`` (optional, default -65) is the level at which the phone counts as being at
-the anchor (``papers/003_*`` section IV-B: a smoothed RSS peak above a threshold). Other
-features, and anchor points that are malformed, are skipped.
+the anchor: the first scan that hears the beacon at or above it. ``papers/003_*`` section
+IV-B smooths the RSS and waits for its peak; taking the first scan over the threshold
+answers sooner but places the phone a little before the anchor. Other features, and
+anchor points that are malformed, are skipped.
 """
 
 from __future__ import annotations
@@ -22,6 +24,10 @@ from server.positioning.engines.base import Anchor
 from server.positioning.events import radio_key
 
 DEFAULT_RSSI_DBM = -65.0
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
 
 
 def anchors_from_plan(plan: Mapping[str, Any] | None, floor: int) -> tuple[Anchor, ...]:
@@ -40,11 +46,11 @@ def anchors_from_plan(plan: Mapping[str, Any] | None, floor: int) -> tuple[Ancho
         coords: Any = geometry.get("coordinates")
         if geometry.get("type") != "Point" or not isinstance(beacon, str) or not beacon:
             continue
-        try:
-            x, y = float(coords[0]), float(coords[1])
-            rssi = float(props.get("rssi_dbm", DEFAULT_RSSI_DBM))
-        except (TypeError, ValueError, IndexError):
+        rssi: Any = props.get("rssi_dbm", DEFAULT_RSSI_DBM)
+        if not (isinstance(coords, list | tuple) and len(coords) >= 2):
             continue
-        if all(math.isfinite(v) for v in (x, y, rssi)):
-            found.append(Anchor(floor, x, y, radio_key("ble", beacon), rssi))
+        values = (coords[0], coords[1], rssi)
+        if all(_is_number(v) and math.isfinite(v) for v in values):
+            x, y = float(coords[0]), float(coords[1])
+            found.append(Anchor(floor, x, y, radio_key("ble", beacon), float(rssi)))
     return tuple(found)

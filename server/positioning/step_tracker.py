@@ -16,9 +16,11 @@ This joins the pieces of PDR for the fusion engines, across batches:
 
 The heading of a step is the phone heading at the step's time, interpolated from a short
 history carried in the state, so a step found one batch late still gets the heading of its
-own moment. Headings are clockwise from the source's north (magnetic north for the
-compass, an arbitrary but fixed origin for the gyro-only yaw); the engines use their
-changes and learn the offset to the map frame themselves.
+own moment. A step is only certain some 0.3 s after its valley, so a step at the end of
+a batch comes out with the next one, after any scan of the first batch that followed it:
+the engines then apply it after that scan. Headings are clockwise from the source's
+north (magnetic north for the compass, an arbitrary but fixed origin for the gyro-only
+yaw); the engines use their changes and learn the offset to the map frame themselves.
 """
 
 from __future__ import annotations

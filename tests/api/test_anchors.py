@@ -40,3 +40,23 @@ async def test_a_beacon_in_the_plan_places_the_phone(
     (fix,) = r.json()["fixes"]
     assert fix["source"] == "anchor"
     assert (fix["x_m"], fix["y_m"], fix["floor"]) == (17.5, 2.5, 1)
+
+
+async def test_a_malformed_anchor_is_skipped_not_fatal(
+    client: httpx.AsyncClient, admin: dict[str, str]
+) -> None:
+    site: ToySite = await build_toy_site(client, admin)
+    plan = {
+        "type": "FeatureCollection",
+        "features": [
+            {
+                "type": "Feature",
+                "geometry": {"type": "Point", "coordinates": {"x": 1, "y": 2}},
+                "properties": {"beacon": "lift-a"},
+            }
+        ],
+    }
+    r = await client.put(f"/v1/floors/{site.floor_ids[0]}/plan", json=plan, headers=admin)
+    assert r.status_code == 200, r.text
+    r = await client.post("/v1/sessions", json={"site_id": site.site_id, "engine": "wknn"})
+    assert r.status_code == 201, r.text

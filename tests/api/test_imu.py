@@ -395,3 +395,21 @@ async def test_raw_imu_in_fixes_out_over_the_websocket(live_url: str) -> None:  
     assert [r["seq"] for r in results] == list(range(1, len(results) + 1))
     assert [m["fix"] for m in pushed] == fixes
     check_walk_fixes(fixes)
+
+
+@pytest.mark.parametrize("engine", ["two_stage_ekf", "everywhere_ekf"])
+async def test_samples_without_gravity_do_not_break_a_session(
+    client: httpx.AsyncClient, site: ToySite, engine: str
+) -> None:
+    sid, auth = await open_session(client, site.site_id, engine=engine)
+    odd = {
+        "type": "imu",
+        "t": T0,
+        "accel": [[T0, 0.0, 0.0, 0.0]],
+        "gyro": [[T0, 0.0, 0.0, 0.1], [T0 + 20, 0.0, 0.0, 0.1]],
+    }
+    url = f"/v1/sessions/{sid}/batches"
+    r = await client.post(url, json={"seq": 1, "events": [odd]}, headers=auth)
+    assert r.status_code == 200, r.text
+    r = await client.post(url, json={"seq": 2, "events": [imu(T0 + 1000)]}, headers=auth)
+    assert r.status_code == 200, r.text

@@ -30,6 +30,18 @@ def test_points_with_a_beacon_are_anchors() -> None:
             },
             point("a", 2.0, beacon="bad"),  # malformed coordinates: skipped
             point(float("nan"), 2.0, beacon="nan"),
+            point(True, 2.0, beacon="bool"),
+            point(1.0, 2.0, beacon="loud", rssi_dbm="strong"),
+            {
+                "type": "Feature",
+                "geometry": {"type": "Point", "coordinates": {"x": 1, "y": 2}},
+                "properties": {"beacon": "mapping"},
+            },
+            {
+                "type": "Feature",
+                "geometry": {"type": "Point", "coordinates": "12"},
+                "properties": {"beacon": "text"},
+            },
             "not a feature",
         ],
     }

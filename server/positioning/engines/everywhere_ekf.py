@@ -35,8 +35,9 @@ linearisation about the PDR solution) and lets the engine share the EKF steps of
 eq 17 (floored, ``min_fix_var_m2``).
 
 The heading starts from the phone's north-referenced heading (its fused compass, or
-rotation vector) turned into the building frame; ``Δh_t`` is the change of the fused
-heading between steps.
+rotation vector) turned into the building frame (magnetic declination is not corrected;
+the anchor calibration removes it where there are anchors); ``Δh_t`` is the change of the
+fused heading between steps.
 
 Calibration at anchors (eq 18-22): a floor plan may mark anchors, places with a BLE
 beacon (elevators, entrances) at known positions (``SiteMaps.anchors``). An anchor is
@@ -128,7 +129,7 @@ class EverywhereState:
     fp: FloatArray  # (2, 2) fingerprint positions at t-2 and t-1, NaN when unknown
     walked_m: float  # PDR distance since the last scan
     straight: bool  # every step since the last scan was straight walking
-    anchor: int  # index of the last anchor passed (-1: none)
+    anchor: FloatArray  # (3,) [floor, x, y] of the last anchor passed, NaN when none
     anchor_steps: int  # steps since it
     anchor_walked_m: float  # uncorrected PDR distance since it
     anchor_straight: bool  # every step since it was straight walking
@@ -146,7 +147,7 @@ class EverywhereState:
             fp=self.fp,
             walked_m=np.array(self.walked_m),
             straight=np.array(self.straight, dtype=np.int8),
-            anchor=np.array(self.anchor),
+            anchor=self.anchor,
             anchor_steps=np.array(self.anchor_steps),
             anchor_walked_m=np.array(self.anchor_walked_m),
             anchor_straight=np.array(self.anchor_straight, dtype=np.int8),
@@ -173,7 +174,7 @@ class EverywhereState:
             fp=fp,
             walked_m=float(arrays["walked_m"]),
             straight=bool(arrays["straight"]),
-            anchor=int(arrays["anchor"]),
+            anchor=np.array(arrays["anchor"], dtype=np.float64),
             anchor_steps=int(arrays["anchor_steps"]),
             anchor_walked_m=float(arrays["anchor_walked_m"]),
             anchor_straight=bool(arrays["anchor_straight"]),
@@ -193,7 +194,7 @@ def initial_state(params: EverywhereParams) -> EverywhereState:
         fp=np.full((2, 2), np.nan),
         walked_m=0.0,
         straight=False,
-        anchor=-1,
+        anchor=np.full(3, np.nan),
         anchor_steps=0,
         anchor_walked_m=0.0,
         anchor_straight=False,
@@ -346,13 +347,16 @@ def _on_anchor(
     """Position (and, after a straight walk from the previous anchor, step length and
     heading) update at an anchor (``papers/003_*`` eq 18-21)."""
     index = _passed_anchor(maps, event)
-    if index is None or index == state.anchor:
+    if index is None:
         return state, None
     anchor: Anchor = maps.anchors[index]
+    here = np.array([anchor.floor, anchor.x_m, anchor.y_m], dtype=np.float64)
+    if np.array_equal(here, state.anchor):
+        return state, None  # still at the anchor passed last
     diagnostics = {"anchor": float(index)}
     x, P = state.x, state.P
-    if state.initialized and state.heading_known and 0 <= state.anchor < len(maps.anchors):
-        previous = maps.anchors[state.anchor]
+    if state.initialized and state.heading_known and not np.isnan(state.anchor).any():
+        previous = Anchor(int(state.anchor[0]), float(state.anchor[1]), float(state.anchor[2]), "")
         if (
             state.anchor_straight
             and state.anchor_steps >= params.anchor_min_steps
@@ -400,7 +404,7 @@ def _on_anchor(
         floor=anchor.floor,
         initialized=True,
         rejects=0,
-        anchor=index,
+        anchor=here,
         anchor_steps=0,
         anchor_walked_m=0.0,
         anchor_straight=True,

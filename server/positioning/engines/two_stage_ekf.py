@@ -26,8 +26,11 @@ The WiFi heading (section 4.2): a least-squares line through the last four WKNN
 positions, pointing from the oldest to the newest, measures ``psi`` when no step since the
 oldest of them was part of a turn (the gyro turn detection of section 4.2, here the
 turn labels of ``server.positioning.pdr``) and the four positions span at least
-``min_heading_span_m``. Until the first WiFi heading the map-frame heading is unknown:
-steps then only widen the position variance by ``S²`` instead of moving the estimate.
+``min_heading_span_m``. Where the phone knows north (its compass or rotation vector),
+``psi`` starts from that heading turned into the building frame (magnetic declination is
+not corrected: a few degrees in most places, which the WiFi heading then absorbs);
+otherwise it waits for the first WiFi heading, and until then steps only widen the
+position variance by ``S²`` instead of moving the estimate.
 
 Cui's ``R_2 = diag(1000, 1000, 10, 100)`` (eq 25) does not fit metres and radians, so the
 measurement variances are our own (see ``server.positioning.engines.step_ekf`` for the
