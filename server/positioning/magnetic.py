@@ -1,0 +1,558 @@
+"""Magnetic maps as regular grids per floor, and magnetic sequence distances.
+
+Map building (``papers/001_*`` section IV-A, "Magnetic positioning model")
+------------------------------------------------------------------------------
+Samples come from static survey points, walked survey lines and training traces, each a
+position ``(x, y)`` in metres with a field magnitude ``|B|`` in µT and, where the phone's
+attitude allowed it, the horizontal and vertical components.
+
+* Walked lines. A surveyor walks a straight line at constant speed from ``a`` (time
+  ``t_a``) to ``b`` (time ``t_b``); a sample taken at time ``t`` lies at::
+
+      p(t) = a + (t - t_a) / (t_b - t_a) * (b - a),      t_a <= t <= t_b
+
+  (``samples_along_line``); samples taken outside ``[t_a, t_b]`` are dropped.
+* Gridding. The grid has its lower-left corner at ``origin = (x0, y0)`` and square cells
+  of side ``c`` (0.5 m by default, DESIGN.md "Maps"). A sample falls in the cell::
+
+      row = floor((y - y0) / c),   col = floor((x - x0) / c)
+
+  Per cell, over its ``n`` samples: ``count = n``, ``mean = sum v / n`` and the unbiased
+  variance ``var = sum (v - mean)^2 / (n - 1)``, two passes of ``np.bincount`` (sums, then
+  squared deviations from the cell mean), so the variance of a field of ~50 µT with
+  ~0.1 µT spread loses nothing to cancellation. A cell is *known* when ``n >= min_count``;
+  unknown cells hold NaN, never 0. ``var`` is NaN also where ``n < 2`` (undefined).
+  A component (horizontal, vertical) is averaged over its own finite samples with the
+  same rule, so a cell can know its magnitude but not its components.
+
+Sampling (``sample``, ``sample_many``): bilinear interpolation between the four cell
+centres around a point. With ``u = (x - x0) / c - 1/2``, ``v = (y - y0) / c - 1/2``,
+``i = floor(u)``, ``j = floor(v)``, ``fx = u - i``, ``fy = v - j``::
+
+    B(x, y) = (1 - fy) [(1 - fx) B[j, i] + fx B[j, i+1]] + fy [(1 - fx) B[j+1, i] + fx B[j+1, i+1]]
+
+which is exact on a plane ``a + b x + c y``. The result is NaN when any of the four
+centres is unknown or the point lies outside the rectangle spanned by the outermost
+cell centres. The paper's Figure 7 map is interpolated linearly between walked lines;
+here the lines feed the grid and the grid is interpolated bilinearly.
+
+Sequence distances over a window of ``w`` magnitudes (the last ``W + 1`` per-step
+magnitudes for a window of ``W`` steps; ``W = 3`` in the paper)
+------------------------------------------------------------------------------------
+* ``mmse``: the mean magnetic strength error of ``papers/001_*`` eq (b), the building
+  block of the mass-centered weight update eq (c)::
+
+      MMSE_i = 1/W sum_{j=0}^{W-1} | |s_i[t-j] - s_i[t-j-1]| - |s_obs[t-j] - s_obs[t-j-1]| |
+
+  It compares the absolute step-to-step changes of the field, so a constant offset of
+  the phone's magnetometer calibration (section II, Figure 1) cancels.
+* ``dtw_distance``: the dynamic time warping distance of the Magicol-style baseline
+  (section IV-B, reference [11]); classic DTW with cost ``|a_k - b_l|``, no band::
+
+      D[k, l] = |a_k - b_l| + min(D[k-1, l], D[k, l-1], D[k-1, l-1]),   D[0, 0] = |a_0 - b_0|
+
+  and the distance ``D[w-1, m-1]``.
+
+Both are vectorised over the candidates (one per particle); a candidate with a NaN (a
+particle over an unknown cell) gets ``inf``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+FloatArray = NDArray[np.float64]
+Component = Literal["magnitude", "horizontal", "vertical"]
+
+CELL_M = 0.5  # DESIGN.md "Maps": magnetic grid of 0.5 m
+
+
+@dataclass(frozen=True)
+class MagneticGrid:
+    """A magnetic map of one floor on a regular grid.
+
+    Attributes
+    ----------
+    origin_m : tuple of float
+        ``(x0, y0)``, lower-left corner of cell ``(0, 0)`` in the building frame (m).
+    cell_m : float
+        Cell side (m); cell ``(row, col)`` has its centre at
+        ``(x0 + (col + 1/2) c, y0 + (row + 1/2) c)``.
+    magnitude : ndarray, shape (ny, nx), float32
+        Mean field magnitude ``|B|`` in µT; NaN where unknown.
+    var : ndarray, shape (ny, nx), float32
+        Unbiased variance of the magnitude samples in µT^2; NaN where unknown or where
+        the cell holds a single sample.
+    count : ndarray, shape (ny, nx), int32
+        Number of magnitude samples that fell in the cell (also below ``min_count``).
+    horizontal, vertical : ndarray, shape (ny, nx), float32, or None
+        Mean horizontal / vertical component in µT, NaN where unknown; None when no
+        sample carried the component.
+    """
+
+    origin_m: tuple[float, float]
+    cell_m: float
+    magnitude: NDArray[np.float32]
+    var: NDArray[np.float32]
+    count: NDArray[np.int32]
+    horizontal: NDArray[np.float32] | None
+    vertical: NDArray[np.float32] | None
+
+    def __post_init__(self) -> None:
+        if not self.cell_m > 0:
+            raise ValueError(f"cell_m must be positive, got {self.cell_m}")
+        shape = self.magnitude.shape
+        if len(shape) != 2:
+            raise ValueError(f"magnitude must have shape (ny, nx), got {shape}")
+        for name in ("var", "count", "horizontal", "vertical"):
+            field = getattr(self, name)
+            if field is not None and field.shape != shape:
+                raise ValueError(f"{name} must have shape {shape}, got {field.shape}")
+
+
+@dataclass(frozen=True)
+class MagneticMap:
+    """Magnetic grids of a building, indexed by floor index (None: no map on that floor)."""
+
+    grids: tuple[MagneticGrid | None, ...]
+    version: str
+
+
+@dataclass(frozen=True)
+class MagneticSamples:
+    """Positioned magnetic samples from one source (survey points, a line, a trace).
+
+    Attributes
+    ----------
+    xy : array_like, shape (n, 2)
+        Positions in metres.
+    magnitude : array_like, shape (n,)
+        ``|B|`` in µT, finite.
+    horizontal, vertical : array_like, shape (n,), or None
+        Components in µT, NaN where the attitude was unknown; None when the source has
+        no components at all.
+    """
+
+    xy: ArrayLike
+    magnitude: ArrayLike
+    horizontal: ArrayLike | None = None
+    vertical: ArrayLike | None = None
+
+
+def samples_along_line(
+    start_xy: ArrayLike,
+    end_xy: ArrayLike,
+    t_start_ms: float,
+    t_end_ms: float,
+    sample_t_ms: ArrayLike,
+    values: ArrayLike,
+) -> tuple[FloatArray, FloatArray]:
+    """Place the samples of a walked survey line (``papers/001_*`` section IV-A).
+
+    The surveyor leaves ``start_xy`` at ``t_start_ms`` and reaches ``end_xy`` at
+    ``t_end_ms`` at constant speed; each sample is placed by linear interpolation of its
+    time. Samples taken before the start or after the end are dropped.
+
+    Parameters
+    ----------
+    start_xy, end_xy : array_like, shape (2,)
+        Marked end points of the line (m).
+    t_start_ms, t_end_ms : float
+        Times at the end points (ms), ``t_end_ms > t_start_ms``.
+    sample_t_ms : array_like, shape (n,)
+        Sample times (ms).
+    values : array_like, shape (n,) or (n, k)
+        Sample values (e.g. magnitude, horizontal, vertical in µT).
+
+    Returns
+    -------
+    xy : ndarray, shape (n_kept, 2), float64
+        Sample positions (m).
+    values : ndarray, shape (n_kept,) or (n_kept, k), float64
+        The values of the kept samples, in input order.
+    """
+    a = np.asarray(start_xy, dtype=np.float64)
+    b = np.asarray(end_xy, dtype=np.float64)
+    t = np.asarray(sample_t_ms, dtype=np.float64)
+    vals = np.asarray(values, dtype=np.float64)
+    if a.shape != (2,) or b.shape != (2,):
+        raise ValueError(f"start_xy and end_xy must have shape (2,), got {a.shape}, {b.shape}")
+    if t.ndim != 1:
+        raise ValueError(f"sample_t_ms must have shape (n,), got {t.shape}")
+    if vals.ndim not in (1, 2) or vals.shape[0] != t.shape[0]:
+        raise ValueError(f"values must have shape ({t.shape[0]},) or ({t.shape[0]}, k)")
+    duration = float(t_end_ms) - float(t_start_ms)
+    if not duration > 0:
+        raise ValueError(f"t_end_ms must be after t_start_ms, got {t_start_ms}, {t_end_ms}")
+    frac = (t - float(t_start_ms)) / duration
+    keep = (frac >= 0.0) & (frac <= 1.0)
+    frac = frac[keep]
+    xy = a + frac[:, None] * (b - a)
+    return xy, vals[keep]
+
+
+def grid_from_samples(
+    xy: ArrayLike,
+    magnitude: ArrayLike,
+    *,
+    horizontal: ArrayLike | None = None,
+    vertical: ArrayLike | None = None,
+    cell_m: float = CELL_M,
+    extent: tuple[float, float, float, float] | None = None,
+    min_count: int = 1,
+) -> MagneticGrid:
+    """Grid positioned magnetic samples (see the module docstring).
+
+    Parameters
+    ----------
+    xy : array_like, shape (n, 2)
+        Sample positions (m), finite.
+    magnitude : array_like, shape (n,)
+        ``|B|`` in µT, finite.
+    horizontal, vertical : array_like, shape (n,), optional
+        Components in µT; NaN where unavailable for a sample.
+    cell_m : float
+        Cell side (m).
+    extent : tuple (x0, y0, x1, y1), optional
+        Area to grid; cells cover ``[x0, x0 + nx c) x [y0, y0 + ny c)`` with
+        ``nx = ceil((x1 - x0) / c)``; samples outside are not counted. By default the
+        bounding box of the samples on the lattice of multiples of ``cell_m``, with a
+        margin of one cell on each side.
+    min_count : int
+        Fewest samples for a cell to be known.
+
+    Returns
+    -------
+    MagneticGrid
+        With read-only arrays.
+    """
+    pts = np.asarray(xy, dtype=np.float64)
+    mag = np.asarray(magnitude, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 2:
+        raise ValueError(f"xy must have shape (n, 2), got {pts.shape}")
+    n = pts.shape[0]
+    if mag.shape != (n,):
+        raise ValueError(f"magnitude must have shape ({n},), got {mag.shape}")
+    if not np.all(np.isfinite(pts)):
+        raise ValueError("xy must be finite")
+    if not np.all(np.isfinite(mag)):
+        raise ValueError("magnitude must be finite")
+    components = {}
+    for name, given in (("horizontal", horizontal), ("vertical", vertical)):
+        if given is not None:
+            comp = np.asarray(given, dtype=np.float64)
+            if comp.shape != (n,):
+                raise ValueError(f"{name} must have shape ({n},), got {comp.shape}")
+            components[name] = comp
+    if not cell_m > 0:
+        raise ValueError(f"cell_m must be positive, got {cell_m}")
+    if min_count < 1:
+        raise ValueError(f"min_count must be at least 1, got {min_count}")
+
+    if extent is None:
+        if n == 0:
+            raise ValueError("extent is required when there are no samples")
+        lo = np.floor(pts.min(axis=0) / cell_m) - 1.0
+        hi = np.floor(pts.max(axis=0) / cell_m) + 1.0
+        x0, y0 = float(lo[0] * cell_m), float(lo[1] * cell_m)
+        nx, ny = int(hi[0] - lo[0]) + 1, int(hi[1] - lo[1]) + 1
+    else:
+        x0, y0, x1, y1 = (float(e) for e in extent)
+        if not (x1 > x0 and y1 > y0):
+            raise ValueError(f"extent must be (x0, y0, x1, y1) with x1 > x0, y1 > y0: {extent}")
+        # round first so that an extent of whole cells is not widened by rounding error
+        nx = int(np.ceil(round((x1 - x0) / cell_m, 9)))
+        ny = int(np.ceil(round((y1 - y0) / cell_m, 9)))
+
+    col = np.floor((pts[:, 0] - x0) / cell_m).astype(np.int64)
+    row = np.floor((pts[:, 1] - y0) / cell_m).astype(np.int64)
+    inside = (col >= 0) & (col < nx) & (row >= 0) & (row < ny)
+    cell = (row * nx + col)[inside]
+    n_cells = nx * ny
+
+    count, mean, m2 = _cell_moments(cell, mag[inside], n_cells)
+    known = count >= min_count
+    mean = np.where(known, mean, np.nan)
+    var = np.full(n_cells, np.nan)
+    np.divide(m2, count - 1, out=var, where=known & (count >= 2))
+
+    fields: dict[str, NDArray[np.float32] | None] = {"horizontal": None, "vertical": None}
+    for name, comp in components.items():
+        c_count, c_mean, _ = _cell_moments(cell, comp[inside], n_cells)
+        if c_count.any():
+            fields[name] = _frozen(np.where(c_count >= min_count, c_mean, np.nan), ny, nx)
+
+    return MagneticGrid(
+        origin_m=(x0, y0),
+        cell_m=float(cell_m),
+        magnitude=_frozen(mean, ny, nx),
+        var=_frozen(var, ny, nx),
+        count=_frozen_count(count, ny, nx),
+        horizontal=fields["horizontal"],
+        vertical=fields["vertical"],
+    )
+
+
+def grid_from_sources(
+    sources: Sequence[MagneticSamples],
+    *,
+    cell_m: float = CELL_M,
+    extent: tuple[float, float, float, float] | None = None,
+    min_count: int = 1,
+) -> MagneticGrid:
+    """Grid the samples of several sources of one floor together.
+
+    The samples are concatenated and gridded once (``grid_from_samples``), so counts,
+    means and variances are those of all samples; a source without a component
+    contributes NaN for it.
+
+    Parameters
+    ----------
+    sources : sequence of MagneticSamples
+        Survey points, placed line samples (``samples_along_line``), training traces.
+    cell_m, extent, min_count
+        As in ``grid_from_samples``.
+
+    Returns
+    -------
+    MagneticGrid
+    """
+    names = ("magnitude", "horizontal", "vertical")
+    xy: list[FloatArray] = []
+    columns: dict[str, list[FloatArray]] = {name: [] for name in names}
+    for k, source in enumerate(sources):
+        pts = np.asarray(source.xy, dtype=np.float64)
+        pts = pts.reshape(0, 2) if pts.size == 0 else pts
+        if pts.ndim != 2 or pts.shape[1] != 2:
+            raise ValueError(f"sources[{k}].xy must have shape (n, 2), got {pts.shape}")
+        xy.append(pts)
+        for name in names:
+            given = getattr(source, name)
+            values = np.full(len(pts), np.nan) if given is None else np.asarray(given, float)
+            if values.shape != (len(pts),):
+                raise ValueError(
+                    f"sources[{k}].{name} must have shape ({len(pts)},), got {values.shape}"
+                )
+            columns[name].append(values)
+    joined = {name: np.concatenate(columns[name]) if xy else np.empty(0) for name in names}
+    has = {name: any(getattr(source, name) is not None for source in sources) for name in names}
+    return grid_from_samples(
+        np.concatenate(xy) if xy else np.empty((0, 2)),
+        joined["magnitude"],
+        horizontal=joined["horizontal"] if has["horizontal"] else None,
+        vertical=joined["vertical"] if has["vertical"] else None,
+        cell_m=cell_m,
+        extent=extent,
+        min_count=min_count,
+    )
+
+
+def sample(grid: MagneticGrid, xy: ArrayLike, component: Component = "magnitude") -> FloatArray:
+    """Sample a grid bilinearly at a batch of positions (see the module docstring).
+
+    Parameters
+    ----------
+    grid : MagneticGrid
+    xy : array_like, shape (n, 2)
+        Positions (m).
+    component : {"magnitude", "horizontal", "vertical"}
+        Field to sample.
+
+    Returns
+    -------
+    ndarray, shape (n,), float64
+        Field in µT; NaN where any of the four surrounding cell centres is unknown, or
+        outside the rectangle of cell centres.
+    """
+    pts = np.asarray(xy, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 2:
+        raise ValueError(f"xy must have shape (n, 2), got {pts.shape}")
+    return _bilinear(grid, pts, component)
+
+
+def sample_many(
+    grid: MagneticGrid, xy: ArrayLike, component: Component = "magnitude"
+) -> FloatArray:
+    """Sample a grid bilinearly at windows of positions (one window per particle).
+
+    Parameters
+    ----------
+    grid : MagneticGrid
+    xy : array_like, shape (n, w, 2)
+        Positions (m).
+    component : {"magnitude", "horizontal", "vertical"}
+
+    Returns
+    -------
+    ndarray, shape (n, w), float64
+        As ``sample``.
+    """
+    pts = np.asarray(xy, dtype=np.float64)
+    if pts.ndim != 3 or pts.shape[2] != 2:
+        raise ValueError(f"xy must have shape (n, w, 2), got {pts.shape}")
+    return _bilinear(grid, pts.reshape(-1, 2), component).reshape(pts.shape[:2])
+
+
+def mmse(observed: ArrayLike, candidates: ArrayLike) -> FloatArray:
+    """Mean magnetic strength error ``papers/001_*`` eq (b) of each candidate sequence.
+
+    Parameters
+    ----------
+    observed : array_like, shape (w,)
+        Observed magnitudes, oldest first, ``w = W + 1 >= 2``, finite.
+    candidates : array_like, shape (n, w)
+        Map magnitudes along each particle's last ``w`` positions.
+
+    Returns
+    -------
+    ndarray, shape (n,), float64
+        ``1/W sum | |Δ candidate| - |Δ observed| |`` over the ``W`` steps; ``inf`` for a
+        row with a NaN.
+    """
+    obs, cand = _sequences(observed, candidates)
+    if obs.shape[0] != cand.shape[0]:
+        raise ValueError(f"candidates must have shape (n, {obs.shape[0]}), got {cand.T.shape}")
+    if obs.shape[0] < 2:
+        raise ValueError("mmse needs at least two magnitudes (one step)")
+    # candidates come transposed to (w, n): each step below runs over contiguous rows
+    # (a reduction over a short inner axis of (n, w) is ~10x slower)
+    d = np.diff(cand, axis=0)
+    np.abs(d, out=d)
+    d -= np.abs(np.diff(obs))[:, None]
+    np.abs(d, out=d)
+    out: FloatArray = d.sum(axis=0)
+    out /= d.shape[0]
+    out[np.isnan(out)] = np.inf
+    return out
+
+
+def dtw_distance(observed: ArrayLike, candidates: ArrayLike) -> FloatArray:
+    """Classic DTW distance between the observed sequence and each candidate.
+
+    Absolute-difference cost, full window, no band (module docstring). Loops over the
+    ``w x m`` cells and is vectorised over the candidates.
+
+    Parameters
+    ----------
+    observed : array_like, shape (w,)
+        Observed magnitudes, finite.
+    candidates : array_like, shape (n, m)
+        Candidate sequences (usually ``m = w``).
+
+    Returns
+    -------
+    ndarray, shape (n,), float64
+        ``D[w-1, m-1]``; ``inf`` for a row with a NaN.
+    """
+    obs, cand = _sequences(observed, candidates)
+    w, m = obs.shape[0], cand.shape[0]
+    if w == 0 or m == 0:
+        raise ValueError("dtw_distance needs non-empty sequences")
+    # D[k, l] starts as the cost |a_k - b_l| and is accumulated in place, row by row
+    D = np.empty((w, m, cand.shape[1]))
+    for k in range(w):
+        np.subtract(cand, obs[k], out=D[k])
+    np.abs(D, out=D)
+    # first row and column: one predecessor each (explicit adds: np.cumsum over the outer
+    # axis is ~7x slower here)
+    for ell in range(1, m):
+        D[0, ell] += D[0, ell - 1]
+    for k in range(1, w):
+        D[k, 0] += D[k - 1, 0]
+    best = np.empty(cand.shape[1])
+    for k in range(1, w):
+        for ell in range(1, m):
+            np.minimum(D[k - 1, ell], D[k, ell - 1], out=best)
+            np.minimum(best, D[k - 1, ell - 1], out=best)
+            D[k, ell] += best
+    out: FloatArray = D[w - 1, m - 1].copy()
+    out[np.isnan(out)] = np.inf
+    return out
+
+
+def _sequences(observed: ArrayLike, candidates: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """Validate a window; return it and the candidates transposed to ``(m, n)``, C order."""
+    obs = np.asarray(observed, dtype=np.float64)
+    cand = np.asarray(candidates, dtype=np.float64)
+    if obs.ndim != 1:
+        raise ValueError(f"observed must have shape (w,), got {obs.shape}")
+    if not np.all(np.isfinite(obs)):
+        raise ValueError("observed must be finite")
+    if cand.ndim != 2:
+        raise ValueError(f"candidates must have shape (n, m), got {cand.shape}")
+    return obs, np.ascontiguousarray(cand.T)
+
+
+def _cell_moments(
+    cell: NDArray[np.int64], values: FloatArray, n_cells: int
+) -> tuple[NDArray[np.int64], FloatArray, FloatArray]:
+    """Count, mean and sum of squared deviations per cell over the finite values."""
+    ok = np.isfinite(values)
+    cell, values = cell[ok], values[ok]
+    # bincount is typed as returning integers; with weights it returns float64 (no copy)
+    count = np.bincount(cell, minlength=n_cells).astype(np.int64, copy=False)
+    total = np.bincount(cell, weights=values, minlength=n_cells).astype(np.float64, copy=False)
+    mean: FloatArray = np.divide(total, count, out=np.full(n_cells, np.nan), where=count > 0)
+    squares = (values - mean[cell]) ** 2
+    m2 = np.bincount(cell, weights=squares, minlength=n_cells).astype(np.float64, copy=False)
+    return count, mean, m2
+
+
+def _frozen(values: FloatArray, ny: int, nx: int) -> NDArray[np.float32]:
+    out = values.astype(np.float32).reshape(ny, nx)
+    out.flags.writeable = False
+    return out
+
+
+def _frozen_count(values: NDArray[np.int64], ny: int, nx: int) -> NDArray[np.int32]:
+    out = values.astype(np.int32).reshape(ny, nx)
+    out.flags.writeable = False
+    return out
+
+
+def _bilinear(grid: MagneticGrid, pts: FloatArray, component: Component) -> FloatArray:
+    """Bilinear interpolation of one field at ``pts`` of shape (k, 2)."""
+    fields = {"magnitude": grid.magnitude, "horizontal": grid.horizontal, "vertical": grid.vertical}
+    field = fields[component]
+    if field is None:
+        raise ValueError(f"this grid has no {component} component")
+    ny, nx = field.shape
+    # continuous cell-centre coordinates: centre (row j, col i) at (u, v) = (i, j)
+    u = pts[:, 0] - grid.origin_m[0]
+    u /= grid.cell_m
+    u -= 0.5
+    v = pts[:, 1] - grid.origin_m[1]
+    v /= grid.cell_m
+    v -= 0.5
+    inside = (u >= 0.0) & (u <= nx - 1) & (v >= 0.0) & (v <= ny - 1)  # False for NaN
+    # lower-left centre of the square around each point; the last row / column of centres
+    # is reached from the square before it with f = 1. fmin / fmax map NaN to a valid index
+    i0 = np.fmax(np.fmin(np.floor(u), max(nx - 2, 0)), 0.0)
+    j0 = np.fmax(np.fmin(np.floor(v), max(ny - 2, 0)), 0.0)
+    fx = u - i0
+    fy = v - j0
+    base = (j0 * nx + i0).astype(np.intp)
+    di, dj = min(nx - 1, 1), nx * min(ny - 1, 1)
+    f = field.ravel()
+    # a NaN corner makes the result NaN even with a zero weight (NaN * 0 = NaN); an
+    # infinite coordinate may give inf * 0 here, and is masked as outside below
+    with np.errstate(invalid="ignore"):
+        f00 = f[base]
+        f01 = f[base + di]
+        lower: FloatArray = fx * (f01 - f00)
+        lower += f00
+        base += dj
+        f10 = f[base]
+        f11 = f[base + di]
+        upper: FloatArray = fx * (f11 - f10)
+        upper += f10
+        upper -= lower
+        upper *= fy
+        upper += lower
+    upper[~inside] = np.nan
+    return upper
