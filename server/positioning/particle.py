@@ -1,0 +1,642 @@
+"""Map-constrained particle filter with the mass-centered magnetic weight update.
+
+The filter of ``papers/001_*`` (Shao et al.) section III-B, Algorithm 1, as pure steps
+over an immutable particle cloud; the engine (WiFi/BLE initialisation, floor plans,
+magnetic maps, re-initialisation policy) glues them together.
+
+State. Particle ``i`` is ``(x_i, y_i, floor_i, log w_i)`` and the map magnitudes
+``s_i^{t-W}, ..., s_i^t`` (µT) at its last ``W + 1`` positions, oldest first (NaN where
+the map is unknown); the cloud also holds the observed magnitudes
+``s_obs^{t-W}, ..., s_obs^t`` and how many of those ``W + 1`` slots are filled. The
+magnitudes travel with their particle through resampling, so eq (b) compares each
+particle's own history with the observed one.
+
+Initialisation (Algorithm 1 lines 1-3): ``N`` particles uniform on the disc of radius
+``r`` around the WiFi/BLE fix ``l`` (redrawn until they are reachable, when a test is
+given), all with weight ``1/N``.
+
+Movement (Algorithm 1 line 8, with headings clockwise from north as in
+``server.positioning.events``)::
+
+    x_i^t = x_i^{t-1} + (S + delta_i) sin(theta + Delta_i)
+    y_i^t = y_i^{t-1} + (S + delta_i) cos(theta + Delta_i)
+    delta_i ~ N(0, sigma_S^2),   Delta_i ~ N(0, sigma_theta^2)
+
+with ``S`` the reported step length (clipped at 0 after the noise) and ``theta`` the
+reported heading. Line 9 removes particles outside reachable areas: a particle whose move
+``a -> b`` the floor plan refuses (``b`` not reachable or the segment crosses a wall) gets
+``log w = -inf`` and stays at ``a``, so no particle ever stands where the plan said no.
+Dead particles are revived by the next resampling.
+
+Mass-centered weight update (section III-C/D, eq b-c). After each step the map magnitude
+at the new positions and the observed magnitude enter the windows, and::
+
+    MMSE(i, t) = 1/W sum_{j=0}^{W-1} | |s_i^{t-j} - s_i^{t-j-1}| - |s_obs^{t-j} - s_obs^{t-j-1}| |
+                                                                                         (b)
+    w_i^t = K w_i^{t-1} / max(MMSE(i, t), T)                                             (c)
+
+(``server.positioning.magnetic.mmse``). Until the window is full the mean runs over the
+steps it holds; with fewer than two magnitudes the weights are left alone. Weights are
+kept as normalised logarithms: ``log w_i <- log w_i + log K - log max(MMSE, T)``, then
+``log w_i -= log sum_j exp(log w_j)``. ``K`` multiplies every weight alike, so it cancels
+in this normalisation (and in any resampling, which only sees relative weights): eq (c)
+as printed does not depend on ``K``. The paper's sensitivity to ``K`` (Figure 9) must come from
+something the paper does not print; ``K`` is applied anyway so the update is eq (c) as
+written. A particle whose window meets an unknown map cell has no MMSE; it is neither
+rewarded nor punished but gets the median ``max(MMSE, T)`` of the living particles that
+have one (with none, the weights stay as they are). The paper's map covers every
+reachable place, so it has no such rule.
+
+DTW baseline (section IV-B, the Magicol method [11]): the same filter and window, with
+the classic DTW distance ``D_i`` between the ``W + 1`` observed and the particle's ``W + 1``
+map magnitudes (``server.positioning.magnetic.dtw_distance``) in place of the MMSE::
+
+    w_i^t = K w_i^{t-1} / max(D_i / (W + 1), T)
+
+Only the sequence distance changes -- same award, same cap, same window, same treatment of
+unknown cells -- so a comparison measures the distance and nothing else. ``D_i / (W + 1)``
+is, like the MMSE, a mean absolute error in µT per sample (a constant error ``e`` gives
+``e`` in both), so ``T`` means the same for both. DTW compares raw magnitudes: unlike eq (b)
+it does not cancel a magnetometer offset (section II, Figure 1).
+
+Resampling: systematic (``papers/001_*`` ref [24], Arulampalam et al. 2002, Algorithm 2)
+with one uniform draw ``u ~ U[0, 1/N)`` and the ``N`` points ``u + k/N``; particle ``i``
+is copied ``floor(N w_i)`` or ``ceil(N w_i)`` times; weights reset to ``1/N``. Algorithm 1
+resamples at every step; here (``step``) the cloud is resampled when the effective sample
+size ``N_eff = 1 / sum w_i^2`` falls below ``resample_ess_fraction * N`` (ref [24]
+resamples below a threshold ``N_T``; ``N_T = N/2`` by default, the common choice), which
+keeps the weights' memory across steps where the field says little;
+``resample_ess_fraction = 1`` resamples at every step whose weights are not all equal, as
+Algorithm 1 does (on the acceptance corridor of the tests both converge alike).
+
+Estimate: the weighted mean ``sum w_i (x_i, y_i)`` (Algorithm 1 line 14 is the plain mean
+of the resampled particles, the same thing in expectation) with the weighted covariance
+``sum w_i (p_i - mean)(p_i - mean)^T`` as its uncertainty, the floor holding most weight,
+and ``N_eff``.
+
+Numbers are stored as float32 (positions, log weights, magnitudes) and every step reads
+the stored values, so a cloud that went through ``to_arrays`` / ``from_arrays`` between
+steps continues exactly as one that did not. Moves are checked on the float32 positions
+that are stored. Randomness comes only from the ``rng`` passed in.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, replace
+from typing import Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from server.positioning.magnetic import dtw_distance, mmse
+
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+FloorArray = NDArray[np.int16]
+
+MoveCheck = Callable[[FloorArray, FloatArray, FloatArray], BoolArray]
+"""``valid_move(floor (n,), a (n, 2), b (n, 2)) -> (n,) bool``: the move is allowed."""
+PointCheck = Callable[[FloorArray, FloatArray], BoolArray]
+"""``valid_point(floor (n,), xy (n, 2)) -> (n,) bool``: a particle may stand there."""
+MapSampler = Callable[[FloorArray, FloatArray], ArrayLike]
+"""``sample_map(floor (n,), xy (n, 2)) -> (n,)`` map magnitude in µT, NaN where unknown."""
+Weighting = Literal["mass_centered", "dtw"]
+
+_INIT_ROUNDS = 32  # redraw rounds in ``initialise`` before giving up
+
+
+@dataclass(frozen=True)
+class ParticleParams:
+    """Parameters of the particle filter (``papers/001_*`` values where the paper has one)."""
+
+    n: int = 3000  # particle count N, papers/001_* section IV-A
+    window: int = 3  # sliding window W in steps, eq (b); section IV-B, Figure 8
+    k: float = 70.0  # award parameter K, eq (c); section IV-B, Figure 9 (cancels, see above)
+    t: float = 0.05  # award threshold T in µT, eq (c); section IV-B, Figure 10
+    # delta of Algorithm 1 line 8 (the paper gives no value): 14 % of a 0.7 m step, above
+    # the +-8 % distance error of Weinberg's step-length model (papers/002_* section 5.2),
+    # since single steps vary more than a walked distance
+    step_sd_m: float = 0.1
+    # Delta of Algorithm 1 line 8 (no value in the paper): the phone heading error used
+    # by step_ekf (r_heading_rad2)
+    heading_sd_rad: float = math.radians(10.0)
+    # resample when N_eff < fraction * N: ref [24] resamples below a threshold N_T, N/2
+    # is the common choice; 1.0 resamples at every step as Algorithm 1 line 13
+    resample_ess_fraction: float = 0.5
+    # disc radius around a WiFi/BLE fix: WiFi alone errs by more than 10 m at 80 %
+    # (papers/001_* Figure 11), so the cloud must reach beyond that
+    init_radius_m: float = 15.0
+
+    def __post_init__(self) -> None:
+        if self.n < 1:
+            raise ValueError(f"n must be at least 1, got {self.n}")
+        if self.window < 1:
+            raise ValueError(f"window must be at least 1, got {self.window}")
+        positive = {"k": self.k, "t": self.t, "init_radius_m": self.init_radius_m}
+        for name, value in positive.items():
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be positive and finite, got {value}")
+        for name, value in (("step_sd_m", self.step_sd_m), ("heading_sd_rad", self.heading_sd_rad)):
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be non-negative and finite, got {value}")
+        if not 0.0 <= self.resample_ess_fraction <= 1.0:
+            raise ValueError(
+                f"resample_ess_fraction must be in [0, 1], got {self.resample_ess_fraction}"
+            )
+
+
+@dataclass(frozen=True)
+class Particles:
+    """A particle cloud; never modified in place (every step returns a new one).
+
+    Attributes
+    ----------
+    xy : ndarray, shape (n, 2), float32
+        Positions (m).
+    floor : ndarray, shape (n,), int16
+        Floor index of each particle.
+    log_w : ndarray, shape (n,), float32
+        Normalised log weights (``logsumexp(log_w) == 0``); ``-inf`` for a dead particle,
+        all ``-inf`` when the cloud died.
+    mags : ndarray, shape (n, W + 1), float32
+        Map magnitudes (µT) at each particle's last ``W + 1`` positions, oldest first;
+        only the last ``count`` columns are meaningful; NaN where the map is unknown.
+    observed : ndarray, shape (W + 1,), float32
+        Observed magnitudes (µT), oldest first; only the last ``count`` are meaningful.
+    count : int
+        Filled slots of the windows, ``0 <= count <= W + 1``.
+    """
+
+    xy: NDArray[np.float32]
+    floor: FloorArray
+    log_w: NDArray[np.float32]
+    mags: NDArray[np.float32]
+    observed: NDArray[np.float32]
+    count: int
+
+    def __post_init__(self) -> None:
+        n = self.log_w.shape[0] if self.log_w.ndim == 1 else -1
+        w = self.observed.shape[0] if self.observed.ndim == 1 else -1
+        expected = {
+            "xy": ((n, 2), np.float32),
+            "floor": ((n,), np.int16),
+            "log_w": ((n,), np.float32),
+            "mags": ((n, w), np.float32),
+            "observed": ((w,), np.float32),
+        }
+        for name, (shape, dtype) in expected.items():
+            array = getattr(self, name)
+            if array.shape != shape or array.dtype != dtype:
+                raise ValueError(
+                    f"{name} must be {np.dtype(dtype).name} of shape {shape}, "
+                    f"got {array.dtype.name} of shape {array.shape}"
+                )
+        if w < 2:
+            raise ValueError(f"the windows need W + 1 >= 2 slots, got {w}")
+        if not 0 <= self.count <= w:
+            raise ValueError(f"count must be in [0, {w}], got {self.count}")
+
+    @property
+    def n(self) -> int:
+        """Number of particles (dead ones included)."""
+        return int(self.log_w.shape[0])
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """Flat typed arrays (``count`` as a 0-d int32); ``from_arrays`` inverts exactly.
+
+        At ``N = 3000``, ``W = 3`` they hold 90,020 bytes: 24,000 (xy) + 6,000 (floor) +
+        12,000 (log_w) + 48,000 (mags) + 16 (observed) + 4 (count).
+        """
+        return {
+            "xy": self.xy.copy(),
+            "floor": self.floor.copy(),
+            "log_w": self.log_w.copy(),
+            "mags": self.mags.copy(),
+            "observed": self.observed.copy(),
+            "count": np.array(self.count, dtype=np.int32),
+        }
+
+    @classmethod
+    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> Particles:
+        """Rebuild a cloud from ``to_arrays`` output.
+
+        Raises
+        ------
+        KeyError
+            When an array is missing.
+        ValueError
+            When an array has the wrong dtype or shape, a position is not finite or a log
+            weight is NaN or ``+inf``.
+        """
+        p = cls(
+            xy=np.array(arrays["xy"]),
+            floor=np.array(arrays["floor"]),
+            log_w=np.array(arrays["log_w"]),
+            mags=np.array(arrays["mags"]),
+            observed=np.array(arrays["observed"]),
+            count=int(arrays["count"]),
+        )
+        if not np.isfinite(p.xy).all():
+            raise ValueError("xy must be finite")
+        if np.isnan(p.log_w).any() or (p.log_w == np.inf).any():
+            raise ValueError("log_w must be finite or -inf")
+        return p
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """Position estimate of a cloud.
+
+    Attributes
+    ----------
+    xy : ndarray, shape (2,), float64
+        Weighted mean position (m).
+    cov : ndarray, shape (2, 2), float64
+        Weighted covariance of the particle positions (m^2).
+    floor : int
+        Floor holding the largest total weight.
+    ess : float
+        Effective sample size ``1 / sum w_i^2``.
+    """
+
+    xy: FloatArray
+    cov: FloatArray
+    floor: int
+    ess: float
+
+
+def from_points(xy: ArrayLike, floor: int, window: int) -> Particles:
+    """A cloud of equally weighted particles at given points, windows empty.
+
+    Parameters
+    ----------
+    xy : array_like, shape (n, 2)
+        Positions (m), ``n >= 1``, finite (e.g. from ``floorplan.random_walkable_points``).
+    floor : int
+        Floor index of every particle.
+    window : int
+        Window ``W`` in steps; the windows hold ``W + 1`` magnitudes.
+
+    Returns
+    -------
+    Particles
+    """
+    pts = np.array(xy, dtype=np.float32)
+    if pts.ndim != 2 or pts.shape[1] != 2 or pts.shape[0] == 0:
+        raise ValueError(f"xy must have shape (n, 2) with n >= 1, got {pts.shape}")
+    if not np.all(np.isfinite(pts)):
+        raise ValueError("xy must be finite")
+    if window < 1:
+        raise ValueError(f"window must be at least 1, got {window}")
+    n = pts.shape[0]
+    return Particles(
+        xy=pts,
+        floor=np.full(n, floor, dtype=np.int16),
+        log_w=np.full(n, -math.log(n), dtype=np.float32),
+        mags=np.full((n, window + 1), np.nan, dtype=np.float32),
+        observed=np.full(window + 1, np.nan, dtype=np.float32),
+        count=0,
+    )
+
+
+def initialise(
+    centre_xy: ArrayLike,
+    floor: int,
+    rng: np.random.Generator,
+    params: ParticleParams,
+    *,
+    radius_m: float | None = None,
+    valid_point: PointCheck | None = None,
+) -> Particles:
+    """Spread ``params.n`` particles around a WiFi/BLE fix (Algorithm 1 lines 1-3).
+
+    Points are uniform on the disc of radius ``radius_m`` around ``centre_xy``
+    (``r = R sqrt(u)``, ``phi = 2 pi v``), rounded to float32 and, with ``valid_point``,
+    redrawn until that test accepts them, so they are uniform over the reachable part of
+    the disc.
+
+    Parameters
+    ----------
+    centre_xy : array_like, shape (2,)
+        The fix (m).
+    floor : int
+        Its floor.
+    rng : numpy.random.Generator
+    params : ParticleParams
+    radius_m : float, optional
+        Disc radius (m); ``params.init_radius_m`` by default.
+    valid_point : callable, optional
+        ``valid_point(floor (n,), xy (n, 2)) -> (n,) bool``.
+
+    Returns
+    -------
+    Particles
+
+    Raises
+    ------
+    ValueError
+        When ``valid_point`` accepts too few points of the disc to fill the cloud.
+    """
+    c = np.asarray(centre_xy, dtype=np.float64).reshape(2)
+    radius = params.init_radius_m if radius_m is None else float(radius_m)
+    if not (np.all(np.isfinite(c)) and math.isfinite(radius) and radius >= 0):
+        raise ValueError(f"bad disc: centre {c.tolist()}, radius_m {radius}")
+    n = params.n
+    if valid_point is None:
+        return from_points(_disc(c, radius, n, rng), floor, params.window)
+    chunks: list[FloatArray] = []
+    found = drawn = 0
+    for _ in range(_INIT_ROUNDS):
+        # draw for the acceptance rate seen so far (at least 1/64), 20 % to spare
+        rate = max(found / drawn if drawn else 1.0, 1.0 / 64.0)
+        m = math.ceil((n - found) / rate * 1.2) + 16
+        pts = _disc(c, radius, m, rng)
+        ok = np.asarray(valid_point(np.full(m, floor, dtype=np.int16), pts), dtype=bool)
+        chunks.append(pts[ok])
+        found += int(ok.sum())
+        drawn += m
+        if found >= n:
+            return from_points(np.concatenate(chunks)[:n], floor, params.window)
+    raise ValueError(
+        f"only {found} of {drawn} points within {radius} m of {c.tolist()} are reachable; "
+        f"cannot place {n} particles"
+    )
+
+
+def move(
+    p: Particles,
+    length_m: float,
+    heading_rad: float,
+    rng: np.random.Generator,
+    params: ParticleParams,
+    valid_move: MoveCheck,
+) -> Particles:
+    """Move every particle by one step (Algorithm 1 lines 8-9, module docstring).
+
+    Parameters
+    ----------
+    p : Particles
+    length_m : float
+        Reported step length ``S`` (m).
+    heading_rad : float
+        Reported heading ``theta`` (rad, clockwise from north).
+    rng : numpy.random.Generator
+        Draws ``(2, n)`` normals: step-length noise, then heading noise.
+    params : ParticleParams
+    valid_move : callable
+        ``valid_move(floor (m,), a (m, 2), b (m, 2)) -> (m,) bool``; called with the
+        living particles only, on the float32 positions that will be stored.
+
+    Returns
+    -------
+    Particles
+        Moved; particles whose move was refused are dead and stay where they were.
+    """
+    if not (math.isfinite(length_m) and math.isfinite(heading_rad)):
+        raise ValueError(f"step must be finite, got length {length_m}, heading {heading_rad}")
+    noise = rng.standard_normal((2, p.n))
+    finite = np.isfinite(p.log_w)
+    n_live = int(finite.sum())
+    if n_live == 0:
+        return p
+    live = _rows(finite, n_live)
+    length = np.maximum(length_m + params.step_sd_m * noise[0, live], 0.0)
+    heading = heading_rad + params.heading_sd_rad * noise[1, live]
+    a = p.xy[live].astype(np.float64)
+    b32 = np.column_stack([a[:, 0] + length * np.sin(heading), a[:, 1] + length * np.cos(heading)])
+    b32 = b32.astype(np.float32)
+    ok = np.asarray(valid_move(p.floor[live], a, b32.astype(np.float64)), dtype=bool)
+    if ok.shape != (n_live,):
+        raise ValueError(f"valid_move must return shape ({n_live},), got {ok.shape}")
+    moved = np.zeros(p.n, dtype=bool)
+    moved[live] = ok
+    xy = p.xy.copy()
+    xy[moved] = b32[ok]
+    log_w = p.log_w.astype(np.float64)
+    log_w[finite & ~moved] = -np.inf
+    return replace(p, xy=xy, log_w=_normalised(log_w))
+
+
+def mass_centered_update(
+    p: Particles, observed_ut: float, sample_map: MapSampler, params: ParticleParams
+) -> Particles:
+    """Push a step's magnitudes into the windows and weight by eq (b)-(c).
+
+    Parameters
+    ----------
+    p : Particles
+        After ``move`` (or just initialised, to record the first magnitude).
+    observed_ut : float
+        Field magnitude the phone measured at this step (µT), finite.
+    sample_map : callable
+        ``sample_map(floor (m,), xy (m, 2)) -> (m,)`` map magnitude, NaN where unknown;
+        called with the living particles only.
+    params : ParticleParams
+
+    Returns
+    -------
+    Particles
+    """
+    return _weight_update(p, observed_ut, sample_map, params, "mass_centered")
+
+
+def dtw_update(
+    p: Particles, observed_ut: float, sample_map: MapSampler, params: ParticleParams
+) -> Particles:
+    """As ``mass_centered_update`` with the DTW distance of the baseline (module docstring)."""
+    return _weight_update(p, observed_ut, sample_map, params, "dtw")
+
+
+def alive(p: Particles) -> bool:
+    """Whether any particle has a finite weight."""
+    return bool(np.isfinite(p.log_w).any())
+
+
+def effective_sample_size(p: Particles) -> float:
+    """``N_eff = 1 / sum w_i^2`` (0 for a dead cloud)."""
+    if not alive(p):
+        return 0.0
+    w = _weights(p)
+    return float(1.0 / np.dot(w, w))
+
+
+def systematic_resample(p: Particles, rng: np.random.Generator) -> Particles:
+    """Systematic resampling (ref [24]); ``N`` kept, weights reset to ``1/N``.
+
+    Parameters
+    ----------
+    p : Particles
+        A living cloud.
+    rng : numpy.random.Generator
+        Draws one uniform number.
+
+    Returns
+    -------
+    Particles
+        Rows (position, floor, map magnitudes) copied by ``searchsorted`` of the points
+        ``(u + k) / N`` in the cumulative weights; the observed window is shared.
+
+    Raises
+    ------
+    ValueError
+        When every particle is dead.
+    """
+    if not alive(p):
+        raise ValueError("cannot resample a cloud whose particles are all dead")
+    n = p.n
+    cdf = np.cumsum(_weights(p))
+    cdf /= cdf[-1]
+    # points below 1, so the index stays below n; a dead particle (zero weight) spans an
+    # empty interval [cdf[i-1], cdf[i]) and is never chosen
+    points = (rng.random() + np.arange(n)) / n
+    idx = np.searchsorted(cdf, points, side="right")
+    return replace(
+        p,
+        xy=p.xy[idx],
+        floor=p.floor[idx],
+        log_w=np.full(n, -math.log(n), dtype=np.float32),
+        mags=p.mags[idx],
+    )
+
+
+def estimate(p: Particles) -> Estimate:
+    """Weighted mean, weighted covariance, majority floor by weight and ``N_eff``.
+
+    Raises
+    ------
+    ValueError
+        When every particle is dead.
+    """
+    if not alive(p):
+        raise ValueError("a cloud whose particles are all dead has no estimate")
+    w = _weights(p)
+    xy = p.xy.astype(np.float64)
+    mean = w @ xy
+    d = xy - mean
+    cov = (d * w[:, None]).T @ d
+    cov = 0.5 * (cov + cov.T)
+    floors, which = np.unique(p.floor, return_inverse=True)
+    floor = int(floors[np.argmax(np.bincount(which, weights=w))])
+    return Estimate(xy=mean, cov=cov, floor=floor, ess=float(1.0 / np.dot(w, w)))
+
+
+def step(
+    p: Particles,
+    length_m: float,
+    heading_rad: float,
+    observed_ut: float | None,
+    rng: np.random.Generator,
+    params: ParticleParams,
+    valid_move: MoveCheck,
+    sample_map: MapSampler,
+    weighting: Weighting = "mass_centered",
+) -> Particles:
+    """One pass of Algorithm 1 lines 7-13: move, weight, resample when ``N_eff`` is low.
+
+    Parameters
+    ----------
+    p : Particles
+    length_m, heading_rad : float
+        The step (``move``).
+    observed_ut : float or None
+        Magnitude measured at the step (µT); None when the phone sent none (no update).
+    rng : numpy.random.Generator
+    params : ParticleParams
+    valid_move, sample_map : callable
+        As in ``move`` and ``mass_centered_update``.
+    weighting : {"mass_centered", "dtw"}
+        Eq (c) with the MMSE, or the DTW baseline.
+
+    Returns
+    -------
+    Particles
+        Possibly dead (``alive`` is False): the caller re-initialises.
+    """
+    p = move(p, length_m, heading_rad, rng, params, valid_move)
+    if not alive(p):
+        return p
+    if observed_ut is not None:
+        p = _weight_update(p, observed_ut, sample_map, params, weighting)
+    if effective_sample_size(p) < params.resample_ess_fraction * p.n:
+        p = systematic_resample(p, rng)
+    return p
+
+
+def _weight_update(
+    p: Particles,
+    observed_ut: float,
+    sample_map: MapSampler,
+    params: ParticleParams,
+    weighting: Weighting,
+) -> Particles:
+    """Shared body of the two updates (module docstring)."""
+    if not math.isfinite(observed_ut):
+        raise ValueError(f"observed_ut must be finite, got {observed_ut}")
+    slots = p.observed.shape[0]
+    if slots != params.window + 1:
+        raise ValueError(f"cloud window {slots - 1} differs from params.window {params.window}")
+    finite = np.isfinite(p.log_w)
+    n_live = int(finite.sum())
+    live = _rows(finite, n_live)
+    m_live = np.asarray(sample_map(p.floor[live], p.xy[live].astype(np.float64)), np.float64)
+    if m_live.shape != (n_live,):
+        raise ValueError(f"sample_map must return shape ({n_live},), got {m_live.shape}")
+    latest = np.full(p.n, np.nan, dtype=np.float32)
+    latest[live] = m_live
+    mags = np.concatenate([p.mags[:, 1:], latest[:, None]], axis=1)
+    observed = np.append(p.observed[1:], np.float32(observed_ut))
+    count = min(p.count + 1, slots)
+    out = replace(p, mags=mags, observed=observed, count=count)
+    if count < 2 or n_live == 0:
+        return out
+    obs = observed[-count:]
+    cand = mags[live, -count:]
+    d = mmse(obs, cand) if weighting == "mass_centered" else dtw_distance(obs, cand) / count
+    known = np.isfinite(d)
+    if not known.any():
+        return out
+    award = np.maximum(d, params.t)  # eq (c): K / max(distance, T)
+    if not known.all():
+        award[~known] = np.median(award[known])
+    log_w = p.log_w.astype(np.float64)
+    log_w[live] += math.log(params.k) - np.log(award)
+    return replace(out, log_w=_normalised(log_w))
+
+
+def _normalised(log_w: FloatArray) -> NDArray[np.float32]:
+    """``log_w - logsumexp(log_w)`` as float32; all ``-inf`` stays all ``-inf``.
+
+    The log-sum-exp is written out (shift by the maximum): ``scipy.special.logsumexp``
+    takes 76 µs on 3,000 weights (scipy 1.17, array-API dispatch) against 7 µs here, and
+    a step normalises twice.
+    """
+    live = log_w[np.isfinite(log_w)]
+    if live.size == 0:
+        return np.full(log_w.shape, -np.inf, dtype=np.float32)
+    top = float(live.max())
+    total = top + math.log(float(np.exp(live - top).sum()))
+    return (log_w - total).astype(np.float32)
+
+
+def _rows(finite: BoolArray, n_live: int) -> slice | NDArray[np.intp]:
+    """The living rows: all of them as a slice (a view, ~30 µs less per array at N = 3000
+    than an index array), else their indices."""
+    return slice(None) if n_live == finite.shape[0] else np.flatnonzero(finite)
+
+
+def _weights(p: Particles) -> FloatArray:
+    """Weights of a living cloud in float64, renormalised after the float32 rounding."""
+    w = np.exp(p.log_w.astype(np.float64))
+    w /= w.sum()
+    return w
+
+
+def _disc(c: FloatArray, radius: float, m: int, rng: np.random.Generator) -> FloatArray:
+    """``m`` points uniform on a disc, rounded to float32 and returned as float64."""
+    u = rng.random((2, m))
+    r = radius * np.sqrt(u[0])
+    phi = 2.0 * math.pi * u[1]
+    pts = np.column_stack([c[0] + r * np.cos(phi), c[1] + r * np.sin(phi)])
+    return pts.astype(np.float32).astype(np.float64)
