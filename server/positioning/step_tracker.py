@@ -71,6 +71,7 @@ class StepBlock:
     north_rad: FloatArray  # phone heading clockwise from north; NaN when not known
     status: NDArray[np.int64]  # pdr.STRAIGHT / SUSPECT / TURN
     segment: NDArray[np.int64]
+    magnitude_ut: FloatArray  # magnetic field strength at the step; NaN when not known
 
     def __len__(self) -> int:
         return int(self.t_ms.size)
@@ -85,12 +86,14 @@ class TrackerState:
     history: FloatArray  # (m, 2) [t_ms, unwrapped heading] of the last HISTORY_MS
     north_history: FloatArray  # (m, 2) the same for the north-referenced heading
     seen_ms: FloatArray  # (5,) newest sample time processed per sensor (-inf: none)
+    field_history: FloatArray  # (m, 2) [t_ms, |B| µT] of the last HISTORY_MS
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         out: dict[str, np.ndarray] = {
             "history": self.history,
             "north_history": self.north_history,
             "seen_ms": self.seen_ms,
+            "field_history": self.field_history,
         }
         for prefix, part in (
             ("det.", self.detector.to_arrays()),
@@ -117,6 +120,7 @@ class TrackerState:
             history=rows("history"),
             north_history=rows("north_history"),
             seen_ms=np.array(arrays["seen_ms"], dtype=np.float64),
+            field_history=rows("field_history"),
         )
 
 
@@ -129,6 +133,7 @@ def initial_tracker(params: TrackerParams) -> TrackerState:
         history=np.empty((0, 2)),
         north_history=np.empty((0, 2)),
         seen_ms=np.full(len(_SENSORS), -np.inf),
+        field_history=np.empty((0, 2)),
     )
 
 
@@ -190,13 +195,20 @@ def track(
     state, heading_samples, north_samples = _headings(replace(state, seen_ms=seen), imu, params)
     history = _extend_history(state.history, heading_samples)
     north_history = _extend_history(state.north_history, north_samples)
+    strength = np.column_stack([imu.magnetic[:, 0], np.linalg.norm(imu.magnetic[:, 1:], axis=1)])
+    field_history = np.vstack([state.field_history, strength])
     detector, steps = pdr.detect_steps(state.detector, imu.accel, params.steps)
     state = replace(
-        state, detector=detector, history=_recent(history), north_history=_recent(north_history)
+        state,
+        detector=detector,
+        history=_recent(history),
+        north_history=_recent(north_history),
+        field_history=_recent(field_history),
     )
     if len(steps) == 0:
         empty = np.empty(0, dtype=np.int64)
-        return state, StepBlock(empty, np.empty(0), np.empty(0), np.empty(0), empty, empty)
+        none = np.empty(0)
+        return state, StepBlock(empty, none, none, none, empty, empty, none)
     t = steps.t_ms.astype(np.float64)
     heading = _at(history, t)
     lengths = pdr.step_lengths(steps, params.steps, params.step_scale)
@@ -209,7 +221,13 @@ def track(
             turns, heading[known], params.turns
         )
     block = StepBlock(
-        steps.t_ms, lengths, _wrap(heading), _wrap(_at(north_history, t)), status, segment
+        steps.t_ms,
+        lengths,
+        _wrap(heading),
+        _wrap(_at(north_history, t)),
+        status,
+        segment,
+        _at(field_history, t),
     )
     return replace(state, turns=turns), block
 
@@ -260,6 +278,7 @@ class Step(NamedTuple):
     heading_rad: float  # from the tracker's heading source
     north_rad: float  # clockwise from north; NaN when not known
     straight: bool  # part of a straight walk (pdr.STRAIGHT)
+    magnitude_ut: float = math.nan  # magnetic field strength at the step
 
 
 Scan = WifiEvent | BleEvent
@@ -281,6 +300,7 @@ def timeline(
                 float(block.heading_rad[i]),
                 float(block.north_rad[i]),
                 bool(block.status[i] == pdr.STRAIGHT),
+                float(block.magnitude_ut[i]),
             )
             items.append((step.t_ms, 0, step))
     items += [(e.t_ms, 1, e) for e in events if isinstance(e, WifiEvent | BleEvent)]

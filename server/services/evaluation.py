@@ -39,6 +39,8 @@ from server.positioning.fingerprint import (
     scan_vector,
     wknn,
 )
+from server.positioning.floorplan import FloorPlan, plan_from_geojson
+from server.positioning.magnetic import MagneticGrid, MagneticMap, grid_from_samples
 from server.positioning.mapping.gridding import build_radio_map
 from server.positioning.mapping.labelled import interpolate_track
 from server.positioning.mapping.matrices import readings_matrix
@@ -136,22 +138,73 @@ def _kind(event: WifiEvent | BleEvent) -> str:
     return "wifi" if isinstance(event, WifiEvent) else "ble"
 
 
+@dataclass
+class LabelledField:
+    """Magnetometer samples placed on the floor by interpolation between waypoints, per
+    floor index: what the magnetic map is gridded from."""
+
+    xy_m: dict[int, list[NDArray[np.float64]]] = field(default_factory=dict)
+    magnitude_ut: dict[int, list[NDArray[np.float64]]] = field(default_factory=dict)
+
+    def add_trace(self, trace: IlcTrace, floor_index: int) -> None:
+        samples = trace.magnetic
+        if samples.shape[0] == 0 or trace.waypoint_t_ms.size == 0:
+            return
+        xy, valid = interpolate_track(trace.waypoint_t_ms, trace.waypoint_xy_m, samples[:, 0])
+        strength = np.linalg.norm(samples[:, 1:4], axis=1)
+        keep = valid & np.isfinite(strength)
+        self.xy_m.setdefault(floor_index, []).append(xy[keep])
+        self.magnitude_ut.setdefault(floor_index, []).append(strength[keep])
+
+    def magnetic_map(self, site: IlcSite) -> MagneticMap:
+        """One grid per floor over the floor's extent (``magnetic.CELL_M`` cells)."""
+        grids: list[MagneticGrid | None] = []
+        for index, floor in enumerate(site.floors):
+            if index not in self.xy_m:
+                grids.append(None)
+                continue
+            grids.append(
+                grid_from_samples(
+                    np.concatenate(self.xy_m[index]),
+                    np.concatenate(self.magnitude_ut[index]),
+                    extent=(0.0, 0.0, floor.width_m, floor.height_m),
+                )
+            )
+        return MagneticMap(tuple(grids), version="train")
+
+
+def site_plans(site: IlcSite) -> tuple[FloorPlan | None, ...]:
+    """Each floor's plan as walkable space and walls (None where a floor has no plan)."""
+    return tuple(plan_from_geojson(f.plan) if f.plan else None for f in site.floors)
+
+
 def build_site_maps(
-    site: IlcSite, train: Iterable[tuple[int, Path]], progress: Progress | None = None
+    site: IlcSite,
+    train: Iterable[tuple[int, Path]],
+    progress: Progress | None = None,
+    *,
+    magnetic: bool = False,
 ) -> tuple[SiteMaps, LabelledScans, int]:
     """Radio map of the site from its training traces; also the labelled scans and the
-    number of unreadable lines met."""
+    number of unreadable lines met. With ``magnetic``, also the magnetic map from the
+    training traces' magnetometer and the floor plans (for engines that read them)."""
     labelled = LabelledScans()
+    field_samples = LabelledField()
     bad_lines = 0
     train = list(train)
     for done, (floor_index, path) in enumerate(train, start=1):
         trace = read_trace(path, site.floors[floor_index].name)
         bad_lines += trace.bad_lines
         labelled.add_trace(trace, floor_index)
+        if magnetic:
+            field_samples.add_trace(trace, floor_index)
         if progress:
             progress("maps", done, len(train))
     radio = in_place_order(labelled.radio_map()) if labelled.events else None
-    return SiteMaps(site_floors(site), radio, version="train"), labelled, bad_lines
+    maps = SiteMaps(site_floors(site), radio, version="train")
+    if magnetic:
+        maps = replace(maps, plans=site_plans(site), magnetic=field_samples.magnetic_map(site))
+    return maps, labelled, bad_lines
 
 
 def trace_events(trace: IlcTrace, engine: str) -> list[Event]:
@@ -189,8 +242,8 @@ def engine_params(engine: str, overrides: Mapping[str, str] | None = None) -> An
         if name.startswith("_") or not hasattr(params, name):
             raise ValueError(f"{engine} has no parameter {name!r}")
         kind = type(getattr(params, name))
-        if kind not in (int, float, bool):
-            raise ValueError(f"parameter {name!r} of {engine} is not a number or flag")
+        if kind not in (int, float, bool, str):
+            raise ValueError(f"parameter {name!r} of {engine} is not a number, flag or word")
         try:
             changes[name] = text.lower() in ("1", "true", "yes") if kind is bool else kind(text)
         except ValueError:
@@ -336,7 +389,8 @@ def evaluate_ilc(
     if validation:
         training_only = _restrict(site, split.train)
         split = split_site(training_only, split_seed + 1, train_fraction)
-    maps, labelled, bad_lines = build_site_maps(site, split.train, progress)
+    uses = get_engine(engine).uses
+    maps, labelled, bad_lines = build_site_maps(site, split.train, progress, magnetic="mag" in uses)
     traces = []
     for done, (floor_index, path) in enumerate(split.test, start=1):
         trace = read_trace(path, site.floors[floor_index].name)

@@ -3,19 +3,22 @@
 from __future__ import annotations
 
 import hashlib
+import json
 import time
 from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import anyio
 import numpy as np
 from sqlalchemy.ext.asyncio import AsyncSession
 
 from server.positioning.anchors import anchors_from_plan
-from server.positioning.engines.base import Anchor, FloorRef, SiteMaps
+from server.positioning.engines.base import FloorRef, SiteMaps
 from server.positioning.events import radio_key
 from server.positioning.fingerprint import MISSING_DBM, RadioMap, in_place_order
+from server.positioning.floorplan import FloorPlan, plan_from_geojson
 from server.positioning.mapping.gridding import build_radio_map
 from server.positioning.mapping.matrices import merge_radio_maps, readings_matrix
 from server.services.errors import Invalid, NotFound
@@ -70,8 +73,20 @@ class MapCache:
             return maps
 
 
-def _digest(anchors: tuple[Anchor, ...]) -> str:
-    return hashlib.sha256(repr(anchors).encode()).hexdigest()[:16]
+def _digest(plans: list[dict[str, Any] | None]) -> str:
+    text = json.dumps(plans, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def _plan(geojson: dict[str, Any] | None) -> FloorPlan | None:
+    """The floor's walkable space and walls; None without a plan or when the stored plan
+    has no usable walkable area (engines then place no wall constraint there)."""
+    if not geojson:
+        return None
+    try:
+        return plan_from_geojson(geojson)
+    except ValueError:
+        return None
 
 
 async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None) -> SiteMaps:
@@ -82,10 +97,12 @@ async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None
     anchors = tuple(
         a for i, (f, _) in enumerate(floors) for a in anchors_from_plan(f.plan_geojson, i)
     )
-    # a new plan can move anchors without a new radio map
-    version = "|".join([f.floor_id for f in refs] + [m.id for m in latest] + [_digest(anchors)])
+    # a new plan changes walls and anchors without a new radio map
+    stored = [f.plan_geojson for f, _ in floors]
+    version = "|".join([f.floor_id for f in refs] + [m.id for m in latest] + [_digest(stored)])
     if cached is not None and cached.version == version:
         return cached
+    plans = tuple(_plan(p) for p in stored)
     floor_index = {f.floor_id: i for i, f in enumerate(refs)}
     parts = []
     for row in latest:
@@ -102,7 +119,7 @@ async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None
         )
     merged = merge_radio_maps(parts)
     radio = in_place_order(merged) if merged is not None else None
-    return SiteMaps(floors=refs, radio=radio, version=version, anchors=anchors)
+    return SiteMaps(floors=refs, radio=radio, version=version, anchors=anchors, plans=plans)
 
 
 async def site_maps(s: AsyncSession, cache: MapCache, site_id: str) -> SiteMaps:

@@ -398,7 +398,9 @@ def test_registry() -> None:
     assert get_engine("step_ekf") is SPEC
     assert SPEC.uses == frozenset({"step", "wifi", "ble"})
     assert SPEC.from_arrays == StepEkfState.from_arrays
-    with pytest.raises(KeyError, match="known engines: everywhere_ekf, step_ekf, two_stage_ekf"):
+    with pytest.raises(
+        KeyError, match="known engines: everywhere_ekf, pf_magnetic, step_ekf, two_stage_ekf, wknn"
+    ):
         get_engine("nope")
 
 

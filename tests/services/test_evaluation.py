@@ -236,6 +236,7 @@ def test_engine_params_replace_scalars_by_name() -> None:
         engine_params("wknn", {"nope": "1"})
     with pytest.raises(ValueError, match="'k': 'x' is not a int"):
         engine_params("wknn", {"k": "x"})
+    assert engine_params("pf_magnetic", {"weighting": "dtw"}).weighting == "dtw"
     with pytest.raises(ValueError, match="'tracker' of two_stage_ekf is not a number"):
         engine_params("two_stage_ekf", {"tracker": "x"})
     with pytest.raises(ValueError, match="k must be at least 1"):

@@ -5,11 +5,24 @@
 
 from __future__ import annotations
 
-from server.positioning.engines import everywhere_ekf, step_ekf, two_stage_ekf, wknn
+from server.positioning.engines import (
+    everywhere_ekf,
+    pf_magnetic,
+    step_ekf,
+    two_stage_ekf,
+    wknn,
+)
 from server.positioning.engines.base import EngineSpec
 
 ENGINES: dict[str, EngineSpec] = {
-    spec.name: spec for spec in (everywhere_ekf.SPEC, step_ekf.SPEC, two_stage_ekf.SPEC, wknn.SPEC)
+    spec.name: spec
+    for spec in (
+        everywhere_ekf.SPEC,
+        pf_magnetic.SPEC,
+        step_ekf.SPEC,
+        two_stage_ekf.SPEC,
+        wknn.SPEC,
+    )
 }
 
 

@@ -16,6 +16,8 @@ import numpy as np
 
 from server.positioning.events import Event, Fix
 from server.positioning.fingerprint import RadioMap
+from server.positioning.floorplan import FloorPlan
+from server.positioning.magnetic import MagneticMap
 
 
 @dataclass(frozen=True, slots=True)
@@ -49,6 +51,8 @@ class SiteMaps:
     radio: RadioMap | None
     version: str  # changes whenever any map of the site changes
     anchors: tuple[Anchor, ...] = ()
+    plans: tuple[FloorPlan | None, ...] = ()  # per floor index; missing or None: no plan
+    magnetic: MagneticMap | None = None
 
 
 class EngineState(Protocol):

@@ -1,0 +1,325 @@
+"""``pf_magnetic``: Shao et al.'s floor-plan constrained particle filter with the
+mass-centered magnetic weight update (``papers/001_*`` sections II-IV).
+
+* **Start** (section II): the first WiFi/BLE fix (WKNN, ``papers/002_*`` eq 1-3) seeds
+  ``N`` particles uniformly on a disc of ``init_radius_m`` around it, on its floor, on
+  walkable ground only (``server.positioning.particle.initialise``).
+* **Steps** (Algorithm 1, line 8): each step moves every particle by its length + δ along
+  its heading + Δ; a particle whose move crosses a wall or ends outside walkable space is
+  killed (``server.positioning.floorplan``). Steps come from the phone (``step`` events,
+  heading clockwise from north) or from raw samples found by the server's PDR
+  (``server.positioning.step_tracker``: its north-referenced heading); the heading is
+  turned into the building frame by the building's rotation (magnetic declination is not
+  corrected). A step without a known north heading does not move the cloud.
+* **Weights** (eq a-c): the magnetic field strength at the step (``mag`` events, or the
+  raw magnetometer at the step's time) against each particle's map magnitudes over the
+  last ``W + 1`` steps, with the mass-centered MMSE (``weighting="mass_centered"``) or the
+  Magicol-style DTW baseline (``weighting="dtw"``); systematic resampling when the
+  effective sample size falls below half of ``N``
+  (``server.positioning.particle.step``). Without a magnetic map the weights only come
+  from the walls.
+* **Re-initialisation**: when the cloud dies (every particle killed), at the next scan;
+  and when ``reinit_scans`` scans in a row place the phone farther than
+  ``reinit_distance_m`` from the estimate or on another floor, around the latest scan.
+* **Estimate**: the weighted mean of the particles, their covariance as its uncertainty,
+  the floor with the most weight.
+
+Randomness only through the ``rng`` the service passes per batch.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from server.positioning import floorplan, magnetic, particle
+from server.positioning.engines.base import EngineSpec, SiteMaps
+from server.positioning.events import BleEvent, Event, Fix, MagEvent, StepEvent, WifiEvent
+from server.positioning.fingerprint import scan_vector, wknn
+from server.positioning.kalman import wrap_angle
+from server.positioning.step_tracker import (
+    Scan,
+    Step,
+    TrackerParams,
+    TrackerState,
+    initial_tracker,
+    timeline,
+)
+
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+
+MAG_MAX_AGE_MS = 1000  # a mag event this much older than a step does not belong to it
+
+
+@dataclass(frozen=True)
+class PfMagneticParams:
+    particles: particle.ParticleParams = field(default_factory=particle.ParticleParams)
+    tracker: TrackerParams = field(default_factory=TrackerParams)
+    weighting: str = "mass_centered"  # or "dtw", the baseline of papers/001_* IV-B
+    k: int = 4  # WKNN neighbours of the starting fix
+    reinit_distance_m: float = 20.0
+    reinit_scans: int = 3
+
+    def __post_init__(self) -> None:
+        if self.weighting not in ("mass_centered", "dtw"):
+            raise ValueError(f"weighting must be mass_centered or dtw, got {self.weighting!r}")
+        if self.k < 1 or self.reinit_scans < 1:
+            raise ValueError("k and reinit_scans must be at least 1")
+        if not (math.isfinite(self.reinit_distance_m) and self.reinit_distance_m > 0):
+            raise ValueError(f"reinit_distance_m must be positive, got {self.reinit_distance_m}")
+
+
+@dataclass(frozen=True)
+class PfMagneticState:
+    tracker: TrackerState
+    cloud: particle.Particles | None  # None before the first fix and after the cloud died
+    disagree: int  # scans in a row that put the phone far from the estimate
+    mag_t_ms: float  # time of the last mag event (NaN: none)
+    mag_ut: float  # its field strength
+    heading_rad: float  # map-frame heading of the last step (NaN: none)
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        out = {"trk." + k: v for k, v in self.tracker.to_arrays().items()}
+        if self.cloud is not None:
+            out.update({"pf." + k: v for k, v in self.cloud.to_arrays().items()})
+        out.update(
+            disagree=np.array(self.disagree),
+            mag=np.array([self.mag_t_ms, self.mag_ut, self.heading_rad]),
+        )
+        return out
+
+    @classmethod
+    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> PfMagneticState:
+        def part(prefix: str) -> dict[str, np.ndarray]:
+            return {k[len(prefix) :]: v for k, v in arrays.items() if k.startswith(prefix)}
+
+        cloud = part("pf.")
+        mag = np.asarray(arrays["mag"], dtype=np.float64)
+        return cls(
+            tracker=TrackerState.from_arrays(part("trk.")),
+            cloud=particle.Particles.from_arrays(cloud) if cloud else None,
+            disagree=int(arrays["disagree"]),
+            mag_t_ms=float(mag[0]),
+            mag_ut=float(mag[1]),
+            heading_rad=float(mag[2]),
+        )
+
+
+def initial_state(params: PfMagneticParams) -> PfMagneticState:
+    return PfMagneticState(
+        tracker=initial_tracker(params.tracker),
+        cloud=None,
+        disagree=0,
+        mag_t_ms=math.nan,
+        mag_ut=math.nan,
+        heading_rad=math.nan,
+    )
+
+
+# ---------------------------------------------------------------- the maps as callables
+
+
+def _valid_move(maps: SiteMaps) -> particle.MoveCheck:
+    def check(floors: NDArray[np.int16], a: FloatArray, b: FloatArray) -> BoolArray:
+        ok: BoolArray = np.asarray(np.isfinite(b).all(axis=1), dtype=bool)
+        for f in np.unique(floors):
+            plan = maps.plans[int(f)] if 0 <= f < len(maps.plans) else None
+            if plan is not None:
+                rows = floors == f
+                ok[rows] &= floorplan.valid_moves(plan, a[rows], b[rows])
+        return ok
+
+    return check
+
+
+def _valid_point(maps: SiteMaps) -> particle.PointCheck:
+    def check(floors: NDArray[np.int16], xy: FloatArray) -> BoolArray:
+        ok: BoolArray = np.asarray(np.isfinite(xy).all(axis=1), dtype=bool)
+        for f in np.unique(floors):
+            plan = maps.plans[int(f)] if 0 <= f < len(maps.plans) else None
+            if plan is not None:
+                rows = floors == f
+                ok[rows] &= floorplan.walkable_at(plan, xy[rows])
+        return ok
+
+    return check
+
+
+def _sample_map(maps: SiteMaps) -> particle.MapSampler:
+    def sample(floors: NDArray[np.int16], xy: FloatArray) -> FloatArray:
+        out = np.full(len(xy), np.nan)
+        grids = maps.magnetic.grids if maps.magnetic is not None else ()
+        for f in np.unique(floors):
+            grid = grids[int(f)] if 0 <= f < len(grids) else None
+            if grid is not None:
+                rows = floors == f
+                out[rows] = magnetic.sample(grid, xy[rows])
+        return out
+
+    return sample
+
+
+# ---------------------------------------------------------------- events
+
+
+def _fix(
+    cloud: particle.Particles, t_ms: int, heading: float, source: str, diag: dict[str, float]
+) -> Fix:
+    est = particle.estimate(cloud)
+    c = est.cov
+    diag = {**diag, "ess": est.ess}
+    return Fix(
+        t_ms=t_ms,
+        x_m=float(est.xy[0]),
+        y_m=float(est.xy[1]),
+        floor=est.floor,
+        heading_rad=heading if math.isfinite(heading) else None,
+        cov=(float(c[0, 0]), float(c[0, 1]), float(c[1, 0]), float(c[1, 1])),
+        source=source,
+        diagnostics=diag,
+    )
+
+
+def _rotation(maps: SiteMaps, floor: int) -> float:
+    return maps.floors[floor].rotation_rad if 0 <= floor < len(maps.floors) else 0.0
+
+
+def _on_step(
+    state: PfMagneticState,
+    t_ms: int,
+    length_m: float,
+    north_rad: float,
+    magnitude_ut: float,
+    maps: SiteMaps,
+    params: PfMagneticParams,
+    rng: np.random.Generator,
+) -> tuple[PfMagneticState, Fix | None]:
+    cloud = state.cloud
+    if cloud is None or not math.isfinite(north_rad) or not math.isfinite(length_m):
+        return state, None
+    floor = particle.estimate(cloud).floor
+    heading = float(wrap_angle(north_rad - _rotation(maps, floor)))
+    observed = magnitude_ut if math.isfinite(magnitude_ut) else None
+    moved = particle.step(
+        cloud,
+        length_m,
+        heading,
+        observed,
+        rng,
+        params.particles,
+        _valid_move(maps),
+        _sample_map(maps),
+        weighting="dtw" if params.weighting == "dtw" else "mass_centered",
+    )
+    if not particle.alive(moved):
+        return replace(state, cloud=None, heading_rad=heading), None
+    new = replace(state, cloud=moved, heading_rad=heading)
+    return new, _fix(moved, t_ms, heading, "step", {"step_length_m": length_m})
+
+
+def _on_scan(
+    state: PfMagneticState,
+    event: Scan,
+    maps: SiteMaps,
+    params: PfMagneticParams,
+    rng: np.random.Generator,
+) -> tuple[PfMagneticState, Fix | None]:
+    if maps.radio is None:
+        return state, None
+    kind = "wifi" if isinstance(event, WifiEvent) else "ble"
+    scan = scan_vector(maps.radio, event.readings, kind)
+    found = wknn(maps.radio, scan, k=params.k)
+    if found is None:
+        return state, None
+    diag = {"n_matched": float(scan.n_matched)}
+    if state.cloud is not None:
+        est = particle.estimate(state.cloud)
+        far = math.hypot(est.xy[0] - found.x_m, est.xy[1] - found.y_m) > params.reinit_distance_m
+        disagree = state.disagree + 1 if far or est.floor != found.floor else 0
+        if disagree < params.reinit_scans:
+            new = replace(state, disagree=disagree)
+            return new, _fix(state.cloud, event.t_ms, state.heading_rad, kind, diag)
+        diag["reinitialised"] = 1.0
+    cloud = particle.initialise(
+        (found.x_m, found.y_m),
+        found.floor,
+        rng,
+        params.particles,
+        valid_point=_valid_point(maps),
+    )
+    new = replace(state, cloud=cloud, disagree=0)
+    return new, _fix(cloud, event.t_ms, state.heading_rad, kind, diag)
+
+
+def _phone_step(state: PfMagneticState, event: StepEvent) -> Step:
+    """A step the phone detected, with the latest mag event if it is recent."""
+    recent = math.isfinite(state.mag_t_ms) and 0 <= event.t_ms - state.mag_t_ms <= MAG_MAX_AGE_MS
+    return Step(
+        event.t_ms,
+        event.length_m,
+        event.heading_rad,
+        event.heading_rad,
+        True,
+        state.mag_ut if recent else math.nan,
+    )
+
+
+def run(
+    state: PfMagneticState,
+    events: Sequence[Event],
+    maps: SiteMaps,
+    params: PfMagneticParams,
+    rng: np.random.Generator,
+) -> tuple[PfMagneticState, list[Fix]]:
+    """Process a batch: raw IMU blocks become steps; phone steps, mag events and scans
+    are taken as they come, all in time order."""
+    tracker, items = timeline(state.tracker, events, params.tracker)
+    state = replace(state, tracker=tracker)
+    others = [e for e in events if isinstance(e, StepEvent | MagEvent)]
+    merged: list[tuple[int, int, Step | Scan | StepEvent | MagEvent]] = [
+        (item.t_ms, 1 if isinstance(item, Step) else 2, item) for item in items
+    ]
+    merged += [(e.t_ms, 0 if isinstance(e, MagEvent) else 1, e) for e in others]
+    merged.sort(key=lambda m: (m[0], m[1]))
+    fixes: list[Fix] = []
+    for _, _, item in merged:
+        fix: Fix | None = None
+        if isinstance(item, MagEvent):
+            strength = item.magnitude_ut
+            if strength is None and item.field_ut is not None:
+                strength = math.hypot(*item.field_ut)
+            state = replace(state, mag_t_ms=float(item.t_ms), mag_ut=float(strength or math.nan))
+            continue
+        if isinstance(item, StepEvent):
+            item = _phone_step(state, item)
+        if isinstance(item, Step):
+            state, fix = _on_step(
+                state,
+                item.t_ms,
+                item.length_m,
+                item.north_rad,
+                item.magnitude_ut,
+                maps,
+                params,
+                rng,
+            )
+        elif isinstance(item, WifiEvent | BleEvent):
+            state, fix = _on_scan(state, item, maps, params, rng)
+        if fix is not None:
+            fixes.append(fix)
+    return state, fixes
+
+
+SPEC = EngineSpec(
+    name="pf_magnetic",
+    params_type=PfMagneticParams,
+    initial_state=initial_state,
+    from_arrays=PfMagneticState.from_arrays,
+    run=run,
+    uses=frozenset({"imu", "step", "mag", "wifi", "ble"}),
+)
