@@ -432,3 +432,29 @@ def evaluate_uji(
     if json_path is not None:
         json_path.write_text(json.dumps(result, indent=2) + "\n")
         console.print(f"metrics written to {json_path}")
+
+
+bench_app = typer.Typer(
+    help="Time the positioning core (bench/performance.md).", no_args_is_help=True
+)
+app.add_typer(bench_app, name="bench")
+
+
+@bench_app.command("particle")
+def bench_particle(
+    particles: Annotated[int, typer.Option(min=1, help="particle count N")] = 3000,
+    window: Annotated[int, typer.Option(min=1, help="window W in steps")] = 3,
+    repeat: Annotated[int, typer.Option(min=1, help="timed runs; medians are reported")] = 15,
+    seed: Annotated[int, typer.Option(help="seed of the synthetic walk")] = 0,
+    json_path: Annotated[Path | None, typer.Option("--json", help="write the figures here")] = None,
+) -> None:
+    """Mass-centered against DTW weight update on the same inputs, and the state codec."""
+    from server.services.bench import particle_bench
+
+    # no spinner: its refresh thread would take the GIL in the middle of the timings
+    console.print(f"timing {particles} particles, {repeat} runs per measure ...")
+    result = particle_bench(particles, window=window, repeat=repeat, seed=seed)
+    _print_report(f"particle filter, N = {particles}, W = {window}", result)
+    if json_path is not None:
+        json_path.write_text(json.dumps(result, indent=2) + "\n")
+        console.print(f"figures written to {json_path}")

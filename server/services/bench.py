@@ -1,0 +1,260 @@
+"""Timing of the particle filter: mass-centered against DTW weight update, and state size.
+
+``papers/001_*`` section IV-B (Figure 12) reports the mass-centered update 18 times
+faster than the DTW of the Magicol baseline at ``N = 3000``, without saying what the
+timed code contained. Measured here, in one process and on the same inputs:
+
+* **Update** (the headline): one call of ``particle.mass_centered_update`` or
+  ``particle.dtw_update`` -- map magnitudes sampled at every particle, windows shifted,
+  the sequence distance of every particle over its ``W + 1`` magnitudes, the award of
+  eq (c) and the normalisation. The inputs are the moved clouds of a recorded walk,
+  each with full windows, and the magnitude the phone measured at that step.
+* **Distance**: ``magnetic.mmse`` against ``magnetic.dtw_distance`` on those windows,
+  the only part that differs between the two updates.
+* **Filter step** (context): ``particle.step`` -- move with the floor plan's wall test,
+  update, resampling when ``N_eff`` is low -- from the clouds of the same walk.
+* **State**: the cloud as the session store keeps it: ``Particles.to_arrays`` then
+  ``codec.encode_arrays`` (``state_bytes`` is that blob's length, ``encode_us`` the
+  time of both), and back through ``codec.decode_arrays`` and ``Particles.from_arrays``
+  (``decode_us``).
+
+The site is synthetic and fixed: a 60 m x 3 m corridor (the paper's testbed is a 60 m x
+40 m floor of corridors) with a magnetic field made of a few sines and bumps around 45 µT
+on the 0.5 m grid of the project's maps. The particles start spread over the whole
+corridor; the phone walks east at 0.7 m per step. Every rate is a median over
+``repeat`` runs; in each run the methods alternate, so both see the same machine state.
+Ratios, not absolute rates, are what carries over to another machine.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from server.positioning import particle as pf
+from server.positioning.floorplan import FloorPlan, plan_from_geojson, valid_moves, walkable_at
+from server.positioning.magnetic import MagneticGrid, dtw_distance, grid_from_samples, mmse, sample
+from server.storage.codec import decode_arrays, encode_arrays
+
+CORRIDOR_M = (60.0, 3.0)  # length along x, width along y
+STEP_M = 0.7
+N_INPUTS = 16  # recorded steps every timing cycles through
+MIN_RUN_S = 0.02  # each timed run lasts at least this long (whole passes over the inputs)
+
+
+@dataclass(frozen=True)
+class _Walk:
+    """Recorded inputs: per step the cloud before it, the step and the measured field."""
+
+    before: tuple[pf.Particles, ...]  # clouds before ``move``
+    moved: tuple[pf.Particles, ...]  # the same after ``move`` (update inputs)
+    observed_ut: tuple[float, ...]
+    heading_rad: float
+
+
+def particle_bench(
+    n_particles: int = 3000,
+    *,
+    window: int = 3,
+    repeat: int = 15,
+    seed: int = 0,
+    min_run_s: float = MIN_RUN_S,
+) -> dict[str, Any]:
+    """Time both weight updates, both filter steps and the state codec.
+
+    Parameters
+    ----------
+    n_particles : int
+        Particle count ``N`` (the paper: 3,000).
+    window : int
+        Window ``W`` in steps (the paper: 3).
+    repeat : int
+        Timed runs per measure; the median is reported.
+    seed : int
+        Seed of the walk (initial cloud, motion noise, phone noise).
+    min_run_s : float
+        Shortest timed run (s): a run repeats whole passes over the recorded steps, as
+        many as the warm-up pass says it takes to last this long.
+
+    Returns
+    -------
+    dict
+        ``particles, window, repeat, mass_centered_steps_per_s, dtw_steps_per_s,
+        speed_ratio`` (mass-centered / DTW updates per second), ``mmse_per_s,
+        dtw_distance_per_s, distance_speed_ratio``, ``mass_centered_filter_steps_per_s,
+        dtw_filter_steps_per_s, filter_speed_ratio``, ``state_bytes, encode_us,
+        decode_us``.
+    """
+    if repeat < 1:
+        raise ValueError(f"repeat must be at least 1, got {repeat}")
+    params = pf.ParticleParams(n=n_particles, window=window)
+    plan, grid = _corridor(seed)
+
+    def sample_map(_floor: pf.FloorArray, xy: pf.FloatArray) -> pf.FloatArray:
+        return sample(grid, xy)
+
+    def valid_move(_floor: pf.FloorArray, a: pf.FloatArray, b: pf.FloatArray) -> pf.BoolArray:
+        return valid_moves(plan, a, b)
+
+    walk = _record_walk(plan, grid, params, seed, sample_map, valid_move)
+    pairs = list(zip(walk.moved, walk.observed_ut, strict=True))
+    updated = [pf.mass_centered_update(q, o, sample_map, params) for q, o in pairs]
+    windows = [(p.observed, p.mags) for p in updated]  # full: the walk skipped W steps
+
+    def update(fn: Callable[..., pf.Particles]) -> Callable[[], object]:
+        return lambda: [fn(q, o, sample_map, params) for q, o in pairs]
+
+    def distance(fn: Callable[..., object]) -> Callable[[], object]:
+        return lambda: [fn(obs, mags) for obs, mags in windows]
+
+    def filter_step(weighting: pf.Weighting) -> Callable[[], object]:
+        rng = np.random.default_rng([seed, 2])
+        steps = list(zip(walk.before, walk.observed_ut, strict=True))
+        return lambda: [
+            pf.step(p, STEP_M, walk.heading_rad, o, rng, params, valid_move, sample_map, weighting)
+            for p, o in steps
+        ]
+
+    n = len(pairs)
+    mc, dtw = _rates([update(pf.mass_centered_update), update(pf.dtw_update)], n, repeat, min_run_s)
+    d_mc, d_dtw = _rates([distance(mmse), distance(dtw_distance)], n, repeat, min_run_s)
+    f_mc, f_dtw = _rates([filter_step("mass_centered"), filter_step("dtw")], n, repeat, min_run_s)
+
+    state = walk.moved[-1]
+    blob = encode_arrays(state.to_arrays())
+    encode_s, decode_s = (
+        1.0 / rate
+        for rate in _rates(
+            [
+                lambda: encode_arrays(state.to_arrays()),
+                lambda: pf.Particles.from_arrays(decode_arrays(blob)),
+            ],
+            1,
+            repeat,
+            min_run_s,
+        )
+    )
+    return {
+        "particles": n_particles,
+        "window": window,
+        "repeat": repeat,
+        "mass_centered_steps_per_s": mc,
+        "dtw_steps_per_s": dtw,
+        "speed_ratio": mc / dtw,
+        "mmse_per_s": d_mc,
+        "dtw_distance_per_s": d_dtw,
+        "distance_speed_ratio": d_mc / d_dtw,
+        "mass_centered_filter_steps_per_s": f_mc,
+        "dtw_filter_steps_per_s": f_dtw,
+        "filter_speed_ratio": f_mc / f_dtw,
+        "state_bytes": len(blob),
+        "encode_us": encode_s * 1e6,
+        "decode_us": decode_s * 1e6,
+    }
+
+
+def _corridor(seed: int) -> tuple[FloorPlan, MagneticGrid]:
+    """The corridor's floor plan and a magnetic map surveyed at every 0.5 m cell centre."""
+    length, width = CORRIDOR_M
+    plan = plan_from_geojson(
+        {
+            "type": "FeatureCollection",
+            "features": [
+                {
+                    "type": "Feature",
+                    "properties": {"kind": "walkable"},
+                    "geometry": {
+                        "type": "Polygon",
+                        "coordinates": [[[0, 0], [length, 0], [length, width], [0, width], [0, 0]]],
+                    },
+                }
+            ],
+        }
+    )
+    rng = np.random.default_rng([seed, 0])
+    # one cell beyond the walls, so the map is known (bilinearly) everywhere inside
+    xs, ys = np.meshgrid(np.arange(-0.25, length + 0.5, 0.5), np.arange(-0.25, width + 0.5, 0.5))
+    survey = np.column_stack([xs.ravel(), ys.ravel()])
+    extent = (-0.5, -0.5, length + 0.5, width + 0.5)
+    return plan, grid_from_samples(survey, _field_ut(survey, rng), extent=extent)
+
+
+def _field_ut(xy: pf.FloatArray, rng: np.random.Generator) -> pf.FloatArray:
+    """A corridor-like field: sines along x, a few bumps (cabinets, pillars), some noise."""
+    x = xy[:, 0]
+    f = 45.0 + 4.0 * np.sin(2 * np.pi * x / 7.3 + 0.4) + 3.0 * np.sin(2 * np.pi * x / 4.1 + 1.3)
+    for centre, amplitude in ((12.0, 5.0), (27.0, -4.0), (41.0, 6.0), (52.0, -3.0)):
+        f = f + amplitude * np.exp(-((x - centre) ** 2) / (2 * 0.8**2))
+    return np.asarray(f + 0.3 * xy[:, 1] + rng.normal(0.0, 0.2, x.shape), dtype=np.float64)
+
+
+def _record_walk(
+    plan: FloorPlan,
+    grid: MagneticGrid,
+    params: pf.ParticleParams,
+    seed: int,
+    sample_map: pf.MapSampler,
+    valid_move: pf.MoveCheck,
+) -> _Walk:
+    """Walk the mass-centered filter east along the corridor; keep ``N_INPUTS`` steps
+    taken once the windows are full."""
+    length, width = CORRIDOR_M
+    rng = np.random.default_rng([seed, 1])
+    phone = np.random.default_rng([seed, 3])
+    truth = np.array([[5.0, width / 2]])
+    heading = math.pi / 2  # east, clockwise from north
+
+    def reading() -> float:
+        return float(sample(grid, truth)[0] + phone.normal(0.0, 0.5))
+
+    p = pf.initialise(
+        (length / 2, width / 2),
+        0,
+        rng,
+        params,
+        radius_m=length,
+        valid_point=lambda _floor, xy: walkable_at(plan, xy),
+    )
+    p = pf.mass_centered_update(p, reading(), sample_map, params)
+    before, moved, observed = [], [], []
+    for k in range(params.window + N_INPUTS):
+        truth = truth + np.array([[STEP_M, 0.0]])
+        q = pf.move(p, STEP_M, heading, rng, params, valid_move)
+        o = reading()
+        if k >= params.window:
+            before.append(p)
+            moved.append(q)
+            observed.append(o)
+        p = pf.mass_centered_update(q, o, sample_map, params)
+        if pf.effective_sample_size(p) < params.resample_ess_fraction * p.n:
+            p = pf.systematic_resample(p, rng)
+    return _Walk(tuple(before), tuple(moved), tuple(observed), heading)
+
+
+def _rates(
+    runs: Sequence[Callable[[], object]], calls: int, repeat: int, min_run_s: float
+) -> list[float]:
+    """Calls per second of each ``run`` (which makes ``calls`` calls), median of
+    ``repeat`` timed runs, the methods alternating within a run, after one warm-up."""
+    passes = []
+    for run in runs:
+        start = time.perf_counter_ns()
+        run()
+        elapsed_s = max(time.perf_counter_ns() - start, 1) * 1e-9
+        passes.append(max(1, math.ceil(min_run_s / elapsed_s)))
+    rates: list[list[float]] = [[] for _ in runs]
+    for r in range(repeat):
+        order = range(len(runs)) if r % 2 == 0 else reversed(range(len(runs)))
+        for i in order:
+            start = time.perf_counter_ns()
+            for _ in range(passes[i]):
+                runs[i]()
+            elapsed_s = max(time.perf_counter_ns() - start, 1) * 1e-9
+            rates[i].append(passes[i] * calls / elapsed_s)
+    return [statistics.median(r) for r in rates]

@@ -1,0 +1,73 @@
+"""The particle benchmark runs and reports what it says (no timing is asserted: the
+figures are in bench/performance.md)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from server.positioning.particle import from_points
+from server.services.bench import particle_bench
+from server.storage.codec import encode_arrays
+
+RATES = (
+    "mass_centered_steps_per_s",
+    "dtw_steps_per_s",
+    "mmse_per_s",
+    "dtw_distance_per_s",
+    "mass_centered_filter_steps_per_s",
+    "dtw_filter_steps_per_s",
+)
+
+
+def encoded_size(n: int, window: int) -> int:
+    return len(encode_arrays(from_points(np.zeros((n, 2)), 0, window).to_arrays()))
+
+
+@pytest.mark.parametrize(("n", "window"), [(40, 3), (25, 1)])
+def test_reports_every_figure_with_its_type(n: int, window: int) -> None:
+    result = particle_bench(n, window=window, repeat=2, min_run_s=0.0)
+    assert list(result) == [
+        "particles",
+        "window",
+        "repeat",
+        "mass_centered_steps_per_s",
+        "dtw_steps_per_s",
+        "speed_ratio",
+        "mmse_per_s",
+        "dtw_distance_per_s",
+        "distance_speed_ratio",
+        "mass_centered_filter_steps_per_s",
+        "dtw_filter_steps_per_s",
+        "filter_speed_ratio",
+        "state_bytes",
+        "encode_us",
+        "decode_us",
+    ]
+    assert (result["particles"], result["window"], result["repeat"]) == (n, window, 2)
+    for name in ("particles", "window", "repeat", "state_bytes"):
+        assert type(result[name]) is int, name
+    for name in (*RATES, "speed_ratio", "distance_speed_ratio", "filter_speed_ratio"):
+        value = result[name]
+        assert isinstance(value, float), name
+        assert math.isfinite(value), name
+        assert value > 0, name
+    for name in ("encode_us", "decode_us"):
+        assert isinstance(result[name], float), name
+        assert result[name] > 0, name
+    assert result["speed_ratio"] == pytest.approx(
+        result["mass_centered_steps_per_s"] / result["dtw_steps_per_s"]
+    )
+    assert result["state_bytes"] == encoded_size(n, window)
+
+
+def test_the_state_at_3000_particles_fits_in_100_kb() -> None:
+    # the arrays hold 90,020 bytes (Particles.to_arrays); the codec adds names and shapes
+    assert encoded_size(3000, 3) == 90_156 <= 100_000
+
+
+def test_refuses_no_runs() -> None:
+    with pytest.raises(ValueError, match="repeat"):
+        particle_bench(10, repeat=0)
