@@ -605,6 +605,12 @@ def _weight_update(
     return replace(out, log_w=_normalised(log_w))
 
 
+def reweight(p: Particles, log_likelihood: ArrayLike) -> Particles:
+    """Weights multiplied by a likelihood given as its log per particle, normalised."""
+    ll = np.asarray(log_likelihood, dtype=np.float64)
+    return replace(p, log_w=_normalised(p.log_w.astype(np.float64) + ll))
+
+
 def _normalised(log_w: FloatArray) -> NDArray[np.float32]:
     """``log_w - logsumexp(log_w)`` as float32; all ``-inf`` stays all ``-inf``.
 

@@ -143,3 +143,39 @@ def test_steps_before_any_fix_are_ignored_and_no_map_still_works() -> None:
         state, [scan(T0 + 5000, 20.0, 1.5), *walk(20.0, 5, rng, t0=T0 + 5000)], maps, params, rng
     )
     assert len(fixes) == 6
+
+
+def test_a_scan_on_another_floor_moves_the_cloud_there_in_place() -> None:
+    one = site_maps()
+    assert one.radio is not None
+    r = one.radio
+    n_em = r.mean_dbm.shape[1]
+    # floor 1 hears its own access points ("bp*") at the same places
+    radio = RadioMap(
+        rp_xy=np.vstack([r.rp_xy, r.rp_xy]),
+        rp_floor=np.concatenate([r.rp_floor, np.ones_like(r.rp_floor)]),
+        mean_dbm=np.block(
+            [
+                [r.mean_dbm, np.full_like(r.mean_dbm, -100.0)],
+                [np.full_like(r.mean_dbm, -100.0), r.mean_dbm],
+            ]
+        ),
+        var_db2=np.ones((2 * len(r.rp_xy), 2 * n_em), dtype=np.float32),
+        count=np.block([[r.count, np.zeros_like(r.count)], [np.zeros_like(r.count), r.count]]),
+        emitters=r.emitters + tuple(radio_key("wifi", f"bp{i}") for i in range(n_em)),
+    )
+    maps = SiteMaps(
+        (FloorRef("b", "f0", 0), FloorRef("b", "f1", 1)), radio, "v", plans=one.plans * 2
+    )
+    params = pf.PfMagneticParams()
+    rng = np.random.default_rng(6)
+    state, fixes = pf.run(pf.initial_state(params), [scan(T0, 30.0, 1.5)], maps, params, rng)
+    assert fixes[0].floor == 0
+    upstairs = WifiEvent(
+        T0 + 1000,
+        tuple(RadioReading(f"bp{i}", float(round(v))) for i, v in enumerate(rssi(31.0, 1.5))),
+    )
+    state, fixes = pf.run(state, [upstairs], maps, params, rng)
+    assert fixes[0].floor == 1
+    assert "reinitialised" not in fixes[0].diagnostics
+    assert abs(fixes[0].x_m - 30.0) < 3.0

@@ -18,9 +18,14 @@ mass-centered magnetic weight update (``papers/001_*`` sections II-IV).
   effective sample size falls below half of ``N``
   (``server.positioning.particle.step``). Without a magnetic map the weights only come
   from the walls.
+* **Floors**: each scan's WKNN floor vote moves the cloud to that floor with the
+  particles' positions kept (floors stack; particles on no walkable ground there die),
+  as the EKF engines carry their position across a floor change. The paper does not
+  change floors.
 * **Re-initialisation**: when the cloud dies (every particle killed), at the next scan;
   and when ``reinit_scans`` scans in a row place the phone farther than
-  ``reinit_distance_m`` from the estimate or on another floor, around the latest scan.
+  ``reinit_distance_m`` from the estimate (or on another floor, without
+  ``follow_scan_floor``), around the latest scan.
 * **Estimate**: the weighted mean of the particles, their covariance as its uncertainty,
   the floor with the most weight.
 
@@ -64,6 +69,16 @@ class PfMagneticParams:
     k: int = 4  # WKNN neighbours of the starting fix
     reinit_distance_m: float = 20.0
     reinit_scans: int = 3
+    # not in Shao et al. (WiFi/BLE only starts the cloud there): with a positive value
+    # every later scan also weighs the particles by a Gaussian of this spread around its
+    # WKNN fix, and particles on another floor than the fix's by ``wifi_other_floor``
+    wifi_sd_m: float = 0.0
+    wifi_other_floor: float = 0.1
+    # move the cloud to the floor each scan votes for, keeping the particles' positions
+    # (as the EKF engines do), rather than waiting for reinit_scans disagreeing scans: on
+    # the inner validation split of ILC site2 the mean error fell from 51.1 m to 33.3 m
+    # and the floor hit rate rose from 71.8 % to 80.4 %
+    follow_scan_floor: bool = True
 
     def __post_init__(self) -> None:
         if self.weighting not in ("mass_centered", "dtw"):
@@ -237,13 +252,19 @@ def _on_scan(
     if found is None:
         return state, None
     diag = {"n_matched": float(scan.n_matched)}
+    if state.cloud is not None and params.follow_scan_floor:
+        moved = _to_floor(state.cloud, found.floor, maps)
+        state = replace(state, cloud=moved if particle.alive(moved) else None)
     if state.cloud is not None:
         est = particle.estimate(state.cloud)
         far = math.hypot(est.xy[0] - found.x_m, est.xy[1] - found.y_m) > params.reinit_distance_m
         disagree = state.disagree + 1 if far or est.floor != found.floor else 0
         if disagree < params.reinit_scans:
-            new = replace(state, disagree=disagree)
-            return new, _fix(state.cloud, event.t_ms, state.heading_rad, kind, diag)
+            cloud = state.cloud
+            if params.wifi_sd_m > 0:
+                cloud = _wifi_weights(cloud, found.x_m, found.y_m, found.floor, params, rng)
+            new = replace(state, disagree=disagree, cloud=cloud)
+            return new, _fix(cloud, event.t_ms, state.heading_rad, kind, diag)
         diag["reinitialised"] = 1.0
     cloud = particle.initialise(
         (found.x_m, found.y_m),
@@ -254,6 +275,36 @@ def _on_scan(
     )
     new = replace(state, cloud=cloud, disagree=0)
     return new, _fix(cloud, event.t_ms, state.heading_rad, kind, diag)
+
+
+def _to_floor(cloud: particle.Particles, floor: int, maps: SiteMaps) -> particle.Particles:
+    """Every particle onto ``floor`` at its position; those not on walkable ground there die."""
+    if bool(np.all(cloud.floor == floor)):
+        return cloud
+    floors = np.full(cloud.n, floor, dtype=np.int16)
+    ok = _valid_point(maps)(floors, cloud.xy.astype(np.float64))
+    moved = replace(cloud, floor=floors)
+    return particle.reweight(moved, np.where(ok, 0.0, -np.inf))
+
+
+def _wifi_weights(
+    cloud: particle.Particles,
+    x_m: float,
+    y_m: float,
+    floor: int,
+    params: PfMagneticParams,
+    rng: np.random.Generator,
+) -> particle.Particles:
+    d2 = np.sum((cloud.xy.astype(np.float64) - [x_m, y_m]) ** 2, axis=1)
+    ll = -0.5 * d2 / params.wifi_sd_m**2 + np.where(
+        cloud.floor == floor, 0.0, math.log(params.wifi_other_floor)
+    )
+    cloud = particle.reweight(cloud, ll)
+    if not particle.alive(cloud):
+        return cloud
+    if particle.effective_sample_size(cloud) < params.particles.resample_ess_fraction * cloud.n:
+        cloud = particle.systematic_resample(cloud, rng)
+    return cloud
 
 
 def _phone_step(state: PfMagneticState, event: StepEvent) -> Step:
