@@ -226,9 +226,7 @@ def step_motion(x: FloatArray, length_m: float, turn_rad: float) -> tuple[FloatA
 def _on_step(
     state: EverywhereState, step: Step, maps: SiteMaps, params: EverywhereParams
 ) -> tuple[EverywhereState, Fix | None]:
-    turn = 0.0
-    if math.isfinite(step.heading_rad) and math.isfinite(state.last_phone_heading):
-        turn = float(wrap_angle(step.heading_rad - state.last_phone_heading))
+    turn = rf.turn_between(state.last_phone_heading, step.heading_rad)
     if math.isfinite(step.heading_rad):
         state = replace(state, last_phone_heading=step.heading_rad)
     state = replace(
@@ -243,16 +241,14 @@ def _on_step(
         return state, None
     x, P = state.x, state.P
     if not state.heading_known and math.isfinite(step.north_rad):
-        rotation = maps.floors[state.floor].rotation_rad if state.floor < len(maps.floors) else 0.0
-        north = float(wrap_angle(step.north_rad - rotation))
-        x, P = rf.set_heading(x, P, north, params.p0_north_heading_rad2)
+        x, P = rf.heading_from_north(
+            x, P, maps, state.floor, step.north_rad, params.p0_north_heading_rad2
+        )
         state = replace(state, heading_known=True)
         turn = 0.0
     d = step.length_m
     if not state.heading_known:
-        x = x.copy()
-        x[3] = wrap_angle(x[3] + turn)
-        P = rf.widen(P, (1.0 + float(x[2])) * d)
+        x, P = rf.turn_in_place(x, P, turn, (1.0 + float(x[2])) * d)
     else:
         x_pred, A = step_motion(x, d, turn)
         x, P = predict_ekf(x_pred, P, A, params.process_noise)
@@ -293,22 +289,13 @@ def _on_scan(
             return state, anchor_fix
     if maps.radio is None:
         return state, None
-    m = rf.match(maps.radio, event, params.k)
-    if m is None:
+    start = rf.begin_scan(maps.radio, event, state, params)
+    if start is None:
         return state, None
+    m, diagnostics, rejects = start.matched, start.diagnostics, start.rejects
     whole = m.whole
-    diagnostics = {"n_matched": float(m.scan.n_matched)}
-    if state.initialized and whole.floor != state.floor:
-        diagnostics["floor_change"] = 1.0
     state = replace(state, floor=whole.floor)
-    rejects = 0
-    if state.initialized:
-        rejects = rf.rejects_after(
-            state.x, state.P, whole, state.rejects, params.min_fix_var_m2, params.gate_chi2
-        )
-    if not state.initialized or rejects >= params.max_rejects:
-        if state.initialized:
-            diagnostics["reinitialised"] = 1.0
+    if start.restart:
         x, P = rf.place(state.x, state.P, whole, params.min_fix_var_m2)
         new = _remember_fp(replace(state, x=x, P=P, initialized=True, rejects=0), *_xy(whole))
         return new, _fix(new, m.t_ms, m.kind, diagnostics)
@@ -432,16 +419,12 @@ def apply(
     state: EverywhereState, items: Sequence[Step | Scan], maps: SiteMaps, params: EverywhereParams
 ) -> tuple[EverywhereState, list[Fix]]:
     """Steps and scans, in the order given, through the filter."""
-    fixes: list[Fix] = []
-    for item in items:
-        fix: Fix | None
-        if isinstance(item, Step):
-            state, fix = _on_step(state, item, maps, params)
-        else:
-            state, fix = _on_scan(state, item, maps, params)
-        if fix is not None:
-            fixes.append(fix)
-    return state, fixes
+    return rf.apply_items(
+        state,
+        items,
+        lambda st, step: _on_step(st, step, maps, params),
+        lambda st, scan: _on_scan(st, scan, maps, params),
+    )
 
 
 SPEC = EngineSpec(

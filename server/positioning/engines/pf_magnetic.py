@@ -42,10 +42,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from server.positioning import floorplan, magnetic, particle
+from server.positioning.engines import radio_fusion as rf
 from server.positioning.engines.base import EngineSpec, SiteMaps
 from server.positioning.events import BleEvent, Event, Fix, MagEvent, StepEvent, WifiEvent
 from server.positioning.fingerprint import scan_vector, wknn
-from server.positioning.kalman import wrap_angle
 from server.positioning.step_tracker import (
     Scan,
     Step,
@@ -200,10 +200,6 @@ def _fix(
     )
 
 
-def _rotation(maps: SiteMaps, floor: int) -> float:
-    return maps.floors[floor].rotation_rad if 0 <= floor < len(maps.floors) else 0.0
-
-
 def _on_step(
     state: PfMagneticState,
     t_ms: int,
@@ -218,7 +214,7 @@ def _on_step(
     if cloud is None or not math.isfinite(north_rad) or not math.isfinite(length_m):
         return state, None
     floor = particle.estimate(cloud).floor
-    heading = float(wrap_angle(north_rad - _rotation(maps, floor)))
+    heading = rf.in_building_frame(maps, floor, north_rad)
     observed = magnitude_ut if math.isfinite(magnitude_ut) else None
     moved = particle.step(
         cloud,

@@ -21,17 +21,22 @@ the position variance by the square of its length (``widen``).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Protocol, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 
+from server.positioning.engines.base import SiteMaps
 from server.positioning.events import Fix, WifiEvent
 from server.positioning.fingerprint import RadioMap, ScanVector, WknnFix, scan_vector, wknn
-from server.positioning.kalman import Update, update
-from server.positioning.step_tracker import Scan
+from server.positioning.kalman import Update, update, wrap_angle
+from server.positioning.step_tracker import Scan, Step
 
 FloatArray = NDArray[np.float64]
+
+S = TypeVar("S")
 
 H_POSITION = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]])
 
@@ -139,3 +144,114 @@ def check_positive(**values: float) -> None:
     for name, value in values.items():
         if not (math.isfinite(value) and value > 0):
             raise ValueError(f"{name} must be positive and finite, got {value}")
+
+
+def in_building_frame(maps: SiteMaps, floor: int, north_rad: float) -> float:
+    """A heading clockwise from north turned into the frame of the floor's building."""
+    rotation = maps.floors[floor].rotation_rad if 0 <= floor < len(maps.floors) else 0.0
+    return float(wrap_angle(north_rad - rotation))
+
+
+def turn_between(previous_rad: float, heading_rad: float) -> float:
+    """The wrapped change of the phone heading since the previous step (0 when either is
+    unknown)."""
+    if math.isfinite(heading_rad) and math.isfinite(previous_rad):
+        return float(wrap_angle(heading_rad - previous_rad))
+    return 0.0
+
+
+def heading_from_north(
+    x: FloatArray,
+    P: FloatArray,
+    maps: SiteMaps,
+    floor: int,
+    north_rad: float,
+    var_rad2: float,
+) -> tuple[FloatArray, FloatArray]:
+    """The heading state started from the phone's north-referenced heading."""
+    return set_heading(x, P, in_building_frame(maps, floor, north_rad), var_rad2)
+
+
+def turn_in_place(
+    x: FloatArray, P: FloatArray, turn_rad: float, length_m: float
+) -> tuple[FloatArray, FloatArray]:
+    """A step while the map-frame heading is unknown: the heading state turns with the
+    phone, the position stays and its variance grows (``widen``)."""
+    x = x.copy()
+    x[3] = wrap_angle(x[3] + turn_rad)
+    return x, widen(P, length_m)
+
+
+@dataclass(frozen=True)
+class ScanStart:
+    """What every scan does first (see the module docstring, steps 1-2)."""
+
+    matched: Matched
+    diagnostics: dict[str, float]
+    rejects: int  # consecutive whole-map fixes outside the gate, this one included
+    restart: bool  # place the filter at the whole-map fix
+
+
+class FilterState(Protocol):
+    """The fields of a PDR fusion engine's state that the scan start reads."""
+
+    @property
+    def x(self) -> FloatArray: ...
+    @property
+    def P(self) -> FloatArray: ...  # noqa: N802 (the covariance, as everywhere)
+    @property
+    def floor(self) -> int: ...
+    @property
+    def initialized(self) -> bool: ...
+    @property
+    def rejects(self) -> int: ...
+
+
+class ScanParams(Protocol):
+    """The parameters of a PDR fusion engine that the scan start reads."""
+
+    @property
+    def k(self) -> int: ...
+    @property
+    def min_fix_var_m2(self) -> float: ...
+    @property
+    def gate_chi2(self) -> float: ...
+    @property
+    def max_rejects(self) -> int: ...
+
+
+def begin_scan(
+    radio: RadioMap, event: Scan, state: FilterState, params: ScanParams
+) -> ScanStart | None:
+    """Match the scan on the whole map and decide floor and restart; None when it
+    matches nothing. The new floor is ``matched.whole.floor``."""
+    m = match(radio, event, params.k)
+    if m is None:
+        return None
+    diagnostics = {"n_matched": float(m.scan.n_matched)}
+    if state.initialized and m.whole.floor != state.floor:
+        diagnostics["floor_change"] = 1.0
+    if not state.initialized:
+        return ScanStart(m, diagnostics, 0, True)
+    rejects = rejects_after(
+        state.x, state.P, m.whole, state.rejects, params.min_fix_var_m2, params.gate_chi2
+    )
+    if rejects >= params.max_rejects:
+        diagnostics["reinitialised"] = 1.0
+        return ScanStart(m, diagnostics, 0, True)
+    return ScanStart(m, diagnostics, rejects, False)
+
+
+def apply_items(
+    state: S,
+    items: Sequence[Step | Scan],
+    on_step: Callable[[S, Step], tuple[S, Fix | None]],
+    on_scan: Callable[[S, Scan], tuple[S, Fix | None]],
+) -> tuple[S, list[Fix]]:
+    """Steps and scans, in the order given, through an engine's handlers."""
+    fixes: list[Fix] = []
+    for item in items:
+        state, fix = on_step(state, item) if isinstance(item, Step) else on_scan(state, item)
+        if fix is not None:
+            fixes.append(fix)
+    return state, fixes
