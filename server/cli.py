@@ -47,6 +47,19 @@ def _progress_bar(counter: str = "{task.completed}/{task.total}") -> Progress:
     )
 
 
+class _StageProgress:
+    """``progress(stage, done, total)`` callbacks shown as one bar per stage."""
+
+    def __init__(self, bar: Progress) -> None:
+        self.bar = bar
+        self.tasks: dict[str, TaskID] = {}
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        if stage not in self.tasks:
+            self.tasks[stage] = self.bar.add_task(stage, total=total)
+        self.bar.update(self.tasks[stage], completed=done, total=total)
+
+
 def _print_report(title: str, result: dict[str, object]) -> None:
     table = Table(title=title)
     table.add_column("measure")
@@ -296,15 +309,10 @@ def evaluate_ilc(
 
     runs = []
     with _progress_bar() as bar:
-        tasks: dict[str, TaskID] = {}
-
-        def progress(stage: str, done: int, total: int) -> None:
-            if stage not in tasks:
-                tasks[stage] = bar.add_task(stage, total=total)
-            bar.update(tasks[stage], completed=done, total=total)
+        progress = _StageProgress(bar)
 
         for name in engine:
-            tasks.clear()
+            progress.tasks.clear()
             replayer = (
                 _http_replayer(via_http, admin_key or "", progress)
                 if via_http
@@ -375,12 +383,7 @@ def evaluate_pdr(
         TrackerParams(heading=heading.value), detector.value, length_model.value
     )
     with _progress_bar() as bar:
-        tasks: dict[str, TaskID] = {}
-
-        def progress(stage: str, done: int, total: int) -> None:
-            if stage not in tasks:
-                tasks[stage] = bar.add_task(stage, total=total)
-            bar.update(tasks[stage], completed=done, total=total)
+        progress = _StageProgress(bar)
 
         result = pdr_evaluation.evaluate_pdr(
             site_dir,
