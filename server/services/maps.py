@@ -102,7 +102,8 @@ async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None
     version = "|".join([f.floor_id for f in refs] + [m.id for m in latest] + [_digest(stored)])
     if cached is not None and cached.version == version:
         return cached
-    plans = tuple(_plan(p) for p in stored)
+    # rasterising a mall floor takes a good part of a second: not on the event loop
+    plans = await anyio.to_thread.run_sync(lambda: tuple(_plan(p) for p in stored))
     floor_index = {f.floor_id: i for i, f in enumerate(refs)}
     parts = []
     for row in latest:
