@@ -1,7 +1,8 @@
-"""Admin routes: sites, buildings, floors, floor plans, surveys and radio maps."""
+"""Admin routes: sites, buildings, floors, floor plans, surveys, radio and magnetic maps."""
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from fastapi import APIRouter, status
@@ -9,7 +10,7 @@ from fastapi import APIRouter, status
 from server.api import schemas as sc
 from server.api.convert import ble_pairs, wifi_pairs
 from server.api.deps import AdminDep, IdPath, SqlDep
-from server.services import maps, sites
+from server.services import magnetic_maps, maps, sites
 
 router = APIRouter(prefix="/v1", tags=["admin"], dependencies=[AdminDep])
 
@@ -111,3 +112,41 @@ async def post_survey(building_id: IdPath, body: sc.SurveyIn, s: SqlDep) -> sc.R
 async def list_radio_maps(building_id: IdPath, s: SqlDep) -> sc.RadioMapList:
     items = [_radio_map(m) for m in await maps.list_radio_maps(s, building_id)]
     return sc.RadioMapList(items=items, count=len(items))
+
+
+@router.post("/floors/{floor_id}/magnetic-survey", status_code=status.HTTP_201_CREATED)
+async def post_magnetic_survey(
+    floor_id: IdPath, body: sc.MagneticSurveyIn, s: SqlDep
+) -> sc.MagneticMapRead:
+    """Fold survey points and walked lines into the floor's magnetic map (a new version)."""
+    points = [
+        magnetic_maps.MagneticPointData(
+            x_m=p.x_m,
+            y_m=p.y_m,
+            magnitude_ut=p.magnitude_ut
+            if p.magnitude_ut is not None
+            else math.hypot(*(p.field_ut or ())),
+            horizontal_ut=p.horizontal_ut,
+            vertical_ut=p.vertical_ut,
+        )
+        for p in body.points
+    ]
+    lines = [
+        magnetic_maps.MagneticLineData(
+            start_xy=line.start,
+            end_xy=line.end,
+            t_start_ms=line.t_start,
+            t_end_ms=line.t_end,
+            samples=line.samples,
+        )
+        for line in body.lines
+    ]
+    row = await magnetic_maps.add_magnetic_survey(s, floor_id, points, lines)
+    return sc.MagneticMapRead.model_validate(row, from_attributes=True)
+
+
+@router.get("/floors/{floor_id}/magnetic-maps")
+async def list_magnetic_maps(floor_id: IdPath, s: SqlDep) -> sc.MagneticMapList:
+    rows = await magnetic_maps.list_magnetic_maps(s, floor_id)
+    items = [sc.MagneticMapRead.model_validate(m, from_attributes=True) for m in rows]
+    return sc.MagneticMapList(items=items, count=len(items))

@@ -373,6 +373,85 @@ class RadioMapList(Strict):
     count: int
 
 
+# Survey readings must come from a calibrated magnetometer: indoor fields stay far below
+# this, the hard-iron bias of an uncalibrated one often does not
+SurveyField = Annotated[float, Field(ge=-500, le=500, allow_inf_nan=False)]
+MAX_MAGNETIC_SAMPLES = 200_000  # per request, points and line samples together
+
+
+class MagneticPointIn(Strict):
+    """The field measured standing at a marked spot."""
+
+    x_m: Coordinate
+    y_m: Coordinate
+    field_ut: tuple[SurveyField, SurveyField, SurveyField] | None = Field(
+        None, description="calibrated field in the phone frame (µT); its norm is the magnitude"
+    )
+    magnitude_ut: Annotated[float | None, Field(ge=0, le=500, allow_inf_nan=False)] = None
+    horizontal_ut: Annotated[float | None, Field(ge=0, le=500, allow_inf_nan=False)] = None
+    vertical_ut: SurveyField | None = None
+
+    @model_validator(mode="after")
+    def _one_magnitude(self) -> MagneticPointIn:
+        if (self.field_ut is None) == (self.magnitude_ut is None):
+            raise ValueError("give exactly one of field_ut and magnitude_ut")
+        return self
+
+
+class MagneticLineIn(Strict):
+    """A survey line walked at constant speed from ``start`` (at ``t_start``) to ``end``
+    (at ``t_end``); samples are placed along it by their time, those outside dropped."""
+
+    start: tuple[Coordinate, Coordinate]
+    end: tuple[Coordinate, Coordinate]
+    t_start: TimestampMs
+    t_end: TimestampMs
+    samples: Annotated[
+        list[tuple[TimestampMs, SurveyField, SurveyField, SurveyField]],
+        Field(min_length=1, max_length=MAX_MAGNETIC_SAMPLES),
+    ] = Field(description="[t, x, y, z]: calibrated field in the phone frame (µT)")
+
+    @model_validator(mode="after")
+    def _ordered(self) -> MagneticLineIn:
+        if self.t_end <= self.t_start:
+            raise ValueError("t_end must be after t_start")
+        return self
+
+
+class MagneticSurveyIn(Strict):
+    points: Annotated[list[MagneticPointIn], Field(max_length=MAX_MAGNETIC_SAMPLES)] = []
+    lines: Annotated[list[MagneticLineIn], Field(max_length=10_000)] = []
+
+    @model_validator(mode="after")
+    def _bounded(self) -> MagneticSurveyIn:
+        total = len(self.points) + sum(len(line.samples) for line in self.lines)
+        if total == 0:
+            raise ValueError("points or lines must hold at least one sample")
+        if total > MAX_MAGNETIC_SAMPLES:
+            raise ValueError(f"at most {MAX_MAGNETIC_SAMPLES} samples per request, got {total}")
+        return self
+
+
+class MagneticMapRead(Strict):
+    id: str
+    floor_id: str
+    version: int
+    origin_x_m: float
+    origin_y_m: float
+    resolution_m: float
+    n_rows: int
+    n_cols: int
+    n_samples: int
+    known_cells: int
+    source: str
+    created_at: datetime
+
+
+class MagneticMapList(Strict):
+    items: list[MagneticMapRead]
+    count: int
+
+
 # ---------------------------------------------------------------- locate
 
 

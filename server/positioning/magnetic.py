@@ -25,16 +25,33 @@ attitude allowed it, the horizontal and vertical components.
   A component (horizontal, vertical) is averaged over its own finite samples with the
   same rule, so a cell can know its magnitude but not its components.
 
+Merging (``merge_grids``): a new survey is gridded on its own and folded into the floor's
+current grid cell by cell with the pairwise update of Chan, Golub and LeVeque (the
+parallel form of Welford's running moments). For cells with ``(n_a, mean_a, M2_a)`` and
+``(n_b, mean_b, M2_b)``, where ``M2 = var (n - 1)``::
+
+    n = n_a + n_b,   d = mean_b - mean_a,
+    mean = mean_a + d n_b / n,   M2 = M2_a + M2_b + d^2 n_a n_b / n
+
+which gives the moments of the union of the two sample sets whatever the order of the
+merges. Both grids must share the cell size and the lattice (origins a whole number of
+cells apart); the result covers the union of their extents. Components are merged as
+means weighted by the magnitude counts (the grid keeps no per-component count).
+
 Sampling (``sample``, ``sample_many``): bilinear interpolation between the four cell
 centres around a point. With ``u = (x - x0) / c - 1/2``, ``v = (y - y0) / c - 1/2``,
 ``i = floor(u)``, ``j = floor(v)``, ``fx = u - i``, ``fy = v - j``::
 
     B(x, y) = (1 - fy) [(1 - fx) B[j, i] + fx B[j, i+1]] + fy [(1 - fx) B[j+1, i] + fx B[j+1, i+1]]
 
-which is exact on a plane ``a + b x + c y``. The result is NaN when any of the four
-centres is unknown or the point lies outside the rectangle spanned by the outermost
-cell centres. The paper's Figure 7 map is interpolated linearly between walked lines;
-here the lines feed the grid and the grid is interpolated bilinearly.
+which is exact on a plane ``a + b x + c y``. Unknown centres are left out and the
+weights of the known ones renormalised (``B = sum w_k B_k / sum w_k`` over the known
+corners ``k``), so a single walked line, a strip one cell wide, can be sampled along its
+whole width; the result is NaN only where the known corners carry (almost) no weight
+(``MIN_CORNER_WEIGHT``) or outside the grid. Between the outermost centres and the
+grid's edge a point takes the edge centres' values. The paper's Figure 7 map is
+interpolated linearly between walked lines; here the lines feed the grid and the grid
+is interpolated bilinearly.
 
 Sequence distances over a window of ``w`` magnitudes (the last ``W + 1`` per-step
 magnitudes for a window of ``W`` steps; ``W = 3`` in the paper)
@@ -70,6 +87,8 @@ FloatArray = NDArray[np.float64]
 Component = Literal["magnitude", "horizontal", "vertical"]
 
 CELL_M = 0.5  # DESIGN.md "Maps": magnetic grid of 0.5 m
+# sampling: a point whose known corners carry less bilinear weight than this is unknown
+MIN_CORNER_WEIGHT = 1e-6
 
 
 @dataclass(frozen=True)
@@ -352,6 +371,84 @@ def grid_from_sources(
     )
 
 
+def merge_grids(a: MagneticGrid, b: MagneticGrid) -> MagneticGrid:
+    """Fold two grids of one floor into one (see the module docstring).
+
+    Parameters
+    ----------
+    a, b : MagneticGrid
+        Same ``cell_m``; origins a whole number of cells apart. A cell whose magnitude is
+        NaN counts as empty.
+
+    Returns
+    -------
+    MagneticGrid
+        Over the union of both extents; counts add, means and variances are those of the
+        union of both cells' samples.
+    """
+    c = a.cell_m
+    if not np.isclose(b.cell_m, c, rtol=0.0, atol=1e-9):
+        raise ValueError(f"cell sizes differ: {a.cell_m} and {b.cell_m}")
+    shift = (np.asarray(b.origin_m) - np.asarray(a.origin_m)) / c
+    if not np.allclose(shift, np.round(shift), rtol=0.0, atol=1e-6):
+        raise ValueError(f"origins {a.origin_m} and {b.origin_m} are not on one lattice")
+    # cell offsets of each grid's corner from the union's lower-left corner
+    lo = np.minimum(0, np.round(shift).astype(np.int64))
+    off_a = -lo
+    off_b = np.round(shift).astype(np.int64) - lo
+    nx = int(max(off_a[0] + a.magnitude.shape[1], off_b[0] + b.magnitude.shape[1]))
+    ny = int(max(off_a[1] + a.magnitude.shape[0], off_b[1] + b.magnitude.shape[0]))
+
+    def placed(
+        grid: MagneticGrid, off: NDArray[np.int64], values: ArrayLike, fill: float
+    ) -> FloatArray:
+        out = np.full((ny, nx), fill)
+        h, w = grid.magnitude.shape
+        out[off[1] : off[1] + h, off[0] : off[0] + w] = values
+        return out
+
+    moments = []
+    for grid, off in ((a, off_a), (b, off_b)):
+        mean = placed(grid, off, grid.magnitude, np.nan)
+        n = np.where(np.isnan(mean), 0.0, placed(grid, off, grid.count, 0.0))
+        var = placed(grid, off, grid.var, np.nan)
+        m2 = np.where(np.isnan(var) | (n < 2), 0.0, var * (n - 1))
+        moments.append((n, np.nan_to_num(mean), m2))
+    (na, ma, m2a), (nb, mb, m2b) = moments
+    n = na + nb
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d = mb - ma
+        mean = np.where(n > 0, ma + d * nb / n, np.nan)
+        m2 = m2a + m2b + np.where(n > 0, d * d * na * nb / n, 0.0)
+        var = np.where(n >= 2, m2 / (n - 1), np.nan)
+
+    components: dict[str, NDArray[np.float32] | None] = {}
+    for name in ("horizontal", "vertical"):
+        parts = [
+            (placed(g, off, field, np.nan), w)
+            for g, off, w in ((a, off_a, na), (b, off_b, nb))
+            if (field := getattr(g, name)) is not None
+        ]
+        if not parts:
+            components[name] = None
+            continue
+        weight = sum(np.where(np.isnan(v), 0.0, w) for v, w in parts)
+        total = sum(np.where(np.isnan(v), 0.0, v * w) for v, w in parts)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            components[name] = _frozen(np.where(weight > 0, total / weight, np.nan), ny, nx)
+
+    origin = (a.origin_m[0] + float(lo[0]) * c, a.origin_m[1] + float(lo[1]) * c)
+    return MagneticGrid(
+        origin_m=origin,
+        cell_m=c,
+        magnitude=_frozen(mean, ny, nx),
+        var=_frozen(var, ny, nx),
+        count=_frozen_count(n.astype(np.int64), ny, nx),
+        horizontal=components["horizontal"],
+        vertical=components["vertical"],
+    )
+
+
 def sample(grid: MagneticGrid, xy: ArrayLike, component: Component = "magnitude") -> FloatArray:
     """Sample a grid bilinearly at a batch of positions (see the module docstring).
 
@@ -366,8 +463,8 @@ def sample(grid: MagneticGrid, xy: ArrayLike, component: Component = "magnitude"
     Returns
     -------
     ndarray, shape (n,), float64
-        Field in µT; NaN where any of the four surrounding cell centres is unknown, or
-        outside the rectangle of cell centres.
+        Field in µT; NaN where none of the surrounding cell centres with weight is
+        known, or outside the grid.
     """
     pts = np.asarray(xy, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 2:
@@ -516,7 +613,8 @@ def _frozen_count(values: NDArray[np.int64], ny: int, nx: int) -> NDArray[np.int
 
 
 def _bilinear(grid: MagneticGrid, pts: FloatArray, component: Component) -> FloatArray:
-    """Bilinear interpolation of one field at ``pts`` of shape (k, 2)."""
+    """Bilinear interpolation of one field at ``pts`` of shape (k, 2), over the known
+    corners only (see the module docstring)."""
     fields = {"magnitude": grid.magnitude, "horizontal": grid.horizontal, "vertical": grid.vertical}
     field = fields[component]
     if field is None:
@@ -529,30 +627,33 @@ def _bilinear(grid: MagneticGrid, pts: FloatArray, component: Component) -> Floa
     v = pts[:, 1] - grid.origin_m[1]
     v /= grid.cell_m
     v -= 0.5
-    inside = (u >= 0.0) & (u <= nx - 1) & (v >= 0.0) & (v <= ny - 1)  # False for NaN
+    inside = (u >= -0.5) & (u <= nx - 0.5) & (v >= -0.5) & (v <= ny - 0.5)  # False for NaN
+    # beyond the outermost centres a point takes the edge centres' values; fmin / fmax
+    # also map NaN to a valid index (masked as outside below)
+    u = np.fmax(np.fmin(u, nx - 1.0), 0.0)
+    v = np.fmax(np.fmin(v, ny - 1.0), 0.0)
     # lower-left centre of the square around each point; the last row / column of centres
-    # is reached from the square before it with f = 1. fmin / fmax map NaN to a valid index
-    i0 = np.fmax(np.fmin(np.floor(u), max(nx - 2, 0)), 0.0)
-    j0 = np.fmax(np.fmin(np.floor(v), max(ny - 2, 0)), 0.0)
+    # is reached from the square before it with f = 1
+    i0 = np.fmin(np.floor(u), max(nx - 2, 0))
+    j0 = np.fmin(np.floor(v), max(ny - 2, 0))
     fx = u - i0
     fy = v - j0
     base = (j0 * nx + i0).astype(np.intp)
     di, dj = min(nx - 1, 1), nx * min(ny - 1, 1)
     f = field.ravel()
-    # a NaN corner makes the result NaN even with a zero weight (NaN * 0 = NaN); an
-    # infinite coordinate may give inf * 0 here, and is masked as outside below
-    with np.errstate(invalid="ignore"):
-        f00 = f[base]
-        f01 = f[base + di]
-        lower: FloatArray = fx * (f01 - f00)
-        lower += f00
-        base += dj
-        f10 = f[base]
-        f11 = f[base + di]
-        upper: FloatArray = fx * (f11 - f10)
-        upper += f10
-        upper -= lower
-        upper *= fy
-        upper += lower
-    upper[~inside] = np.nan
-    return upper
+    total = np.zeros(pts.shape[0])
+    weight = np.zeros(pts.shape[0])
+    for offset, w in (
+        (0, (1.0 - fx) * (1.0 - fy)),
+        (di, fx * (1.0 - fy)),
+        (dj, (1.0 - fx) * fy),
+        (dj + di, fx * fy),
+    ):
+        corner = f[base + offset]
+        known = ~np.isnan(corner)
+        w *= known
+        weight += w
+        total += w * np.where(known, corner, 0.0)
+    out: FloatArray = np.full(pts.shape[0], np.nan)
+    np.divide(total, weight, out=out, where=inside & (weight > MIN_CORNER_WEIGHT))
+    return out

@@ -1,4 +1,5 @@
-"""Radio maps: survey points in, a new version out; site map sets cached in memory by version."""
+"""Radio maps: survey points in, a new version out; site map sets (radio, plans, magnetic)
+cached in memory by version."""
 
 from __future__ import annotations
 
@@ -19,9 +20,11 @@ from server.positioning.engines.base import FloorRef, SiteMaps
 from server.positioning.events import radio_key
 from server.positioning.fingerprint import MISSING_DBM, RadioMap, in_place_order
 from server.positioning.floorplan import FloorPlan, plan_from_geojson
+from server.positioning.magnetic import MagneticMap, MagneticSamples
 from server.positioning.mapping.gridding import build_radio_map
 from server.positioning.mapping.matrices import merge_radio_maps, readings_matrix
 from server.services.errors import Invalid, NotFound
+from server.services.magnetic_maps import fold_sources
 from server.storage import repositories as repo
 from server.storage.models import RadioMapVersion
 
@@ -97,13 +100,22 @@ async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None
     anchors = tuple(
         a for i, (f, _) in enumerate(floors) for a in anchors_from_plan(f.plan_geojson, i)
     )
+    magnetic = [await repo.latest_magnetic_map(s, f.floor_id) for f in refs]
     # a new plan changes walls and anchors without a new radio map
     stored = [f.plan_geojson for f, _ in floors]
-    version = "|".join([f.floor_id for f in refs] + [m.id for m in latest] + [_digest(stored)])
+    version = "|".join(
+        [f.floor_id for f in refs]
+        + [m.id for m in latest]
+        + [m.id if m else "-" for m in magnetic]
+        + [_digest(stored)]
+    )
     if cached is not None and cached.version == version:
         return cached
     # rasterising a mall floor takes a good part of a second: not on the event loop
     plans = await anyio.to_thread.run_sync(lambda: tuple(_plan(p) for p in stored))
+    grids = await anyio.to_thread.run_sync(
+        lambda: tuple(repo.magnetic_grid(m) if m else None for m in magnetic)
+    )
     floor_index = {f.floor_id: i for i, f in enumerate(refs)}
     parts = []
     for row in latest:
@@ -120,7 +132,14 @@ async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None
         )
     merged = merge_radio_maps(parts)
     radio = in_place_order(merged) if merged is not None else None
-    return SiteMaps(floors=refs, radio=radio, version=version, anchors=anchors, plans=plans)
+    return SiteMaps(
+        floors=refs,
+        radio=radio,
+        version=version,
+        anchors=anchors,
+        plans=plans,
+        magnetic=MagneticMap(grids, version) if any(g is not None for g in grids) else None,
+    )
 
 
 async def site_maps(s: AsyncSession, cache: MapCache, site_id: str) -> SiteMaps:
@@ -163,7 +182,17 @@ async def add_survey(
             for p in points
         ],
     )
-    return await rebuild_radio_map(s, building_id)
+    radio = await rebuild_radio_map(s, building_id)
+    # the magnetometer readings of the points go into their floors' magnetic maps
+    for level, floor in floor_by_level.items():
+        with_field = [p for p in points if p.floor_level == level and p.mag_ut is not None]
+        if with_field:
+            samples = MagneticSamples(
+                xy=[(p.x_m, p.y_m) for p in with_field],
+                magnitude=[float(np.linalg.norm(p.mag_ut or ())) for p in with_field],
+            )
+            await fold_sources(s, floor.id, [samples])
+    return radio
 
 
 async def list_radio_maps(s: AsyncSession, building_id: str) -> Sequence[RadioMapVersion]:

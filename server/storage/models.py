@@ -189,6 +189,9 @@ class MagneticMapVersion(Base):
     resolution_m: Mapped[float] = mapped_column(Float)
     n_rows: Mapped[int] = mapped_column(Integer)
     n_cols: Mapped[int] = mapped_column(Integer)
+    n_samples: Mapped[int] = mapped_column(Integer, default=0)
+    known_cells: Mapped[int] = mapped_column(Integer, default=0)
+    source: Mapped[str] = mapped_column(String(32), default="survey")
     arrays: Mapped[bytes] = mapped_column(LargeBinary)
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
 

@@ -12,11 +12,14 @@ from numpy.typing import NDArray
 from sqlalchemy import func, insert, select
 from sqlalchemy.ext.asyncio import AsyncSession
 
+from server.positioning.magnetic import MagneticGrid
+from server.storage.codec import compress_arrays, decompress_arrays
 from server.storage.models import (
     ApiKey,
     Building,
     Emitter,
     Floor,
+    MagneticMapVersion,
     RadioMapVersion,
     RadioStat,
     ReferencePoint,
@@ -254,6 +257,70 @@ async def load_radio_map(s: AsyncSession, map_id: str, missing_dbm: float) -> Ra
         mean_dbm=mean,
         var_db2=var,
         count=count,
+    )
+
+
+# ---------------------------------------------------------------- magnetic maps
+
+
+async def save_magnetic_map(
+    s: AsyncSession, floor_id: str, grid: MagneticGrid, *, source: str = "survey"
+) -> MagneticMapVersion:
+    """Store a floor's grid as its next version (arrays compressed in one blob)."""
+    last = await s.scalar(
+        select(func.max(MagneticMapVersion.version)).where(MagneticMapVersion.floor_id == floor_id)
+    )
+    arrays = {"magnitude": grid.magnitude, "var": grid.var, "count": grid.count}
+    for name in ("horizontal", "vertical"):
+        if (component := getattr(grid, name)) is not None:
+            arrays[name] = component
+    n_rows, n_cols = grid.magnitude.shape
+    row = MagneticMapVersion(
+        floor_id=floor_id,
+        version=(last or 0) + 1,
+        origin_x_m=grid.origin_m[0],
+        origin_y_m=grid.origin_m[1],
+        resolution_m=grid.cell_m,
+        n_rows=n_rows,
+        n_cols=n_cols,
+        n_samples=int(grid.count.sum()),
+        known_cells=int(np.isfinite(grid.magnitude).sum()),
+        source=source,
+        arrays=compress_arrays(arrays),
+    )
+    s.add(row)
+    await s.flush()
+    return row
+
+
+async def latest_magnetic_map(s: AsyncSession, floor_id: str) -> MagneticMapVersion | None:
+    stmt = (
+        select(MagneticMapVersion)
+        .where(MagneticMapVersion.floor_id == floor_id)
+        .order_by(MagneticMapVersion.version.desc())
+        .limit(1)
+    )
+    return (await s.scalars(stmt)).one_or_none()
+
+
+async def list_magnetic_maps(s: AsyncSession, floor_id: str) -> Sequence[MagneticMapVersion]:
+    stmt = select(MagneticMapVersion).where(MagneticMapVersion.floor_id == floor_id)
+    return (await s.scalars(stmt.order_by(MagneticMapVersion.version))).all()
+
+
+def magnetic_grid(row: MagneticMapVersion) -> MagneticGrid:
+    """The grid a stored version holds (CPU work: decompression)."""
+    arrays = decompress_arrays(row.arrays)
+    for values in arrays.values():
+        values.flags.writeable = False
+    return MagneticGrid(
+        origin_m=(row.origin_x_m, row.origin_y_m),
+        cell_m=row.resolution_m,
+        magnitude=arrays["magnitude"],
+        var=arrays["var"],
+        count=arrays["count"],
+        horizontal=arrays.get("horizontal"),
+        vertical=arrays.get("vertical"),
     )
 
 

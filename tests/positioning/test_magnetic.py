@@ -16,6 +16,7 @@ from server.positioning.magnetic import (
     dtw_distance,
     grid_from_samples,
     grid_from_sources,
+    merge_grids,
     mmse,
     sample,
     sample_many,
@@ -96,6 +97,53 @@ def test_gridding_is_order_independent(seed: int) -> None:
     np.testing.assert_allclose(a.var, b.var, rtol=1e-4, atol=1e-6)
 
 
+def _grid_parts(seed: int, n_parts: int) -> tuple[MagneticGrid, list[MagneticGrid]]:
+    rng = np.random.default_rng(seed)
+    n = 200
+    xy = rng.uniform(-3.0, 6.0, (n, 2))
+    mag = rng.normal(48.0, 3.0, n)
+    horizontal = np.where(rng.random(n) < 0.5, rng.normal(20.0, 2.0, n), np.nan)
+    whole = grid_from_samples(xy, mag, horizontal=horizontal)
+    cuts = np.sort(rng.choice(np.arange(1, n), n_parts - 1, replace=False))
+    parts = [
+        grid_from_samples(xy[i], mag[i], horizontal=horizontal[i])
+        for i in np.split(rng.permutation(n), cuts)
+    ]
+    return whole, parts
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n_parts=st.integers(2, 5))
+def test_merged_parts_equal_the_grid_of_all_samples(seed: int, n_parts: int) -> None:
+    whole, parts = _grid_parts(seed, n_parts)
+    merged = parts[0]
+    for part in parts[1:]:
+        merged = merge_grids(merged, part)
+    assert merged.origin_m == pytest.approx(whole.origin_m)
+    assert merged.magnitude.shape == whole.magnitude.shape
+    np.testing.assert_array_equal(merged.count, whole.count)
+    np.testing.assert_allclose(merged.magnitude, whole.magnitude, rtol=1e-5, equal_nan=True)
+    np.testing.assert_allclose(merged.var, whole.var, rtol=1e-3, atol=1e-4, equal_nan=True)
+    assert merged.horizontal is not None and whole.horizontal is not None
+    # components merge by magnitude counts: equal to the whole where each part's cell
+    # had the component on all or none of its samples; always finite where the whole is
+    assert np.array_equal(np.isfinite(merged.horizontal), np.isfinite(whole.horizontal))
+
+
+def test_merge_is_order_independent_and_refuses_other_lattices() -> None:
+    _, (a, b, c) = _grid_parts(7, 3)
+    left = merge_grids(merge_grids(a, b), c)
+    right = merge_grids(c, merge_grids(b, a))
+    np.testing.assert_allclose(left.magnitude, right.magnitude, rtol=1e-6, equal_nan=True)
+    np.testing.assert_array_equal(left.count, right.count)
+    shifted = grid_from_samples([(0.1, 0.1)], [50.0], extent=(0.25, 0.0, 2.25, 2.0))
+    with pytest.raises(ValueError, match="lattice"):
+        merge_grids(a, shifted)
+    coarse = grid_from_samples([(0.1, 0.1)], [50.0], cell_m=1.0)
+    with pytest.raises(ValueError, match="cell sizes"):
+        merge_grids(a, coarse)
+
+
 def test_sources_are_gridded_together() -> None:
     points = MagneticSamples(xy=[(0.1, 0.1)], magnitude=[40.0], vertical=[30.0])
     line = MagneticSamples(xy=[(0.2, 0.2), (0.8, 0.3)], magnitude=[42.0, 50.0])
@@ -154,22 +202,37 @@ def test_bilinear_sampling_is_exact_on_a_plane() -> None:
     np.testing.assert_allclose(sample(g, xy), a + b * xy[:, 0] + c * xy[:, 1], rtol=1e-6)
 
 
-def test_sampling_is_nan_outside_and_next_to_unknown_cells() -> None:
-    g, _ = _plane_grid()
+def test_sampling_is_nan_outside_and_renormalised_next_to_unknown_cells() -> None:
+    g, (a, b, c) = _plane_grid()
     inf = float("inf")
-    outside = [(10.2, -2.0), (12.8, -2.0), (11.0, -2.8), (11.0, -0.7), (NAN, -2.0), (inf, -2.0)]
+    outside = [(9.9, -2.0), (13.1, -2.0), (11.0, -3.1), (11.0, -0.4), (NAN, -2.0), (inf, -2.0)]
     outside += [(-inf, -2.0), (11.0, inf), (1e300, -1e300)]
     assert np.all(np.isnan(sample(g, outside)))
+    # between the outermost centres and the grid's edge: the edge centres' values
+    edge = sample(g, [(10.1, -2.0), (12.9, -0.6)])
+    np.testing.assert_allclose(edge, [a + b * 10.25 + c * -2.0, a + b * 12.75 + c * -0.75])
     holed = grid_from_samples(
         [(0.25, 0.25), (0.75, 0.25), (1.25, 0.25), (0.25, 0.75), (0.75, 0.75)],
         [40.0, 41.0, 42.0, 43.0, 44.0],
         extent=(0.0, 0.0, 1.5, 1.0),
     )  # cell (row 1, col 2) unknown
-    values = sample(holed, [(0.5, 0.5), (1.0, 0.5), (1.25, 0.75), (1.0, 0.25)])
+    values = sample(holed, [(0.5, 0.5), (1.0, 0.5), (1.25, 0.75), (1.0, 0.25), (1.2, 0.7)])
     assert values[0] == pytest.approx((40.0 + 41.0 + 43.0 + 44.0) / 4)
-    assert np.isnan(values[1])
-    assert np.isnan(values[2])
-    assert np.isnan(values[3])  # on the boundary row, but its square has an unknown corner
+    assert values[1] == pytest.approx((41.0 + 42.0 + 44.0) / 3)  # three known corners
+    assert np.isnan(values[2])  # the centre of the unknown cell
+    assert values[3] == pytest.approx(41.5)  # on the boundary row: two corners of weight
+    assert 41.0 < values[4] < 44.0
+
+
+def test_a_single_walked_line_can_be_sampled_along_its_width() -> None:
+    xs = np.linspace(0.0, 10.0, 101)
+    g = grid_from_samples(np.column_stack([xs, np.full(101, 2.0)]), 40.0 + xs)
+    # the line fills one row of cells (centres at y = 2.25); closer to that row of centres
+    # than to the next rows (y = 1.75, 2.75), a point samples the line's field
+    for y in (1.76, 2.0, 2.24, 2.49):
+        got = sample(g, np.column_stack([xs[5:-5], np.full(91, y)]))
+        np.testing.assert_allclose(got, 40.0 + xs[5:-5], atol=0.3)
+    assert np.all(np.isnan(sample(g, [(5.0, 1.2), (5.0, 2.8)])))
 
 
 def test_sample_many_matches_sample_and_components() -> None:

@@ -1,0 +1,121 @@
+"""Magnetic maps: survey samples in, the floor's next grid version out.
+
+Each survey is gridded on its own (``magnetic.grid_from_sources``, 0.5 m cells on the
+lattice of whole cells) and folded into the floor's current grid with the pairwise
+moment update (``magnetic.merge_grids``), so a version holds the statistics of every
+sample surveyed so far and the order of the surveys does not matter. Versions of a
+building are written one at a time (the building row is locked).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import anyio
+import numpy as np
+from sqlalchemy.ext.asyncio import AsyncSession
+
+from server.positioning.magnetic import (
+    MagneticGrid,
+    MagneticSamples,
+    grid_from_sources,
+    merge_grids,
+    samples_along_line,
+)
+from server.services.errors import Invalid, NotFound
+from server.storage import repositories as repo
+from server.storage.models import MagneticMapVersion
+
+
+@dataclass(frozen=True)
+class MagneticPointData:
+    x_m: float
+    y_m: float
+    magnitude_ut: float
+    horizontal_ut: float | None = None
+    vertical_ut: float | None = None
+
+
+@dataclass(frozen=True)
+class MagneticLineData:
+    start_xy: tuple[float, float]
+    end_xy: tuple[float, float]
+    t_start_ms: int
+    t_end_ms: int
+    samples: Sequence[tuple[float, float, float, float]]  # t, x, y, z in µT
+
+
+def survey_sources(
+    points: Sequence[MagneticPointData], lines: Sequence[MagneticLineData]
+) -> list[MagneticSamples]:
+    """The positioned samples of a survey: its points, then each line's samples placed by
+    time (``magnetic.samples_along_line``). A line none of whose samples falls between its
+    start and end times is refused, naming it."""
+    sources = []
+    if points:
+        nan = float("nan")
+        sources.append(
+            MagneticSamples(
+                xy=[(p.x_m, p.y_m) for p in points],
+                magnitude=[p.magnitude_ut for p in points],
+                horizontal=[nan if p.horizontal_ut is None else p.horizontal_ut for p in points]
+                if any(p.horizontal_ut is not None for p in points)
+                else None,
+                vertical=[nan if p.vertical_ut is None else p.vertical_ut for p in points]
+                if any(p.vertical_ut is not None for p in points)
+                else None,
+            )
+        )
+    for i, line in enumerate(lines):
+        rows = np.asarray(line.samples, dtype=np.float64).reshape(-1, 4)
+        xy, magnitude = samples_along_line(
+            line.start_xy,
+            line.end_xy,
+            line.t_start_ms,
+            line.t_end_ms,
+            rows[:, 0],
+            np.linalg.norm(rows[:, 1:4], axis=1),
+        )
+        if magnitude.size == 0:
+            raise Invalid(
+                "no sample falls between t_start and t_end of this line",
+                field=f"lines.{i}.samples",
+            )
+        sources.append(MagneticSamples(xy=xy, magnitude=magnitude))
+    return sources
+
+
+async def fold_sources(
+    s: AsyncSession, floor_id: str, sources: Sequence[MagneticSamples], source: str = "survey"
+) -> MagneticMapVersion:
+    """Grid the sources and store them merged with the floor's current grid as its next
+    version. The caller holds the building lock."""
+    current = await repo.latest_magnetic_map(s, floor_id)
+
+    def build() -> MagneticGrid:
+        grid = grid_from_sources(sources)
+        return merge_grids(repo.magnetic_grid(current), grid) if current else grid
+
+    grid = await anyio.to_thread.run_sync(build)
+    return await repo.save_magnetic_map(s, floor_id, grid, source=source)
+
+
+async def add_magnetic_survey(
+    s: AsyncSession,
+    floor_id: str,
+    points: Sequence[MagneticPointData],
+    lines: Sequence[MagneticLineData],
+) -> MagneticMapVersion:
+    floor = await repo.get_floor(s, floor_id)
+    if floor is None:
+        raise NotFound(f"floor {floor_id} not found", field="floor_id")
+    sources = survey_sources(points, lines)
+    await repo.lock_building(s, floor.building_id)
+    return await fold_sources(s, floor_id, sources)
+
+
+async def list_magnetic_maps(s: AsyncSession, floor_id: str) -> Sequence[MagneticMapVersion]:
+    if await repo.get_floor(s, floor_id) is None:
+        raise NotFound(f"floor {floor_id} not found", field="floor_id")
+    return await repo.list_magnetic_maps(s, floor_id)
