@@ -124,7 +124,8 @@ def test_merged_parts_equal_the_grid_of_all_samples(seed: int, n_parts: int) -> 
     np.testing.assert_array_equal(merged.count, whole.count)
     np.testing.assert_allclose(merged.magnitude, whole.magnitude, rtol=1e-5, equal_nan=True)
     np.testing.assert_allclose(merged.var, whole.var, rtol=1e-3, atol=1e-4, equal_nan=True)
-    assert merged.horizontal is not None and whole.horizontal is not None
+    assert merged.horizontal is not None
+    assert whole.horizontal is not None
     # components merge by magnitude counts: equal to the whole where each part's cell
     # had the component on all or none of its samples; always finite where the whole is
     assert np.array_equal(np.isfinite(merged.horizontal), np.isfinite(whole.horizontal))
