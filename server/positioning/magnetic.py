@@ -122,6 +122,16 @@ class MagneticGrid:
     horizontal: NDArray[np.float32] | None
     vertical: NDArray[np.float32] | None
 
+    def sampling_arrays(self, component: Component) -> tuple[FloatArray, FloatArray]:
+        """The field flattened with unknown cells as 0, and 1.0 / 0.0 for known / unknown:
+        what bilinear sampling gathers from (made once per grid and component)."""
+        cache: dict[str, tuple[FloatArray, FloatArray]] = self.__dict__.setdefault("_sampling", {})
+        if component not in cache:
+            field = getattr(self, component).ravel().astype(np.float64)
+            known = ~np.isnan(field)
+            cache[component] = (np.where(known, field, 0.0), known.astype(np.float64))
+        return cache[component]
+
     def __post_init__(self) -> None:
         if not self.cell_m > 0:
             raise ValueError(f"cell_m must be positive, got {self.cell_m}")
@@ -640,7 +650,7 @@ def _bilinear(grid: MagneticGrid, pts: FloatArray, component: Component) -> Floa
     fy = v - j0
     base = (j0 * nx + i0).astype(np.intp)
     di, dj = min(nx - 1, 1), nx * min(ny - 1, 1)
-    f = field.ravel()
+    filled, known = grid.sampling_arrays(component)
     total = np.zeros(pts.shape[0])
     weight = np.zeros(pts.shape[0])
     for offset, w in (
@@ -649,11 +659,11 @@ def _bilinear(grid: MagneticGrid, pts: FloatArray, component: Component) -> Floa
         (dj, (1.0 - fx) * fy),
         (dj + di, fx * fy),
     ):
-        corner = f[base + offset]
-        known = ~np.isnan(corner)
-        w *= known
+        index = base + offset
+        w *= known[index]
         weight += w
-        total += w * np.where(known, corner, 0.0)
+        w *= filled[index]
+        total += w
     out: FloatArray = np.full(pts.shape[0], np.nan)
     np.divide(total, weight, out=out, where=inside & (weight > MIN_CORNER_WEIGHT))
     return out
