@@ -106,6 +106,19 @@ def test_a_wrong_wifi_start_converges_on_the_magnetic_field() -> None:
     assert all(0.0 <= f.y_m <= WIDTH_M for f in steps)  # the plan holds the cloud
 
 
+def test_without_the_field_the_wrong_start_stays_wrong() -> None:
+    """The ablation ``weighting="none"``: the same walk, only walls weigh the particles,
+    and nothing pulls the cloud back from the 8 m WiFi error."""
+    maps = site_maps()
+    params = pf.PfMagneticParams(weighting="none")
+    rng = np.random.default_rng(7)
+    state, _ = pf.run(pf.initial_state(params), [scan(T0, 18.0, 1.5)], maps, params, rng)
+    _, fixes = pf.run(state, walk(10.0, 30, rng), maps, params, rng)
+    steps = [f for f in fixes if f.source == "step"]
+    errors = [abs(f.x_m - (10.0 + 0.7 * (i + 1))) for i, f in enumerate(steps)]
+    assert np.mean(errors[-5:]) > 3.0, errors
+
+
 def test_state_round_trip_continues_identically() -> None:
     maps = site_maps()
     params = pf.PfMagneticParams()

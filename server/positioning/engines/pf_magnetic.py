@@ -65,7 +65,9 @@ MAG_MAX_AGE_MS = 1000  # a mag event this much older than a step does not belong
 class PfMagneticParams:
     particles: particle.ParticleParams = field(default_factory=particle.ParticleParams)
     tracker: TrackerParams = field(default_factory=TrackerParams)
-    weighting: str = "mass_centered"  # or "dtw", the baseline of papers/001_* IV-B
+    # or "dtw", the baseline of papers/001_* IV-B; "none" (an ablation) leaves the
+    # magnetic field out: particles are weighted only by the walls
+    weighting: str = "mass_centered"
     k: int = 4  # WKNN neighbours of the starting fix
     reinit_distance_m: float = 20.0
     reinit_scans: int = 3
@@ -81,8 +83,10 @@ class PfMagneticParams:
     follow_scan_floor: bool = True
 
     def __post_init__(self) -> None:
-        if self.weighting not in ("mass_centered", "dtw"):
-            raise ValueError(f"weighting must be mass_centered or dtw, got {self.weighting!r}")
+        if self.weighting not in ("mass_centered", "dtw", "none"):
+            raise ValueError(
+                f"weighting must be mass_centered, dtw or none, got {self.weighting!r}"
+            )
         if self.k < 1 or self.reinit_scans < 1:
             raise ValueError("k and reinit_scans must be at least 1")
         if not (math.isfinite(self.reinit_distance_m) and self.reinit_distance_m > 0):
@@ -215,7 +219,8 @@ def _on_step(
         return state, None
     floor = particle.estimate(cloud).floor
     heading = rf.in_building_frame(maps, floor, north_rad)
-    observed = magnitude_ut if math.isfinite(magnitude_ut) else None
+    use_field = math.isfinite(magnitude_ut) and params.weighting != "none"
+    observed = magnitude_ut if use_field else None
     moved = particle.step(
         cloud,
         length_m,
