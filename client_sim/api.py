@@ -170,6 +170,16 @@ class ApiClient:
         )
         return result
 
+    async def post_magnetic_survey(self, floor_id: str, body: Mapping[str, Any]) -> dict[str, Any]:
+        """``body`` is a ``MagneticSurveyIn``; the answer the new ``MagneticMapRead``."""
+        result: dict[str, Any] = await self._admin(
+            "POST",
+            f"/v1/floors/{floor_id}/magnetic-survey",
+            body,
+            time_limit_s=SURVEY_TIMEOUT_S,
+        )
+        return result
+
     # ------------------------------------------------------------ device
 
     async def create_session(self, site_id: str, engine: str) -> Session:

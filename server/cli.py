@@ -218,15 +218,17 @@ def openapi(
 def _http_replayer(
     base_url: str, admin_key: str, progress: Callable[[str, int, int], None]
 ) -> Callable[..., list[list[Fix]]]:
-    """Replay through a running service: training scans go up as a survey, each test trace
+    """Replay through a running service: training scans go up as a survey (with the floor
+    plans and the magnetometer samples when the engine reads them), each test trace
     becomes one session's batches."""
     from client_sim.replay import replay_over_http
     from server.api.convert import fix_from_wire, to_wire
-    from server.services.evaluation import LabelledScans, batches
+    from server.services.evaluation import TrainingSurvey, batches
 
     def run(
-        engine: str, maps: SiteMaps, labelled: LabelledScans, traces: list[list[Event]]
+        engine: str, maps: SiteMaps, training: TrainingSurvey, traces: list[list[Event]]
     ) -> list[list[Fix]]:
+        labelled = training.scans
         survey = []
         for (x_m, y_m), floor, event in zip(
             labelled.xy_m, labelled.floor, labelled.events, strict=True
@@ -242,19 +244,32 @@ def _http_replayer(
                     key: wire["readings"],
                 }
             )
+        levels = [f.level for f in maps.floors]
+        plans = {levels[i]: plan for i, plan in enumerate(training.plans) if plan}
+        magnetic: dict[int, list[dict[str, float]]] = {}
+        if training.field is not None:
+            for i, xy in training.field.xy_m.items():
+                strengths = training.field.magnitude_ut[i]
+                magnetic[levels[i]] = [
+                    {"x_m": x, "y_m": y, "magnitude_ut": b}
+                    for part, values in zip(xy, strengths, strict=True)
+                    for (x, y), b in zip(part.tolist(), values.tolist(), strict=True)
+                ]
         fixes = asyncio.run(
             replay_over_http(
                 base_url,
                 admin_key,
                 site_name=f"evaluation {maps.floors[0].building_id}",
-                levels=[f.level for f in maps.floors],
+                levels=levels,
                 survey_points=survey,
                 engine=engine,
                 traces=[[[to_wire(e) for e in b] for b in batches(t)] for t in traces],
+                plans=plans,
+                magnetic_points=magnetic,
                 on_progress=progress,
             )
         )
-        index = {f.level: i for i, f in enumerate(maps.floors)}
+        index = {level: i for i, level in enumerate(levels)}
         return [[fix_from_wire(f, index) for f in path] for path in fixes]
 
     return run
@@ -329,10 +344,34 @@ def evaluate_ilc(
                     validation=validation,
                 )
             )
+
+    def cell(value: object, pattern: str = "{:.2f}") -> str:
+        return "–" if value is None else pattern.format(value)
+
     for run in runs:
         if overrides:
             run.summary["params"] = overrides
-        _print_report(f"ILC {run.site.name} · {run.summary['engine']}", run.summary)
+        title = f"ILC {run.site.name} · {run.summary['engine']}"
+        per_floor: dict[str, dict[str, object]] = run.summary.get("per_floor", {})
+        _print_report(title, {k: v for k, v in run.summary.items() if k != "per_floor"})
+        if not per_floor:
+            continue
+        magnetic = any("magnetic_coverage" in f for f in per_floor.values())
+        table = Table(title=f"{title} · per floor")
+        for column in ("floor", "paths", "n", "mean (m)", "P50 (m)", "P90 (m)", "floor hit"):
+            table.add_column(column, justify="left" if column == "floor" else "right")
+        if magnetic:
+            table.add_column("field known: cells", justify="right")
+            table.add_column("at waypoints", justify="right")
+        for name, f in per_floor.items():
+            row = [name, str(f["test_paths"]), str(f["n_points"])]
+            row += [cell(f[k]) for k in ("mean_m", "p50_m", "p90_m")]
+            row.append(cell(f["floor_hit_rate"], "{:.1%}"))
+            if magnetic:
+                row.append(cell(f.get("magnetic_coverage"), "{:.1%}"))
+                row.append(cell(f.get("magnetic_at_waypoints"), "{:.1%}"))
+            table.add_row(*row)
+        console.print(table)
     if json_path is not None:
         payload = runs[0].summary if len(runs) == 1 else {"runs": [r.summary for r in runs]}
         json_path.write_text(json.dumps(payload, indent=2) + "\n")

@@ -83,6 +83,8 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from server.positioning.floorplan import FloorPlan, walkable_at
+
 FloatArray = NDArray[np.float64]
 Component = Literal["magnitude", "horizontal", "vertical"]
 
@@ -457,6 +459,30 @@ def merge_grids(a: MagneticGrid, b: MagneticGrid) -> MagneticGrid:
         horizontal=components["horizontal"],
         vertical=components["vertical"],
     )
+
+
+def known_share(grid: MagneticGrid | None, plan: FloorPlan | None) -> float | None:
+    """Share of a floor's walkable cells whose magnitude is known (the map's coverage).
+
+    A cell counts as walkable when its centre is (``floorplan.walkable_at``); without a
+    plan every cell of the grid counts. No grid: nothing is known (0). None when no cell
+    counts at all.
+    """
+    if grid is None:
+        return 0.0
+    ny, nx = grid.magnitude.shape
+    known = np.isfinite(grid.magnitude).ravel()
+    if plan is None:
+        counted = np.ones(known.shape, dtype=bool)
+    else:
+        x0, y0 = grid.origin_m
+        col, row = np.meshgrid(np.arange(nx), np.arange(ny))  # row-major, like magnitude
+        centres = np.column_stack(
+            [x0 + (col.ravel() + 0.5) * grid.cell_m, y0 + (row.ravel() + 0.5) * grid.cell_m]
+        )
+        counted = walkable_at(plan, centres)
+    n_counted = int(np.count_nonzero(counted))
+    return int(np.count_nonzero(known & counted)) / n_counted if n_counted else None
 
 
 def sample(grid: MagneticGrid, xy: ArrayLike, component: Component = "magnitude") -> FloatArray:

@@ -40,7 +40,13 @@ from server.positioning.fingerprint import (
     wknn,
 )
 from server.positioning.floorplan import FloorPlan, plan_from_geojson
-from server.positioning.magnetic import MagneticGrid, MagneticMap, grid_from_samples
+from server.positioning.magnetic import (
+    MagneticGrid,
+    MagneticMap,
+    grid_from_samples,
+    known_share,
+    sample,
+)
 from server.positioning.mapping.gridding import build_radio_map
 from server.positioning.mapping.labelled import interpolate_track
 from server.positioning.mapping.matrices import readings_matrix
@@ -173,6 +179,17 @@ class LabelledField:
         return MagneticMap(tuple(grids), version="train")
 
 
+@dataclass(frozen=True)
+class TrainingSurvey:
+    """What the training maps were built from, as a surveyor would upload it: the labelled
+    scans, and for engines that read them the magnetometer samples and the floor plans
+    (GeoJSON by floor index; empty otherwise)."""
+
+    scans: LabelledScans
+    field: LabelledField | None = None
+    plans: tuple[dict[str, Any] | None, ...] = ()
+
+
 def site_plans(site: IlcSite) -> tuple[FloorPlan | None, ...]:
     """Each floor's plan as walkable space and walls (None where a floor has no plan)."""
     return tuple(plan_from_geojson(f.plan) if f.plan else None for f in site.floors)
@@ -184,10 +201,11 @@ def build_site_maps(
     progress: Progress | None = None,
     *,
     magnetic: bool = False,
-) -> tuple[SiteMaps, LabelledScans, int]:
-    """Radio map of the site from its training traces; also the labelled scans and the
-    number of unreadable lines met. With ``magnetic``, also the magnetic map from the
-    training traces' magnetometer and the floor plans (for engines that read them)."""
+) -> tuple[SiteMaps, TrainingSurvey, int]:
+    """Radio map of the site from its training traces; also what it was built from
+    (``TrainingSurvey``) and the number of unreadable lines met. With ``magnetic``, also
+    the magnetic map from the training traces' magnetometer and the floor plans (for
+    engines that read them)."""
     labelled = LabelledScans()
     field_samples = LabelledField()
     bad_lines = 0
@@ -202,9 +220,11 @@ def build_site_maps(
             progress("maps", done, len(train))
     radio = in_place_order(labelled.radio_map()) if labelled.events else None
     maps = SiteMaps(site_floors(site), radio, version="train")
-    if magnetic:
-        maps = replace(maps, plans=site_plans(site), magnetic=field_samples.magnetic_map(site))
-    return maps, labelled, bad_lines
+    if not magnetic:
+        return maps, TrainingSurvey(labelled), bad_lines
+    maps = replace(maps, plans=site_plans(site), magnetic=field_samples.magnetic_map(site))
+    survey = TrainingSurvey(labelled, field_samples, tuple(f.plan for f in site.floors))
+    return maps, survey, bad_lines
 
 
 def trace_events(trace: IlcTrace, engine: str) -> list[Event]:
@@ -341,24 +361,59 @@ def _stack(paths: Sequence[PathResult]) -> WaypointEstimates:
     )
 
 
-def summarize(paths: Sequence[PathResult], **extra: Any) -> dict[str, Any]:
+def _report(paths: Sequence[PathResult]) -> dict[str, Any]:
     est = _stack(paths)
     report = error_report(
         est.est_xy_m, est.true_xy_m, est.est_floor, est.true_floor, sigma_m=est.sigma_m
     )
-    return {**extra, **report.to_dict()}
+    return report.to_dict()
+
+
+def summarize(
+    paths: Sequence[PathResult],
+    *,
+    floor_names: Sequence[str] | None = None,
+    maps: SiteMaps | None = None,
+    **extra: Any,
+) -> dict[str, Any]:
+    """The extra fields and the error report over all paths; with ``floor_names`` (by
+    floor index) also ``per_floor``: per floor name the error report over the paths walked
+    on that floor and their number (``test_paths``), and, when ``maps`` carry a magnetic
+    map, the floor's ``magnetic_coverage`` (share of walkable cells with a known field) and
+    ``magnetic_at_waypoints`` (share of the test waypoints where the map gives a field)."""
+    summary = {**extra, **_report(paths)}
+    if floor_names is not None:
+        per_floor: dict[str, dict[str, Any]] = {}
+        for index, name in enumerate(floor_names):
+            on_floor = [p for p in paths if p.floor_index == index]
+            figures = {**_report(on_floor), "test_paths": len(on_floor)}
+            if maps is not None and maps.magnetic is not None:
+                grids, plans = maps.magnetic.grids, maps.plans
+                grid = grids[index] if index < len(grids) else None
+                figures["magnetic_coverage"] = known_share(
+                    grid, plans[index] if index < len(plans) else None
+                )
+                truth = _stack(on_floor).true_xy_m
+                figures["magnetic_at_waypoints"] = (
+                    float(np.isfinite(sample(grid, truth)).mean())
+                    if grid is not None and len(truth)
+                    else None
+                )
+            per_floor[name] = figures
+        summary["per_floor"] = per_floor
+    return summary
 
 
 # Replays test traces (a list of time-ordered event lists) through an engine, given the
-# training maps and the labelled training scans they were built from; one fix list per trace.
-Replayer = Callable[[str, SiteMaps, LabelledScans, list[list[Event]]], list[list[Fix]]]
+# training maps and what they were built from (``TrainingSurvey``); one fix list per trace.
+Replayer = Callable[[str, SiteMaps, TrainingSurvey, list[list[Event]]], list[list[Fix]]]
 
 
 def in_process_replayer(
     seed: int, progress: Progress | None = None, params: Any = None
 ) -> Replayer:
     def run(
-        engine: str, maps: SiteMaps, _labelled: LabelledScans, traces: list[list[Event]]
+        engine: str, maps: SiteMaps, _survey: TrainingSurvey, traces: list[list[Event]]
     ) -> list[list[Fix]]:
         out = []
         for done, events in enumerate(traces, start=1):
@@ -390,7 +445,7 @@ def evaluate_ilc(
         training_only = _restrict(site, split.train)
         split = split_site(training_only, split_seed + 1, train_fraction)
     uses = get_engine(engine).uses
-    maps, labelled, bad_lines = build_site_maps(site, split.train, progress, magnetic="mag" in uses)
+    maps, survey, bad_lines = build_site_maps(site, split.train, progress, magnetic="mag" in uses)
     traces = []
     for done, (floor_index, path) in enumerate(split.test, start=1):
         trace = read_trace(path, site.floors[floor_index].name)
@@ -399,7 +454,7 @@ def evaluate_ilc(
         if progress:
             progress("read test traces", done, len(split.test))
     replayer = replayer or in_process_replayer(split_seed, progress)
-    fixes = replayer(engine, maps, labelled, [trace_events(t, engine) for _, t in traces])
+    fixes = replayer(engine, maps, survey, [trace_events(t, engine) for _, t in traces])
     results = [
         PathResult(
             trace.path_id,
@@ -411,6 +466,8 @@ def evaluate_ilc(
     ]
     summary = summarize(
         results,
+        floor_names=[f.name for f in site.floors],
+        maps=maps,
         engine=engine,
         dataset=f"ilc:{site.name}" + (":validation" if validation else ""),
         split_seed=split_seed,
@@ -505,9 +562,11 @@ def errors_m(evaluation: IlcEvaluation) -> list[float]:
 
 
 def write_ilc_plots(evaluations: Sequence[IlcEvaluation], out_dir: Path) -> list[Path]:
-    """The error CDF of every engine on one figure, and per test path (of the first
-    engine) the floor plan with the truth and the estimated track."""
-    from server.services.plots import plot_error_cdf, plot_track
+    """The error CDF of every engine on one figure, per engine and test path the floor
+    plan with the truth and the estimated track, and, when an engine read a magnetic map,
+    per floor the map on the floor plan (``magnetic_<floor>.png``; the maps come from the
+    same training traces for every engine, so once)."""
+    from server.services.plots import plot_error_cdf, plot_magnetic_grid, plot_track
 
     out_dir.mkdir(parents=True, exist_ok=True)
     site = evaluations[0].site.name
@@ -535,6 +594,25 @@ def write_ilc_plots(evaluations: Sequence[IlcEvaluation], out_dir: Path) -> list
                     est_floor_ok=floor_ok,
                     waypoint_xy_m=path.estimates.true_xy_m,
                     sigma_m=np.array([f.uncertainty_m for f in fixes]),
+                )
+            )
+    magnetic = next((e for e in evaluations if e.maps.magnetic is not None), None)
+    if magnetic is not None and magnetic.maps.magnetic is not None:
+        plans = magnetic.maps.plans
+        for index, (floor, grid) in enumerate(
+            zip(magnetic.site.floors, magnetic.maps.magnetic.grids, strict=False)
+        ):
+            if grid is None:
+                continue
+            plan = plans[index] if index < len(plans) else None
+            coverage = known_share(grid, plan)
+            known = "no walkable cell" if coverage is None else f"{coverage:.0%} of walkable cells"
+            written.append(
+                plot_magnetic_grid(
+                    out_dir / f"magnetic_{floor.name}.png",
+                    title=f"{magnetic.site.name} · {floor.name}: magnetic map, {known} known",
+                    plan=floor.plan,
+                    grid=grid,
                 )
             )
     return written

@@ -1,4 +1,4 @@
-"""Figures of evaluation results: error CDFs and tracks on the floor plan.
+"""Figures of evaluation results: error CDFs, tracks and magnetic maps on the floor plan.
 
 matplotlib is an optional dependency (the ``plots`` extra), imported only when a figure
 is drawn. Figures are built with the object-oriented API on an Agg canvas
@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from server.positioning.magnetic import MagneticGrid
 from server.positioning.metrics import error_cdf
 
 if TYPE_CHECKING:
@@ -291,4 +292,59 @@ def plot_track(
     ax.set_title(title)
     if ax.get_legend_handles_labels()[1]:
         ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small")
+    return _save(fig, out)
+
+
+def plot_magnetic_grid(
+    out: Path,
+    *,
+    title: str,
+    plan: Mapping[str, Any] | None,
+    grid: MagneticGrid,
+) -> Path:
+    """The floor plan with a floor's magnetic map: the mean field magnitude per cell.
+
+    Parameters
+    ----------
+    out : Path
+        PNG file to write; its directory is created when missing.
+    title : str
+    plan : mapping, optional
+        GeoJSON FeatureCollection in the building's metric frame, drawn as in
+        ``plot_track``; the plan's unit fills lie over the map, its outline on top.
+    grid : MagneticGrid
+        Cell ``(row, col)`` is drawn over ``[x0 + col c, x0 + (col + 1) c) x
+        [y0 + row c, y0 + (row + 1) c)``; unknown (NaN) cells are left transparent.
+
+    Returns
+    -------
+    Path
+        ``out``.
+
+    Raises
+    ------
+    RuntimeError
+        When matplotlib is not installed.
+    """
+    fig = _figure(8.0, 6.0)
+    ax = fig.add_subplot()
+    if plan is not None:
+        _draw_plan(ax, plan)
+    ny, nx = grid.magnitude.shape
+    x0, y0 = grid.origin_m
+    magnitude_ut = np.ma.masked_invalid(grid.magnitude.astype(np.float64))
+    image = ax.imshow(
+        magnitude_ut,
+        origin="lower",  # row 0 is the lowest y
+        extent=(x0, x0 + nx * grid.cell_m, y0, y0 + ny * grid.cell_m),
+        interpolation="nearest",
+        cmap="viridis",
+        zorder=0.5,
+    )
+    fig.colorbar(image, ax=ax, label="field magnitude |B| (µT)", shrink=0.8)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.autoscale_view()
+    ax.set_xlabel("x (m, east)")
+    ax.set_ylabel("y (m, north)")
+    ax.set_title(title)
     return _save(fig, out)

@@ -14,7 +14,10 @@ from typer.testing import CliRunner
 from server.cli import app
 from server.datasets.ilc import IlcFloor, IlcSite, IlcTrace, read_site
 from server.positioning.engines import ENGINES, get_engine
+from server.positioning.engines.base import FloorRef, SiteMaps
 from server.positioning.events import Event, Fix, ImuEvent, RadioReading, StepEvent, WifiEvent
+from server.positioning.floorplan import plan_from_geojson
+from server.positioning.magnetic import MagneticMap, grid_from_samples, known_share
 from server.services import evaluation
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
@@ -224,6 +227,11 @@ def test_evaluate_a_small_site_with_plain_and_xz_traces(tmp_path: Path) -> None:
     assert report["train_paths"] == 8
     assert report["test_paths"] == 2
     assert report["n_points"] > 0
+    per_floor = report["per_floor"]
+    assert list(per_floor) == ["F1", "F2"]
+    assert sum(f["test_paths"] for f in per_floor.values()) == 2
+    assert sum(f["n_points"] for f in per_floor.values()) == report["n_points"]
+    assert all("magnetic_coverage" not in f for f in per_floor.values())  # wknn: no field map
 
 
 def test_engine_params_replace_scalars_by_name() -> None:
@@ -241,3 +249,114 @@ def test_engine_params_replace_scalars_by_name() -> None:
         engine_params("two_stage_ekf", {"tracker": "x"})
     with pytest.raises(ValueError, match="k must be at least 1"):
         engine_params("wknn", {"k": "0"})
+
+
+def _path(
+    path_id: str, floor_index: int, rng: np.random.Generator, n: int
+) -> evaluation.PathResult:
+    truth = rng.uniform(0.0, 30.0, (n, 2))
+    est = truth + rng.normal(0.0, 3.0, (n, 2))
+    est[0] = np.nan  # no fix yet at the first waypoint
+    est_floor = np.where(rng.random(n) < 0.8, floor_index, floor_index + 1)
+    estimates = evaluation.WaypointEstimates(
+        true_xy_m=truth,
+        true_floor=np.full(n, floor_index, dtype=np.int64),
+        est_xy_m=est,
+        est_floor=est_floor.astype(np.int64),
+        sigma_m=np.full(n, 2.0),
+    )
+    return evaluation.PathResult(path_id, floor_index, estimates, ())
+
+
+def test_per_floor_figures_add_up_to_the_overall_ones() -> None:
+    rng = np.random.default_rng(5)
+    paths = [_path("a", 0, rng, 12), _path("b", 1, rng, 7), _path("c", 0, rng, 9)]
+    plain = evaluation.summarize(paths, engine="e")
+    summary = evaluation.summarize(paths, floor_names=["B1", "F1", "F2"], engine="e")
+    assert {k: v for k, v in summary.items() if k != "per_floor"} == plain
+    per_floor = summary["per_floor"]
+    assert list(per_floor) == ["B1", "F1", "F2"]
+    for key in ("n_points", "n_missing", "test_paths"):
+        overall = summary.get(key, len(paths))
+        assert sum(f[key] for f in per_floor.values()) == overall, key
+    for name, index in (("B1", 0), ("F1", 1)):
+        on_floor = [p.estimates for p in paths if p.floor_index == index]
+        est = np.concatenate([e.est_xy_m for e in on_floor])
+        truth = np.concatenate([e.true_xy_m for e in on_floor])
+        found = ~np.isnan(est[:, 0])
+        errors = np.hypot(*(est[found] - truth[found]).T)
+        hits = np.concatenate([e.est_floor == index for e in on_floor])[found]
+        assert per_floor[name]["mean_m"] == pytest.approx(float(np.mean(errors)))
+        assert per_floor[name]["p90_m"] == pytest.approx(float(np.percentile(errors, 90)))
+        assert per_floor[name]["floor_hit_rate"] == pytest.approx(float(np.mean(hits)))
+        assert "magnetic_coverage" not in per_floor[name]  # no maps given
+    assert per_floor["F2"]["test_paths"] == per_floor["F2"]["n_points"] == 0
+    assert per_floor["F2"]["mean_m"] is None
+
+
+# a 2 m x 4 m corridor along the left edge of a 4 m x 4 m floor
+CORRIDOR = {
+    "type": "FeatureCollection",
+    "features": [
+        {
+            "type": "Feature",
+            "properties": {"kind": "outline"},
+            "geometry": {
+                "type": "Polygon",
+                "coordinates": [[[0, 0], [2, 0], [2, 4], [0, 4], [0, 0]]],
+            },
+        }
+    ],
+}
+
+
+def test_magnetic_coverage_counts_known_walkable_cells() -> None:
+    plan = plan_from_geojson(CORRIDOR)
+    # 1 m cells over the floor: the 8 cells of columns 0 and 1 are walkable; samples fall in
+    # three of them, and in one cell beside the corridor
+    centres = [(0.5, 0.5), (1.5, 1.5), (0.5, 2.5), (0.5, 2.7), (3.5, 0.5)]
+    grid = grid_from_samples(
+        centres, [50.0, 51.0, 52.0, 53.0, 54.0], cell_m=1.0, extent=(0.0, 0.0, 4.0, 4.0)
+    )
+    assert known_share(grid, plan) == 3 / 8
+    assert known_share(grid, None) == 4 / 16  # without a plan: all cells
+    assert known_share(None, plan) == 0.0
+    beside = grid_from_samples([(3.5, 3.5)], [50.0], cell_m=1.0, extent=(3.0, 3.0, 4.0, 4.0))
+    assert known_share(beside, plan) is None  # no walkable cell under it
+
+    floors = (FloorRef("toy", "F1", 0), FloorRef("toy", "F2", 1))
+    maps = SiteMaps(floors, None, "v", plans=(plan, None), magnetic=MagneticMap((grid, None), "v"))
+    # two waypoints walked on F1: one in a known cell, one at the centre of an unknown one
+    truth = np.array([(0.5, 0.5), (1.5, 3.5)])
+    walked = evaluation.PathResult(
+        "p",
+        0,
+        evaluation.WaypointEstimates(
+            true_xy_m=truth,
+            true_floor=np.zeros(2, dtype=np.int64),
+            est_xy_m=truth,
+            est_floor=np.zeros(2, dtype=np.int64),
+            sigma_m=np.ones(2),
+        ),
+        (),
+    )
+    summary = evaluation.summarize([walked], floor_names=["F1", "F2"], maps=maps)
+    per_floor = summary["per_floor"]
+    assert per_floor["F1"]["magnetic_coverage"] == 3 / 8
+    assert per_floor["F1"]["magnetic_at_waypoints"] == 0.5
+    assert per_floor["F2"]["magnetic_coverage"] == 0.0  # no training field on that floor
+    assert per_floor["F2"]["magnetic_at_waypoints"] is None  # and no waypoint walked there
+
+
+@needs_data
+def test_magnetic_maps_are_drawn_per_floor(tmp_path: Path) -> None:
+    site = read_site(SITE2 / "F4")
+    split = evaluation.split_site(site, 0, 0.8)
+    maps, _, _ = evaluation.build_site_maps(site, split.train[:4], magnetic=True)
+    summary = evaluation.summarize([], floor_names=["F4"], maps=maps, engine="pf_magnetic")
+    coverage = summary["per_floor"]["F4"]["magnetic_coverage"]
+    assert 0.0 < coverage < 1.0  # four walks cover some of the corridors
+    run = evaluation.IlcEvaluation(site, maps, split, (), summary)
+    written = evaluation.write_ilc_plots([run], tmp_path)
+    assert written[1:] == [tmp_path / "magnetic_F4.png"]
+    assert written[1].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -13,7 +13,8 @@ pytest.importorskip("matplotlib")
 
 from matplotlib.image import imread
 
-from server.services.plots import DPI, plot_error_cdf, plot_track
+from server.positioning.magnetic import grid_from_samples
+from server.services.plots import DPI, plot_error_cdf, plot_magnetic_grid, plot_track
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -153,6 +154,22 @@ def test_track_refuses_mismatched_arrays(tmp_path: Path) -> None:
         )
     with pytest.raises(ValueError, match="est_xy_m"):
         plot_track(tmp_path / "x.png", title="", plan=None, truth_xy_m=truth, est_xy_m=[1, 2, 3])
+
+
+def test_magnetic_grid_on_a_plan_is_written(tmp_path: Path) -> None:
+    _, est = walk()
+    rng = np.random.default_rng(2)
+    grid = grid_from_samples(
+        est, rng.normal(48.0, 3.0, len(est)), extent=(0.0, 0.0, 30.0, 20.0)
+    )  # a few known cells along the walk, the rest unknown (NaN)
+    out = plot_magnetic_grid(
+        tmp_path / "magnetic_F1.png", title="F1: 1% known", plan=PLAN, grid=grid
+    )
+    assert_png(out, 8.0, 6.0)
+    empty = grid_from_samples(np.zeros((0, 2)), np.zeros(0), extent=(0.0, 0.0, 3.0, 2.0))
+    assert_png(
+        plot_magnetic_grid(tmp_path / "unknown.png", title="", plan=None, grid=empty), 8.0, 6.0
+    )
 
 
 def test_many_figures_leave_no_pyplot_figures(tmp_path: Path) -> None:
