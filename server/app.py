@@ -9,7 +9,8 @@ import anyio
 from fastapi import FastAPI
 from fastapi.routing import APIRoute
 
-from server.api import admin, errors, health, live, locate, sessions
+from server import worker
+from server.api import admin, errors, health, live, locate, sessions, uploads
 from server.config import Settings, get_settings
 from server.services.runtime import open_runtime
 from server.storage import db
@@ -32,9 +33,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         if settings.resolved_database_url.startswith("sqlite"):
             # embedded mode keeps itself migrated; the production shape runs `indoorpos migrate`
             await anyio.to_thread.run_sync(db.migrate, settings.resolved_database_url)
-        async with open_runtime(settings) as runtime:
+        async with open_runtime(settings) as runtime, anyio.create_task_group() as tasks:
             app.state.runtime = runtime
+            if settings.runs_worker_in_process:
+                tasks.start_soon(worker.run, runtime, worker.consumer_name())
             yield
+            tasks.cancel_scope.cancel()
 
     app = FastAPI(
         title="indoorpos",
@@ -44,6 +48,6 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         generate_unique_id_function=_operation_id,
     )
     errors.install(app)
-    for module in (health, admin, sessions, live, locate):
+    for module in (health, admin, sessions, live, locate, uploads):
         app.include_router(module.router)
     return app

@@ -96,6 +96,29 @@ def serve(
 
 
 @app.command()
+def worker() -> None:
+    """Run an upload worker: fold crowdsourced uploads into new map versions (needs
+    INDOORPOS_REDIS_URL; without Redis the api process runs the worker itself)."""
+    import logging
+
+    from server import worker as upload_worker
+
+    settings = get_settings()
+    if settings.redis_url is None:
+        raise typer.BadParameter(
+            "a separate worker needs the shared queue: set INDOORPOS_REDIS_URL "
+            "(embedded, `indoorpos serve` runs the worker in-process)"
+        )
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
+
+    async def main() -> None:
+        async with open_runtime(settings) as rt:
+            await upload_worker.run(rt, upload_worker.consumer_name())
+
+    asyncio.run(main())
+
+
+@app.command()
 def migrate() -> None:
     """Bring the database schema up to date (alembic upgrade head)."""
     url = get_settings().resolved_database_url

@@ -32,6 +32,20 @@ class Settings(BaseSettings):
         16, ge=1, le=256, description="recent batch replies kept for retried seqs"
     )
     map_cache_size: int = Field(32, ge=1, description="site map sets kept in memory")
+    upload_max_bytes: int = Field(
+        64 * 1024 * 1024, ge=1024, description="largest upload, after decompression"
+    )
+    upload_visibility_s: float = Field(
+        120.0,
+        gt=0,
+        description="an upload a worker has held this long without settling it goes to "
+        "another worker (longer than the slowest upload takes)",
+    )
+    in_process_worker: bool | None = Field(
+        None,
+        description="run the upload worker inside the api process (default: when no Redis "
+        "is configured, since the in-process queue is not shared between processes)",
+    )
 
     @field_validator("database_url")
     @classmethod
@@ -58,6 +72,12 @@ class Settings(BaseSettings):
         if self.database_url:
             return self.database_url
         return f"sqlite:///{(self.data_dir / 'indoorpos.db').as_posix()}"
+
+    @property
+    def runs_worker_in_process(self) -> bool:
+        if self.in_process_worker is not None:
+            return self.in_process_worker
+        return self.redis_url is None
 
     @property
     def embedded(self) -> bool:

@@ -452,6 +452,24 @@ class MagneticMapList(Strict):
     count: int
 
 
+# ---------------------------------------------------------------- uploads
+
+
+class UploadRead(Strict):
+    id: str
+    site_id: str
+    building_id: str | None
+    floor: int | None = Field(description="the floor hint given with the upload")
+    device_model: str | None
+    status: Literal["queued", "processing", "done", "rejected", "failed"]
+    attempts: int
+    report: dict[str, Any] | None = Field(
+        description="what was used, what was not and why; the reason when rejected or failed"
+    )
+    created_at: datetime
+    updated_at: datetime
+
+
 # ---------------------------------------------------------------- locate
 
 

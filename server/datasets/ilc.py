@@ -321,11 +321,24 @@ def _is_uint(text: str) -> bool:
     return text.isascii() and text.isdigit()
 
 
-class _TraceParser:
-    """Accumulates the records of one trace; ``trace`` builds the arrays at the end."""
+class TraceFormatError(ValueError):
+    """A record a strict read refuses: the 1-based line number and what is wrong."""
 
-    def __init__(self, wifi_max_age_ms: int | None) -> None:
+    def __init__(self, line: int, reason: str) -> None:
+        super().__init__(f"line {line}: {reason}")
+        self.line = line
+        self.reason = reason
+
+
+class _TraceParser:
+    """Accumulates the records of one trace; ``trace`` builds the arrays at the end.
+    ``strict`` raises :class:`TraceFormatError` on the first unreadable record instead of
+    counting it."""
+
+    def __init__(self, wifi_max_age_ms: int | None, strict: bool = False) -> None:
         self.wifi_max_age_ms = wifi_max_age_ms
+        self.strict = strict
+        self.line_no = 0
         self.header: dict[str, str] = {}
         self.waypoints: list[tuple[float, float, float]] = []
         self.sensors: dict[str, list[tuple[float, float, float, float]]] = {s: [] for s in _STREAMS}
@@ -343,6 +356,7 @@ class _TraceParser:
 
     def feed(self, lines: Iterable[str]) -> None:
         for raw in lines:
+            self.line_no += 1
             line = raw.rstrip("\r\n")
             if not line.strip():
                 continue
@@ -367,7 +381,7 @@ class _TraceParser:
     def _record(self, line: str) -> None:
         f = line.split("\t")
         if len(f) < 2:
-            self.bad_lines += 1
+            self._bad("not a record: expected 'unix_ms<TAB>TYPE_...<TAB>values'")
             return
         kind = f[1]
         n = len(f)
@@ -378,9 +392,10 @@ class _TraceParser:
             if kind in _SENSOR_STREAMS:
                 if n != _N_FIELDS_SENSOR:
                     raise ValueError(kind)
-                self.sensors[_SENSOR_STREAMS[kind]].append(
-                    (t, float(f[2]), float(f[3]), float(f[4]))
-                )
+                row = (t, float(f[2]), float(f[3]), float(f[4]))
+                if self.strict and not all(map(math.isfinite, row)):
+                    raise ValueError(kind)
+                self.sensors[_SENSOR_STREAMS[kind]].append(row)
             elif kind in _UNCALIBRATED_STREAMS:
                 if n != _N_FIELDS_UNCALIBRATED:
                     raise ValueError(kind)
@@ -421,7 +436,12 @@ class _TraceParser:
             else:
                 raise ValueError(kind)
         except ValueError:
-            self.bad_lines += 1
+            self._bad(f"unreadable {kind[:40]!r} record ({n} fields)")
+
+    def _bad(self, reason: str) -> None:
+        if self.strict:
+            raise TraceFormatError(self.line_no, reason)
+        self.bad_lines += 1
 
     def trace(self, path_id: str, floor: str) -> IlcTrace:
         waypoints = self._rows(self.waypoints, 3)
@@ -523,6 +543,21 @@ def read_trace(
         else:
             floor = parser.header.get("FloorName", "")
     return parser.trace(_path_id(path), floor)
+
+
+def parse_trace_text(
+    text: str,
+    path_id: str,
+    floor: str | None = None,
+    *,
+    wifi_max_age_ms: int | None = WIFI_MAX_AGE_MS,
+) -> IlcTrace:
+    """Read one trace from its text, strictly: the first record that cannot be read raises
+    :class:`TraceFormatError` with its line number (for uploads, where the sender should
+    hear what is wrong). ``floor`` defaults to the header's ``FloorName``."""
+    parser = _TraceParser(wifi_max_age_ms, strict=True)
+    parser.feed(text.splitlines())
+    return parser.trace(path_id, floor if floor is not None else parser.header.get("FloorName", ""))
 
 
 def read_site(path: Path) -> IlcSite:

@@ -32,3 +32,7 @@ class Invalid(ServiceError):
     """Input that parsed but makes no sense here (an unknown floor level, an unknown engine)."""
 
     status = 422
+
+
+class TooLarge(ServiceError):
+    status = 413

@@ -149,10 +149,14 @@ async def site_maps(s: AsyncSession, cache: MapCache, site_id: str) -> SiteMaps:
 
 
 async def add_survey(
-    s: AsyncSession, building_id: str, points: Sequence[SurveyPointData]
+    s: AsyncSession,
+    building_id: str,
+    points: Sequence[SurveyPointData],
+    upload_id: str | None = None,
 ) -> RadioMapVersion:
     """Store labelled fingerprints and build the building's next radio map version from every
-    survey point it has (see ``gridding.build_radio_map`` for the gridding rules)."""
+    survey point it has (see ``gridding.build_radio_map`` for the gridding rules). Points
+    from an upload remember it (``upload_id``)."""
     # one rebuild per building at a time: each sees every point the previous one stored
     building = await repo.lock_building(s, building_id)
     if building is None:
@@ -173,6 +177,7 @@ async def add_survey(
                 "x_m": p.x_m,
                 "y_m": p.y_m,
                 "t_ms": p.t_ms,
+                "upload_id": upload_id,
                 "readings": {
                     "wifi": [[k.lower(), v] for k, v in p.wifi],
                     "ble": [[k.lower(), v] for k, v in p.ble],

@@ -15,6 +15,7 @@ from server.services.errors import Conflict
 from server.services.maps import MapCache
 from server.storage import db
 from server.storage.session_store import SessionStore, make_session_store
+from server.storage.upload_queue import UploadQueue, make_upload_queue
 
 
 @dataclass
@@ -24,6 +25,7 @@ class Runtime:
     sql: async_sessionmaker[AsyncSession]
     store: SessionStore
     maps: MapCache
+    uploads: UploadQueue
 
     # SQLite allows one writer; an embedded process takes turns rather than failing
     sqlite_lock: anyio.Lock | None = None
@@ -49,6 +51,7 @@ class Runtime:
 async def open_runtime(settings: Settings) -> AsyncIterator[Runtime]:
     engine = db.create_engine(settings.resolved_database_url)
     store = make_session_store(settings.redis_url)
+    uploads = make_upload_queue(settings.redis_url, settings.upload_visibility_s)
     try:
         yield Runtime(
             settings=settings,
@@ -56,9 +59,11 @@ async def open_runtime(settings: Settings) -> AsyncIterator[Runtime]:
             sql=db.session_factory(engine),
             store=store,
             maps=MapCache(settings.map_cache_size),
+            uploads=uploads,
             sqlite_lock=anyio.Lock() if engine.dialect.name == "sqlite" else None,
         )
     finally:
+        await uploads.close()
         await store.close()
         await engine.dispose()
 

@@ -130,6 +130,10 @@ class SurveyPoint(Base):
     t_ms: Mapped[int | None] = mapped_column(BigInteger)
     # {"wifi": [[bssid, rssi_dbm], ...], "ble": [[id, rssi_dbm], ...], "mag_ut": [x, y, z] | null}
     readings: Mapped[dict[str, Any]] = mapped_column(JSON)
+    # the upload these readings came from (None: surveyed through the admin API)
+    upload_id: Mapped[str | None] = mapped_column(
+        ForeignKey("uploads.id", ondelete="CASCADE"), index=True
+    )
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
 
 
@@ -205,6 +209,8 @@ class Upload(Base):
     building_id: Mapped[str | None] = mapped_column(ForeignKey("buildings.id", ondelete="CASCADE"))
     idempotency_key: Mapped[str | None] = mapped_column(String(128), unique=True)
     status: Mapped[str] = mapped_column(String(16), default="queued")
+    floor_level: Mapped[int | None] = mapped_column(Integer)  # the uploader's floor hint
+    device_model: Mapped[str | None] = mapped_column(String(128))
     content_type: Mapped[str] = mapped_column(String(64))
     payload: Mapped[bytes] = mapped_column(LargeBinary)
     attempts: Mapped[int] = mapped_column(Integer, default=0)

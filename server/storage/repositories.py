@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from datetime import datetime
 from typing import Any
 
 import numpy as np
@@ -25,6 +26,7 @@ from server.storage.models import (
     ReferencePoint,
     Site,
     SurveyPoint,
+    Upload,
 )
 
 INSERT_CHUNK = 5000
@@ -322,6 +324,47 @@ def magnetic_grid(row: MagneticMapVersion) -> MagneticGrid:
         horizontal=arrays.get("horizontal"),
         vertical=arrays.get("vertical"),
     )
+
+
+# ---------------------------------------------------------------- uploads
+
+
+async def create_upload(s: AsyncSession, **fields: Any) -> Upload:
+    row = Upload(**fields)
+    s.add(row)
+    await s.flush()
+    return row
+
+
+async def get_upload(s: AsyncSession, upload_id: str) -> Upload | None:
+    return await s.get(Upload, upload_id)
+
+
+async def find_upload_by_key(s: AsyncSession, key: str) -> Upload | None:
+    return (await s.scalars(select(Upload).where(Upload.idempotency_key == key))).one_or_none()
+
+
+async def lock_upload(s: AsyncSession, upload_id: str) -> Upload | None:
+    """The upload row, locked until the transaction ends (one worker settles it)."""
+    stmt = select(Upload).where(Upload.id == upload_id).with_for_update()
+    return (await s.scalars(stmt)).one_or_none()
+
+
+async def upload_ids(
+    s: AsyncSession, statuses: Sequence[str], untouched_since: datetime
+) -> list[str]:
+    """Uploads in one of ``statuses`` whose row has not changed since the given time."""
+    stmt = (
+        select(Upload.id)
+        .where(Upload.status.in_(statuses), Upload.updated_at <= untouched_since)
+        .order_by(Upload.created_at)
+    )
+    return list((await s.scalars(stmt)).all())
+
+
+async def count_survey_points(s: AsyncSession, upload_id: str) -> int:
+    stmt = select(func.count()).select_from(SurveyPoint).where(SurveyPoint.upload_id == upload_id)
+    return int(await s.scalar(stmt) or 0)
 
 
 # ---------------------------------------------------------------- API keys

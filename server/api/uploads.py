@@ -1,0 +1,129 @@
+"""Crowdsourced uploads: a trace in, 202 and an id out; its status and report later.
+
+The body is an ILC 2.0 path file (``text/plain``), optionally xz-compressed
+(``Content-Encoding: xz`` or ``Content-Type: application/x-xz``); the site, building,
+floor hint and device model come as query parameters. An ``Idempotency-Key`` header makes
+a retried upload return the first one instead of creating another.
+"""
+
+from __future__ import annotations
+
+import logging
+import lzma
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Header, Query, Request, Response, status
+
+from server.api import schemas as sc
+from server.api.deps import AdminDep, IdPath, RuntimeDep, SqlDep
+from server.services import uploads
+from server.services.errors import Invalid, TooLarge
+
+router = APIRouter(prefix="/v1", tags=["uploads"], dependencies=[AdminDep])
+log = logging.getLogger("indoorpos.api.uploads")
+
+XZ_TYPES = {"application/x-xz", "application/xz"}
+
+
+async def _body(request: Request, limit: int) -> bytes:
+    """The request body, refused with 413 past ``limit`` bytes (before reading it all)."""
+    declared = request.headers.get("content-length")
+    if declared is not None and declared.isdigit() and int(declared) > limit:
+        raise TooLarge(f"the body is {declared} bytes; at most {limit}", field="body")
+    chunks, total = [], 0
+    async for chunk in request.stream():
+        total += len(chunk)
+        if total > limit:
+            raise TooLarge(f"the body is over {limit} bytes", field="body")
+        chunks.append(chunk)
+    return b"".join(chunks)
+
+
+def _decompress(data: bytes, limit: int) -> bytes:
+    decompressor = lzma.LZMADecompressor(format=lzma.FORMAT_XZ)
+    try:
+        out = decompressor.decompress(data, max_length=limit + 1)
+    except lzma.LZMAError as exc:
+        raise Invalid(f"the body is not xz data: {exc}", field="body") from None
+    if len(out) > limit:
+        raise TooLarge(f"the trace is over {limit} bytes once decompressed", field="body")
+    if not decompressor.eof:
+        raise Invalid("the xz data ends early", field="body")
+    return out
+
+
+@router.post(
+    "/uploads",
+    status_code=status.HTTP_202_ACCEPTED,
+    responses={200: {"model": sc.UploadRead, "description": "a retry of an earlier upload"}},
+    openapi_extra={
+        "requestBody": {
+            "required": True,
+            "content": {
+                "text/plain": {"schema": {"type": "string"}},
+                "application/x-xz": {"schema": {"type": "string", "format": "binary"}},
+            },
+        }
+    },
+)
+async def create_upload(
+    request: Request,
+    response: Response,
+    rt: RuntimeDep,
+    site_id: Annotated[str, Query(pattern=r"^[0-9a-f]{32}$")],
+    building_id: Annotated[str | None, Query(pattern=r"^[0-9a-f]{32}$")] = None,
+    floor: Annotated[int | None, Query(ge=-20, le=200, description="floor level hint")] = None,
+    device_model: Annotated[str | None, Query(min_length=1, max_length=128)] = None,
+    content_type: Annotated[str, Header()] = "text/plain",
+    content_encoding: Annotated[str | None, Header()] = None,
+    idempotency_key: Annotated[str | None, Header(min_length=1, max_length=128)] = None,
+) -> sc.UploadRead:
+    """Accept a trace for the map builder (202); the worker folds it in later."""
+    limit = rt.settings.upload_max_bytes
+    media = content_type.split(";", 1)[0].strip().lower()
+    payload = await _body(request, limit)
+    if media in XZ_TYPES or (content_encoding or "").strip().lower() == "xz":
+        payload = _decompress(payload, limit)
+        media = uploads.ILC_TEXT if media in XZ_TYPES else media
+    new = uploads.NewUpload(
+        site_id=site_id,
+        building_id=building_id,
+        floor_level=floor,
+        device_model=device_model,
+        content_type=media,
+        payload=payload,
+        idempotency_key=idempotency_key,
+    )
+    async with rt.transaction() as s:
+        row, created = await uploads.create_upload(s, new)
+        out = _read(row)
+    # committed: from here the upload cannot be lost; a failed publish is recovered by the
+    # worker's scan for stranded uploads
+    if created:
+        try:
+            await rt.uploads.publish(out.id)
+        except Exception:
+            log.exception("upload %s stored but not queued; the worker will find it", out.id)
+    else:
+        response.status_code = status.HTTP_200_OK
+    return out
+
+
+@router.get("/uploads/{upload_id}")
+async def get_upload(upload_id: IdPath, s: SqlDep) -> sc.UploadRead:
+    return _read(await uploads.get_upload(s, upload_id))
+
+
+def _read(row: Any) -> sc.UploadRead:
+    return sc.UploadRead(
+        id=row.id,
+        site_id=row.site_id,
+        building_id=row.building_id,
+        floor=row.floor_level,
+        device_model=row.device_model,
+        status=row.status,
+        attempts=row.attempts,
+        report=row.report,
+        created_at=row.created_at,
+        updated_at=row.updated_at,
+    )

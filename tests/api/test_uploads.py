@@ -1,0 +1,220 @@
+"""Uploads through the API: a recorded ILC trace becomes map versions through the worker;
+idempotency keys, malformed and oversized traces, walks the server cannot place."""
+
+from __future__ import annotations
+
+import asyncio
+import lzma
+import time
+from collections.abc import AsyncIterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+from fastapi import FastAPI
+from sqlalchemy import func, select
+
+from server import worker
+from server.storage.models import SurveyPoint, Upload
+
+TRACES = (
+    Path(__file__).resolve().parents[2].parent
+    / "shared"
+    / "data"
+    / "ilc20-sample"
+    / "site2"
+    / "F4"
+    / "path_data_files"
+)
+needs_data = pytest.mark.skipif(not TRACES.is_dir(), reason="../shared/data is not beside us")
+SETTLE_TIMEOUT_S = 60.0
+
+
+@pytest.fixture
+async def upload_worker(app: FastAPI) -> AsyncIterator[None]:
+    """A worker on the app's queue when the app runs none itself (Redis configured)."""
+    rt = app.state.runtime
+    if rt.settings.runs_worker_in_process:
+        yield
+        return
+    import anyio
+
+    stop = anyio.Event()
+    task = asyncio.create_task(worker.run(rt, "test-worker", stop))
+    yield
+    stop.set()
+    await asyncio.wait_for(task, timeout=10)
+
+
+async def _site(client: httpx.AsyncClient, admin: dict[str, str], levels: list[int]) -> str:
+    r = await client.post("/v1/sites", json={"name": "crowd"}, headers=admin)
+    site_id: str = r.json()["id"]
+    r = await client.post(f"/v1/sites/{site_id}/buildings", json={"name": "mall"}, headers=admin)
+    building_id = r.json()["id"]
+    for level in levels:
+        r = await client.post(
+            f"/v1/buildings/{building_id}/floors", json={"level": level}, headers=admin
+        )
+        assert r.status_code == 201, r.text
+    return site_id
+
+
+def _trace_text(name: str = "5dd3a33227889b0006b76d2d") -> bytes:
+    return lzma.decompress((TRACES / f"{name}.txt.xz").read_bytes())
+
+
+async def _settled(client: httpx.AsyncClient, admin: dict[str, str], upload_id: str) -> Any:
+    deadline = time.monotonic() + SETTLE_TIMEOUT_S
+    while time.monotonic() < deadline:
+        r = await client.get(f"/v1/uploads/{upload_id}", headers=admin)
+        assert r.status_code == 200, r.text
+        if r.json()["status"] not in ("queued", "processing"):
+            return r.json()
+        await asyncio.sleep(0.1)
+    pytest.fail(f"upload {upload_id} did not settle in {SETTLE_TIMEOUT_S} s")
+
+
+@needs_data
+async def test_a_labelled_trace_is_folded_into_the_maps(
+    client: httpx.AsyncClient, admin: dict[str, str], app: FastAPI, upload_worker: None
+) -> None:
+    site_id = await _site(client, admin, [3])
+    text = _trace_text()
+    r = await client.post(
+        "/v1/uploads",
+        params={"site_id": site_id, "device_model": "Pixel 4"},
+        content=lzma.compress(text),
+        headers={**admin, "content-type": "text/plain", "content-encoding": "xz"},
+    )
+    assert r.status_code == 202, r.text
+    assert r.json()["status"] == "queued"
+    upload = await _settled(client, admin, r.json()["id"])
+    assert upload["status"] == "done", upload
+    report = upload["report"]
+    assert report["scans"] > 10
+    assert report["magnetic_samples"] > 100
+    assert report["radio_map_version"] == 1
+    assert report["magnetic_map_version"] == 1
+    assert upload["attempts"] == 1
+    # the header names the floor F4: level 3, the only floor of the building
+    r = await client.get(f"/v1/sites/{site_id}/buildings", headers=admin)
+    building_id = r.json()["items"][0]["id"]
+    r = await client.get(f"/v1/buildings/{building_id}/floors", headers=admin)
+    floor_id = r.json()["items"][0]["id"]
+    r = await client.get(f"/v1/floors/{floor_id}/magnetic-maps", headers=admin)
+    (magnetic,) = r.json()["items"]
+    assert magnetic["source"] == "upload"
+    assert magnetic["n_samples"] == report["magnetic_samples"]
+    async with app.state.runtime.transaction() as s:
+        stmt = select(func.count()).where(SurveyPoint.upload_id == upload["id"])
+        assert await s.scalar(stmt) == report["scans"]
+
+
+@needs_data
+async def test_the_same_key_makes_one_upload(
+    client: httpx.AsyncClient, admin: dict[str, str], upload_worker: None
+) -> None:
+    site_id = await _site(client, admin, [3])
+    headers = {**admin, "content-type": "text/plain", "idempotency-key": f"k-{site_id}"}
+    text = _trace_text()
+    first = await client.post(
+        "/v1/uploads", params={"site_id": site_id}, content=text, headers=headers
+    )
+    again = await client.post(
+        "/v1/uploads", params={"site_id": site_id}, content=text, headers=headers
+    )
+    assert first.status_code == 202, first.text
+    assert again.status_code == 200, again.text
+    assert again.json()["id"] == first.json()["id"]
+    other = await client.post(
+        "/v1/uploads", params={"site_id": site_id}, content=text + b"\n", headers=headers
+    )
+    assert other.status_code == 409
+    assert "idempotency-key" in other.json()["message"]
+    await _settled(client, admin, first.json()["id"])
+
+
+async def _count_uploads(app: FastAPI) -> int:
+    async with app.state.runtime.transaction() as s:
+        return int(await s.scalar(select(func.count()).select_from(Upload)) or 0)
+
+
+async def test_malformed_and_huge_traces_are_refused_without_rows(
+    client: httpx.AsyncClient, admin: dict[str, str], app: FastAPI
+) -> None:
+    site_id = await _site(client, admin, [0])
+    before = await _count_uploads(app)
+    headers = {**admin, "content-type": "text/plain"}
+    bad = b"#\tSiteID:x\n1574140000000\tTYPE_WAYPOINT\t1.0\t2.0\n1574140000100\tTYPE_WIFI\tonly\n"
+    r = await client.post("/v1/uploads", params={"site_id": site_id}, content=bad, headers=headers)
+    assert r.status_code == 422, r.text
+    assert "line 3" in r.json()["message"]
+    assert "TYPE_WIFI" in r.json()["message"]
+    # 70 MB of text compresses to a few kB: refused once the decompressed size passes the limit
+    bomb = lzma.compress(b"0" * (app.state.runtime.settings.upload_max_bytes + 1))
+    r = await client.post(
+        "/v1/uploads",
+        params={"site_id": site_id},
+        content=bomb,
+        headers={**admin, "content-type": "application/x-xz"},
+    )
+    assert r.status_code == 413, r.text
+    assert "body" in r.json()["message"]
+    r = await client.post(
+        "/v1/uploads",
+        params={"site_id": site_id},
+        content=b"\xfd7zXZ",
+        headers=headers | {"content-encoding": "xz"},
+    )
+    assert r.status_code == 422
+    r = await client.post(
+        "/v1/uploads", params={"site_id": "0" * 32}, content=bad[:60], headers=headers
+    )
+    assert r.status_code == 404
+    assert "site_id" in r.json()["message"]
+    r = await client.post(
+        "/v1/uploads",
+        params={"site_id": site_id},
+        content=b"{}",
+        headers={**admin, "content-type": "application/json"},
+    )
+    assert r.status_code == 422
+    assert "content-type" in r.json()["message"]
+    assert await _count_uploads(app) == before
+    r = await client.post(
+        "/v1/uploads",
+        params={"site_id": site_id},
+        content=bad[:60],
+        headers={"content-type": "text/plain"},
+    )
+    assert r.status_code == 401
+
+
+@needs_data
+async def test_a_walk_without_waypoints_is_rejected_with_the_reason(
+    client: httpx.AsyncClient, admin: dict[str, str], upload_worker: None
+) -> None:
+    site_id = await _site(client, admin, [3])
+    lines = _trace_text().decode().splitlines(keepends=True)
+    unlabelled = "".join(line for line in lines if "TYPE_WAYPOINT" not in line).encode()
+    r = await client.post(
+        "/v1/uploads",
+        params={"site_id": site_id, "floor": 3},
+        content=unlabelled,
+        headers={**admin, "content-type": "text/plain"},
+    )
+    assert r.status_code == 202, r.text
+    upload = await _settled(client, admin, r.json()["id"])
+    assert upload["status"] == "rejected"
+    assert "waypoints" in upload["report"]["reason"]
+    # a floor the building does not have
+    r = await client.post(
+        "/v1/uploads",
+        params={"site_id": site_id, "floor": 7},
+        content=_trace_text(),
+        headers={**admin, "content-type": "text/plain"},
+    )
+    upload = await _settled(client, admin, r.json()["id"])
+    assert upload["status"] == "rejected"
+    assert "floor level 7" in upload["report"]["reason"]

@@ -1,0 +1,93 @@
+"""The upload queue contract, run against the in-process queue and a real Redis Stream.
+
+Redis comes from ``INDOORPOS_REDIS_URL`` (default database 15 on localhost). It is skipped
+when unreachable, unless ``INDOORPOS_TEST_REQUIRE_REDIS=1``, which turns that into a failure.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import time
+import uuid
+from collections.abc import AsyncIterator
+
+import pytest
+from redis.asyncio import Redis
+
+from server.storage.upload_queue import MemoryUploadQueue, RedisUploadQueue, UploadQueue
+
+REDIS_URL = os.environ.get("INDOORPOS_REDIS_URL") or "redis://127.0.0.1:6379/15"
+REQUIRE_REDIS = os.environ.get("INDOORPOS_TEST_REQUIRE_REDIS") == "1"
+VISIBILITY_S = 0.3
+
+
+@pytest.fixture(params=["memory", "redis"])
+async def queue(request: pytest.FixtureRequest) -> AsyncIterator[UploadQueue]:
+    if request.param == "memory":
+        yield MemoryUploadQueue(VISIBILITY_S)
+        return
+    client = Redis.from_url(REDIS_URL, decode_responses=False, socket_connect_timeout=2)
+    try:
+        await client.ping()
+    except Exception as exc:
+        await client.aclose()
+        if REQUIRE_REDIS:
+            pytest.fail(f"Redis at {REDIS_URL} is required but does not answer: {exc}")
+        pytest.skip(f"Redis at {REDIS_URL} does not answer: {exc}")
+    prefix = f"ips-test-{uuid.uuid4().hex[:8]}"  # this test's stream only
+    q = RedisUploadQueue(client, VISIBILITY_S, prefix=prefix)
+    try:
+        yield q
+    finally:
+        await client.delete(f"{prefix}:uploads:v1")
+        await q.close()
+
+
+async def test_entries_are_delivered_once_each_in_order(queue: UploadQueue) -> None:
+    for i in range(5):
+        await queue.publish(f"u{i}")
+    first = await queue.read("a", count=3, block_ms=100)
+    second = await queue.read("b", count=10, block_ms=100)
+    assert [d.upload_id for d in first + second] == [f"u{i}" for i in range(5)]
+    assert all(d.times_delivered == 1 for d in first + second)
+    for d in first + second:
+        await queue.ack(d)
+    assert await queue.read("a", count=10, block_ms=50) == []
+
+
+async def test_an_unacknowledged_entry_is_reclaimed_after_the_timeout(queue: UploadQueue) -> None:
+    await queue.publish("u1")
+    (taken,) = await queue.read("dies", count=1, block_ms=100)
+    # within the visibility timeout nobody else gets it
+    assert await queue.read("other", count=1, block_ms=50) == []
+    await asyncio.sleep(VISIBILITY_S + 0.1)
+    (again,) = await queue.read("other", count=1, block_ms=100)
+    assert again.upload_id == "u1"
+    assert again.entry_id == taken.entry_id
+    assert again.times_delivered == 2
+    await queue.ack(again)
+    await asyncio.sleep(VISIBILITY_S + 0.1)
+    assert await queue.read("third", count=1, block_ms=50) == []
+
+
+async def test_an_acknowledged_entry_is_never_reclaimed(queue: UploadQueue) -> None:
+    await queue.publish("u1")
+    await queue.publish("u2")
+    a, _ = await queue.read("w", count=2, block_ms=100)
+    await queue.ack(a)
+    await asyncio.sleep(VISIBILITY_S + 0.1)
+    assert [d.upload_id for d in await queue.read("w2", count=5, block_ms=50)] == ["u2"]
+
+
+async def test_read_waits_for_a_publish(queue: UploadQueue) -> None:
+    async def later() -> None:
+        await asyncio.sleep(0.1)
+        await queue.publish("late")
+
+    task = asyncio.create_task(later())
+    start = time.monotonic()
+    got = await queue.read("w", count=1, block_ms=2000)
+    await task
+    assert [d.upload_id for d in got] == ["late"]
+    assert time.monotonic() - start < 1.5
