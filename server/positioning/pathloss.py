@@ -38,7 +38,9 @@ cost.
 
 The start is the weighted centroid of the strongest quarter of the readings (weights in
 linear power, ``10^((r_j - r_max)/10)``), then ``P0`` and ``gamma`` by linear least squares
-with the emitter there.
+with the emitter there. The cost has local minima (a noiseless model was missed by 3 m
+from that start alone), so the solver also starts at the three strongest readings'
+places and the run with the lowest cost is kept.
 
 Where the papers differ or slip: ``papers/003_*`` writes ``d_{i,j}`` of eq 9 as the
 distance implied by the RSS, ``10^((r_j - P0) / (10 gamma))``, but the derivative of the
@@ -69,6 +71,7 @@ Loss = Literal["linear", "soft_l1", "huber", "cauchy", "arctan"]
 MIN_OBSERVATIONS = 4  # four unknowns: x, y, P0, gamma
 MIN_DISTANCE_M = 1.0  # d_min: the model is for d >= 1 m, where P0 is defined
 STRONGEST_FRACTION = 0.25  # share of the readings whose centroid starts the solver
+EXTRA_STARTS = 3  # further starts, at the strongest readings' places
 MAX_CONDITION = 1e10  # a design matrix worse conditioned than this is singular
 _LN10 = math.log(10.0)
 
@@ -140,12 +143,20 @@ def rss_at(fit: EmitterFit, xy: ArrayLike) -> FloatArray:
     return np.asarray(rss.reshape(pts.shape[:-1]), dtype=np.float64)
 
 
-def _start(points: FloatArray, rss: FloatArray) -> FloatArray:
-    """Weighted centroid of the strongest readings, then ``P0`` and ``gamma`` there."""
+def _starts(points: FloatArray, rss: FloatArray) -> list[FloatArray]:
+    """Where the solver starts: the weighted centroid of the strongest readings, then the
+    places of the ``EXTRA_STARTS`` strongest readings themselves (the cost has local
+    minima; the best of these runs is kept)."""
     k = max(3, math.ceil(STRONGEST_FRACTION * rss.size))
     strongest = np.argpartition(-rss, k - 1)[:k]
     w = 10.0 ** ((rss[strongest] - rss.max()) / 10.0)
-    xy = w @ points[strongest] / w.sum()
+    centroid = w @ points[strongest] / w.sum()
+    loudest = np.argsort(-rss, kind="stable")[:EXTRA_STARTS]
+    return [_start_at(centroid, points, rss)] + [_start_at(points[i], points, rss) for i in loudest]
+
+
+def _start_at(xy: FloatArray, points: FloatArray, rss: FloatArray) -> FloatArray:
+    """The emitter at ``xy``, with ``P0`` and ``gamma`` by linear least squares there."""
     _, d = _distance(xy, points)
     A = np.column_stack([np.ones_like(d), -10.0 * np.log10(d)])
     (p0, gamma), *_ = np.linalg.lstsq(A, rss, rcond=None)
@@ -235,11 +246,14 @@ def fit_emitter(
         J[:, 3] = -10.0 * np.log10(d)
         return np.asarray(J / nu[:, None])
 
-    result = least_squares(
-        residuals, _start(points, rss), jac=jacobian, loss=loss, f_scale=f_scale_db
-    )
-    if not result.success or not np.all(np.isfinite(result.x)):
+    runs = [
+        least_squares(residuals, x0, jac=jacobian, loss=loss, f_scale=f_scale_db)
+        for x0 in _starts(points, rss)
+    ]
+    good = [r for r in runs if r.success and np.all(np.isfinite(r.x))]
+    if not good:
         return None
+    result = min(good, key=lambda r: float(r.cost))
     theta = np.asarray(result.x, dtype=np.float64)
 
     _, s, Vt = np.linalg.svd(np.asarray(result.jac, dtype=np.float64), full_matrices=False)
