@@ -7,7 +7,6 @@ import asyncio
 import lzma
 import time
 from collections.abc import AsyncIterator
-from pathlib import Path
 from typing import Any
 
 import httpx
@@ -17,16 +16,9 @@ from sqlalchemy import func, select
 
 from server import worker
 from server.storage.models import SurveyPoint, Upload
+from tests.datasets.conftest import DATA_DIR
 
-TRACES = (
-    Path(__file__).resolve().parents[2].parent
-    / "shared"
-    / "data"
-    / "ilc20-sample"
-    / "site2"
-    / "F4"
-    / "path_data_files"
-)
+TRACES = DATA_DIR / "ilc20-sample" / "site2" / "F4" / "path_data_files"
 needs_data = pytest.mark.skipif(not TRACES.is_dir(), reason="../shared/data is not beside us")
 SETTLE_TIMEOUT_S = 60.0
 

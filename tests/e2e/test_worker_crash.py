@@ -23,16 +23,9 @@ import pytest
 
 from server.config import Settings
 from tests.conftest import ADMIN_KEY
+from tests.datasets.conftest import DATA_DIR
 
-TRACES = (
-    Path(__file__).resolve().parents[2].parent
-    / "shared"
-    / "data"
-    / "ilc20-sample"
-    / "site2"
-    / "F4"
-    / "path_data_files"
-)
+TRACES = DATA_DIR / "ilc20-sample" / "site2" / "F4" / "path_data_files"
 VISIBILITY_S = 2.0  # short, so a killed worker's entry comes back quickly
 SETTLE_TIMEOUT_S = 180.0
 N_UPLOADS = 10

@@ -7,7 +7,6 @@ when unreachable, unless ``INDOORPOS_TEST_REQUIRE_REDIS=1``, which turns that in
 from __future__ import annotations
 
 import asyncio
-import os
 import uuid
 from collections.abc import AsyncIterator, Awaitable, Callable
 
@@ -22,24 +21,15 @@ from server.storage.session_store import (
     SessionStore,
     make_session_store,
 )
+from tests.storage.conftest import REDIS_URL, redis_or_skip
 
-REDIS_URL = os.environ.get("INDOORPOS_REDIS_URL") or "redis://127.0.0.1:6379/15"
-REQUIRE_REDIS = os.environ.get("INDOORPOS_TEST_REQUIRE_REDIS") == "1"
 TTL_S = 60
 WAIT_S = 2.0  # upper bound for any single message to arrive
 PREFIX = f"ips-test-{uuid.uuid4().hex[:8]}"  # keys of this run only, never the app's
 
 
 async def _redis_store() -> RedisSessionStore:
-    client = Redis.from_url(REDIS_URL, decode_responses=False, socket_connect_timeout=2)
-    try:
-        await client.ping()
-    except Exception as exc:
-        await client.aclose()
-        if REQUIRE_REDIS:
-            pytest.fail(f"Redis at {REDIS_URL} is required but does not answer: {exc}")
-        pytest.skip(f"Redis at {REDIS_URL} does not answer: {exc}")
-    return RedisSessionStore(client, prefix=PREFIX)
+    return RedisSessionStore(await redis_or_skip(), prefix=PREFIX)
 
 
 class FakeClock:

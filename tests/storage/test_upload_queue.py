@@ -1,24 +1,18 @@
-"""The upload queue contract, run against the in-process queue and a real Redis Stream.
-
-Redis comes from ``INDOORPOS_REDIS_URL`` (default database 15 on localhost). It is skipped
-when unreachable, unless ``INDOORPOS_TEST_REQUIRE_REDIS=1``, which turns that into a failure.
-"""
+"""The upload queue contract, run against the in-process queue and a real Redis Stream
+(see ``tests/storage/conftest.py`` for which Redis)."""
 
 from __future__ import annotations
 
 import asyncio
-import os
 import time
 import uuid
 from collections.abc import AsyncIterator
 
 import pytest
-from redis.asyncio import Redis
 
 from server.storage.upload_queue import MemoryUploadQueue, RedisUploadQueue, UploadQueue
+from tests.storage.conftest import redis_or_skip
 
-REDIS_URL = os.environ.get("INDOORPOS_REDIS_URL") or "redis://127.0.0.1:6379/15"
-REQUIRE_REDIS = os.environ.get("INDOORPOS_TEST_REQUIRE_REDIS") == "1"
 VISIBILITY_S = 0.3
 
 
@@ -27,14 +21,7 @@ async def queue(request: pytest.FixtureRequest) -> AsyncIterator[UploadQueue]:
     if request.param == "memory":
         yield MemoryUploadQueue(VISIBILITY_S)
         return
-    client = Redis.from_url(REDIS_URL, decode_responses=False, socket_connect_timeout=2)
-    try:
-        await client.ping()
-    except Exception as exc:
-        await client.aclose()
-        if REQUIRE_REDIS:
-            pytest.fail(f"Redis at {REDIS_URL} is required but does not answer: {exc}")
-        pytest.skip(f"Redis at {REDIS_URL} does not answer: {exc}")
+    client = await redis_or_skip()
     prefix = f"ips-test-{uuid.uuid4().hex[:8]}"  # this test's stream only
     q = RedisUploadQueue(client, VISIBILITY_S, prefix=prefix)
     try:
