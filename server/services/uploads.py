@@ -16,10 +16,13 @@ unacknowledged; the entry is re-delivered and the work repeated, and the re-chec
 the second fold impossible. An upload that keeps crashing its worker stops after
 ``MAX_ATTEMPTS`` attempts as ``failed``.
 
-What is folded today: traces whose positions are known at waypoints (ILC 2.0 path files,
-as surveyors record them) place their scans and magnetometer samples by interpolation
-between waypoints (``mapping.labelled``), as the survey API does. A walk without waypoints
-is rejected with that reason.
+What is folded today: a trace with at least two known positions (anchors; in an ILC 2.0
+path file its waypoints, as surveyors or an entrance and an elevator give them) places its
+scans and magnetometer samples by the walker's own steps between the anchors: steps found
+on the server in the raw IMU, aligned onto the anchors by a similarity transform and
+smoothed forward-backward between them (``mapping.placement``); without motion data, at
+constant speed between the anchors (``mapping.labelled``). A walk with fewer than two
+anchors is rejected with that reason.
 """
 
 from __future__ import annotations
@@ -30,15 +33,19 @@ from datetime import UTC, datetime, timedelta
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 from sqlalchemy.ext.asyncio import AsyncSession
 
 from server.datasets.ilc import IlcTrace, TraceFormatError, floor_level, parse_trace_text
 from server.positioning.events import WifiEvent
 from server.positioning.magnetic import MagneticSamples
 from server.positioning.mapping.labelled import interpolate_track
+from server.positioning.mapping.placement import place_samples
+from server.positioning.step_tracker import TrackerParams
 from server.services.errors import Conflict, Invalid, NotFound
 from server.services.magnetic_maps import fold_sources
 from server.services.maps import SurveyPointData, add_survey
+from server.services.pdr_evaluation import trace_steps
 from server.storage import repositories as repo
 from server.storage.models import Floor, Upload
 
@@ -188,44 +195,69 @@ def contribution(upload: Upload) -> Contribution:
     if trace.waypoint_t_ms.size < 2:
         return Contribution(
             level,
-            rejected="no waypoints: walks without waypoints need anchor alignment, "
-            "which this server does not do yet",
+            rejected="fewer than two anchors (waypoints): the walk cannot be placed",
         )
-    report: dict[str, Any] = {"waypoints": int(trace.waypoint_t_ms.size)}
-    not_used = []
+    report: dict[str, Any] = {"anchors": int(trace.waypoint_t_ms.size)}
     events = [e for e in trace.radio_events() if e.readings]
+    samples = trace.magnetic
+    field_usable = bool(samples.shape[0]) and "magnetic" not in trace.uncalibrated
+    times = np.concatenate(
+        [
+            np.array([e.t_ms for e in events], dtype=np.float64),
+            samples[:, 0] if field_usable else np.empty(0),
+        ]
+    )
+    xy, placed, not_used = _place(trace, times, report)
     points: list[SurveyPointData] = []
-    if events:
-        t = np.array([e.t_ms for e in events], dtype=np.int64)
-        xy, valid = interpolate_track(trace.waypoint_t_ms, trace.waypoint_xy_m, t)
-        for event, (x, y), ok in zip(events, xy.tolist(), valid.tolist(), strict=True):
-            if not ok:
-                continue
+    for event, (x, y), ok in zip(events, xy[: len(events)].tolist(), placed, strict=False):
+        if ok:
             pairs = [(r.emitter, r.rssi_dbm) for r in event.readings]
             wifi = pairs if isinstance(event, WifiEvent) else []
             points.append(
                 SurveyPointData(x, y, level, event.t_ms, wifi, [] if wifi else pairs, None)
             )
-        if len(points) < len(events):
-            not_used.append(
-                f"{len(events) - len(points)} scans before the first or after the last waypoint"
-            )
     report["scans"] = len(points)
     magnetic = None
-    samples = trace.magnetic
-    if samples.shape[0] and "magnetic" not in trace.uncalibrated:
-        xy, valid = interpolate_track(trace.waypoint_t_ms, trace.waypoint_xy_m, samples[:, 0])
+    if field_usable:
         strength = np.linalg.norm(samples[:, 1:4], axis=1)
-        keep = valid & np.isfinite(strength)
+        keep = placed[len(events) :] & np.isfinite(strength)
         if keep.any():
-            magnetic = MagneticSamples(xy=xy[keep], magnitude=strength[keep])
+            magnetic = MagneticSamples(xy=xy[len(events) :][keep], magnitude=strength[keep])
         report["magnetic_samples"] = int(keep.sum())
     elif samples.shape[0]:
         not_used.append("magnetometer: uncalibrated only")
     report["not_used"] = not_used
     if not points and magnetic is None:
-        return Contribution(level, rejected="nothing placed between waypoints", report=report)
+        return Contribution(level, rejected="nothing could be placed", report=report)
     return Contribution(level, points, magnetic, report=report)
+
+
+def _place(
+    trace: IlcTrace, times: NDArray[np.float64], report: dict[str, Any]
+) -> tuple[NDArray[np.float64], NDArray[np.bool_], list[str]]:
+    """Positions of samples at ``times``: by the walker's steps between the anchors
+    (``mapping.placement``), or at constant speed between them when the trace has no
+    motion data to find steps in."""
+    steps = trace_steps(trace, TrackerParams())
+    if steps is None or steps.t_ms.size < 2:
+        xy, valid = interpolate_track(trace.waypoint_t_ms, trace.waypoint_xy_m, times)
+        report["placement"] = "constant speed between anchors (no steps found)"
+        outside = int(np.count_nonzero(~valid))
+        reasons = [f"{outside} samples before the first or after the last anchor"]
+        return xy, valid, reasons if outside else []
+    placement = place_samples(
+        steps.t_ms,
+        steps.length_m,
+        steps.heading_rad,
+        trace.waypoint_t_ms,
+        trace.waypoint_xy_m,
+        times,
+    )
+    report["placement"] = "steps between anchors"
+    report["steps"] = int(steps.t_ms.size)
+    if np.isfinite(placement.scale):
+        report["step_scale"] = round(placement.scale, 3)
+    return placement.xy_m, placement.placed, list(placement.not_used)
 
 
 async def settle(s: AsyncSession, upload_id: str, result: Contribution) -> bool:
