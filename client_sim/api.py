@@ -180,6 +180,35 @@ class ApiClient:
         )
         return result
 
+    async def post_upload(
+        self,
+        site_id: str,
+        trace: bytes,
+        *,
+        floor: int | None = None,
+        key: str | None = None,
+        content_type: str = "text/plain",
+    ) -> dict[str, Any]:
+        """Upload a recorded trace (ILC 2.0 text); the answer the ``UploadRead``."""
+        if self._admin_key is None:
+            raise ValueError("this client has no admin key")
+        params: dict[str, Any] = {"site_id": site_id}
+        if floor is not None:
+            params["floor"] = floor
+        headers = {**_bearer(self._admin_key), "content-type": content_type}
+        if key is not None:
+            headers["idempotency-key"] = key
+        response = await self.http.post(
+            "/v1/uploads", params=params, content=trace, headers=headers, timeout=SURVEY_TIMEOUT_S
+        )
+        _raise_for_status(response)
+        result: dict[str, Any] = response.json()
+        return result
+
+    async def get_upload(self, upload_id: str) -> dict[str, Any]:
+        result: dict[str, Any] = await self._admin("GET", f"/v1/uploads/{upload_id}", None)
+        return result
+
     # ------------------------------------------------------------ device
 
     async def create_session(self, site_id: str, engine: str) -> Session:

@@ -20,6 +20,7 @@ from client_sim.survey import survey_bodies
 
 REQUEST_TIMEOUT_S = 30.0
 MAGNETIC_POINTS_PER_REQUEST = 50_000
+UPLOAD_POLL_S = 1.0
 
 
 async def replay_over_http(
@@ -33,13 +34,17 @@ async def replay_over_http(
     traces: Sequence[Sequence[Sequence[Mapping[str, Any]]]],
     plans: Mapping[int, Mapping[str, Any]] | None = None,
     magnetic_points: Mapping[int, Sequence[Mapping[str, Any]]] | None = None,
+    uploads: Sequence[tuple[int, bytes]] = (),
     on_progress: Callable[[str, int, int], None] | None = None,
     concurrency: int = 4,
+    upload_reports: list[dict[str, Any]] | None = None,
 ) -> list[list[dict[str, Any]]]:
     """Provision a site with ``levels``, their floor ``plans`` (GeoJSON by level), the
     survey and the ``magnetic_points`` (``MagneticPointIn`` bodies by level), replay each
     trace (a list of batches, each a list of wire events) in its own session; the fixes
-    per trace."""
+    per trace. ``uploads`` (floor level, ILC 2.0 trace text) go through ``/v1/uploads``
+    before the replay, which waits until the service has settled every one of them; their
+    final states are appended to ``upload_reports``."""
     async with httpx.AsyncClient(base_url=base_url, timeout=REQUEST_TIMEOUT_S) as http:
         api = ApiClient(http, admin_key)
         site = await api.create_site(site_name)
@@ -63,6 +68,10 @@ async def replay_over_http(
             if on_progress:
                 on_progress("survey upload", done, len(bodies))
 
+        settled = await upload_and_wait(api, site["id"], uploads, on_progress)
+        if upload_reports is not None:
+            upload_reports.extend(settled)
+
         gate = asyncio.Semaphore(concurrency)
         finished = 0
 
@@ -81,3 +90,40 @@ async def replay_over_http(
             return fixes
 
         return list(await asyncio.gather(*(one(t) for t in traces)))
+
+
+async def upload_and_wait(
+    api: ApiClient,
+    site_id: str,
+    uploads: Sequence[tuple[int, bytes]],
+    on_progress: Callable[[str, int, int], None] | None = None,
+    poll_s: float = UPLOAD_POLL_S,
+) -> list[dict[str, Any]]:
+    """Upload each trace (floor level, text) and wait until the service settled them all;
+    their final states, in upload order."""
+    ids = []
+    for done, (level, text) in enumerate(uploads, start=1):
+        ids.append((await api.post_upload(site_id, text, floor=level))["id"])
+        if on_progress:
+            on_progress("upload", done, len(uploads))
+    states: dict[str, dict[str, Any]] = {}
+    while len(states) < len(ids):
+        for upload_id in ids:
+            if upload_id not in states:
+                state = await api.get_upload(upload_id)
+                if state["status"] not in ("queued", "processing"):
+                    states[upload_id] = state
+        if on_progress:
+            on_progress("maps built from uploads", len(states), len(ids))
+        if len(states) < len(ids):
+            await asyncio.sleep(poll_s)
+    return [states[i] for i in ids]
+
+
+def keep_end_anchors(trace: str) -> str:
+    """An ILC 2.0 trace as a crowd walk: every waypoint dropped but the first and the last
+    (where a walk enters and leaves: an entrance, an elevator)."""
+    lines = trace.splitlines(keepends=True)
+    marks = [i for i, line in enumerate(lines) if "\tTYPE_WAYPOINT\t" in line]
+    dropped = set(marks[1:-1])
+    return "".join(line for i, line in enumerate(lines) if i not in dropped)

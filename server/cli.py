@@ -5,13 +5,14 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import lzma
 import socket
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 import uvicorn
@@ -20,7 +21,7 @@ from rich.progress import BarColumn, Progress, TaskID, TextColumn, TimeRemaining
 from rich.table import Table
 
 from server.app import create_app
-from server.config import get_settings
+from server.config import Settings, get_settings
 from server.positioning.engines.base import SiteMaps
 from server.positioning.events import Event, Fix
 from server.services import auth
@@ -146,17 +147,18 @@ def _free_port(preferred: int) -> int:
     with socket.socket() as sock:
         try:
             sock.bind(("127.0.0.1", preferred))
-            return preferred
         except OSError:
             sock.bind(("127.0.0.1", 0))
-            return int(sock.getsockname()[1])
+        return int(sock.getsockname()[1])
 
 
 class _ServerThread:
     """uvicorn in a background thread with its own event loop."""
 
-    def __init__(self, port: int) -> None:
-        config = uvicorn.Config(create_app(), host="127.0.0.1", port=port, log_level="warning")
+    def __init__(self, port: int, settings: Settings | None = None) -> None:
+        config = uvicorn.Config(
+            create_app(settings), host="127.0.0.1", port=port, log_level="warning"
+        )
         self.server = uvicorn.Server(config)
         self.thread = threading.Thread(target=self.server.run, daemon=True)
 
@@ -239,18 +241,32 @@ def openapi(
 
 
 def _http_replayer(
-    base_url: str, admin_key: str, progress: Callable[[str, int, int], None]
+    base_url: str,
+    admin_key: str,
+    progress: Callable[[str, int, int], None],
+    crowd_reports: list[dict[str, Any]] | None = None,
 ) -> Callable[..., list[list[Fix]]]:
     """Replay through a running service: training scans go up as a survey (with the floor
     plans and the magnetometer samples when the engine reads them), each test trace
-    becomes one session's batches."""
-    from client_sim.replay import replay_over_http
+    becomes one session's batches. With ``crowd_reports`` the training traces go up as
+    crowd uploads instead (every waypoint dropped but the first and last) and the service
+    builds the maps from them; the uploads' final states are appended to the list."""
+    from client_sim.replay import keep_end_anchors, replay_over_http
     from server.api.convert import fix_from_wire, to_wire
-    from server.services.evaluation import TrainingSurvey, batches
+    from server.services.evaluation import LabelledScans, TrainingSurvey, batches
 
     def run(
         engine: str, maps: SiteMaps, training: TrainingSurvey, traces: list[list[Event]]
     ) -> list[list[Fix]]:
+        levels = [f.level for f in maps.floors]
+        uploads = []
+        if crowd_reports is not None:
+            for floor_index, path in training.traces:
+                opener = lzma.open if path.suffix == ".xz" else open
+                with opener(path, "rt", encoding="utf-8", errors="replace") as f:
+                    text = keep_end_anchors(f.read())
+                uploads.append((levels[floor_index], text.encode()))
+            training = TrainingSurvey(LabelledScans(), plans=training.plans)
         labelled = training.scans
         survey = []
         for (x_m, y_m), floor, event in zip(
@@ -267,7 +283,6 @@ def _http_replayer(
                     key: wire["readings"],
                 }
             )
-        levels = [f.level for f in maps.floors]
         plans = {levels[i]: plan for i, plan in enumerate(training.plans) if plan}
         magnetic: dict[int, list[dict[str, float]]] = {}
         if training.field is not None:
@@ -289,13 +304,66 @@ def _http_replayer(
                 traces=[[[to_wire(e) for e in b] for b in batches(t)] for t in traces],
                 plans=plans,
                 magnetic_points=magnetic,
+                uploads=uploads,
                 on_progress=progress,
+                upload_reports=crowd_reports,
             )
         )
         index = {level: i for i, level in enumerate(levels)}
         return [[fix_from_wire(f, index) for f in path] for path in fixes]
 
     return run
+
+
+class MapSource(StrEnum):
+    survey = "survey"
+    crowd = "crowd"
+
+
+@contextlib.contextmanager
+def _embedded_service() -> Iterator[tuple[str, str]]:
+    """A throw-away embedded service (SQLite in a temporary directory, in-process worker)
+    on a free loopback port; yields its URL and admin key."""
+    import secrets
+    import tempfile
+
+    from pydantic import SecretStr
+
+    from server.config import Settings
+
+    key = secrets.token_urlsafe(24)
+    with tempfile.TemporaryDirectory(prefix="indoorpos-crowd-") as data_dir:
+        settings = Settings(
+            data_dir=Path(data_dir), database_url=None, redis_url=None, admin_key=SecretStr(key)
+        )
+        db.migrate(settings.resolved_database_url)
+        port = _free_port(0)
+        server = _ServerThread(port, settings)
+        server.start()
+        try:
+            yield f"http://127.0.0.1:{port}", key
+        finally:
+            server.stop()
+
+
+def _summarise_crowd(summary: dict[str, Any], reports: list[dict[str, Any]]) -> None:
+    """What became of the crowd uploads, in the run's summary (the reference points and the
+    per-floor magnetic coverage there describe the survey maps, so they are dropped)."""
+    summary["map_source"] = "crowd"
+    summary.pop("reference_points", None)  # of the survey maps, which this run did not use
+    statuses: dict[str, int] = {}
+    reasons: dict[str, int] = {}
+    for r in reports:
+        statuses[r["status"]] = statuses.get(r["status"], 0) + 1
+        reason = (r.get("report") or {}).get("reason")
+        if reason:
+            # numbers differ from walk to walk; the wording says what happened
+            key = " ".join(w for w in reason.split() if not any(c.isdigit() for c in w))
+            reasons[key] = reasons.get(key, 0) + 1
+    summary["uploads"] = {"status": statuses, "reasons": reasons}
+    for floor in summary.get("per_floor", {}).values():
+        floor.pop("magnetic_coverage", None)
+        floor.pop("magnetic_at_waypoints", None)
 
 
 @evaluate_app.command("ilc")
@@ -314,6 +382,14 @@ def evaluate_ilc(
     admin_key: Annotated[
         str | None, typer.Option(envvar="INDOORPOS_ADMIN_KEY", help="admin key for --via-http")
     ] = None,
+    map_source: Annotated[
+        MapSource,
+        typer.Option(
+            help="survey: maps from the training traces' waypoints (in process); crowd: the "
+            "training traces go through the upload API keeping only their first and last "
+            "waypoint, and the service's worker builds the maps"
+        ),
+    ] = MapSource.survey,
     validation: Annotated[
         bool,
         typer.Option(
@@ -345,15 +421,25 @@ def evaluate_ilc(
         except (KeyError, ValueError) as e:
             raise typer.BadParameter(str(e.args[0]), param_hint="--param") from None
 
+    if map_source is MapSource.crowd and param:
+        raise typer.BadParameter("crowd maps are replayed through sessions", param_hint="--param")
     runs = []
-    with _progress_bar() as bar:
+    crowd_reports: list[list[dict[str, Any]]] = []
+    with contextlib.ExitStack() as stack, _progress_bar() as bar:
         progress = _StageProgress(bar)
+        service = (via_http, admin_key or "") if via_http else None
+        if map_source is MapSource.crowd and service is None:
+            service = stack.enter_context(_embedded_service())
 
         for name in engine:
             progress.tasks.clear()
+            reports: list[dict[str, Any]] | None = None
+            if map_source is MapSource.crowd:
+                reports = []
+                crowd_reports.append(reports)
             replayer = (
-                _http_replayer(via_http, admin_key or "", progress)
-                if via_http
+                _http_replayer(service[0], service[1], progress, reports)
+                if service is not None
                 else evaluation.in_process_replayer(split_seed, progress, chosen[name])
             )
             runs.append(
@@ -371,9 +457,12 @@ def evaluate_ilc(
     def cell(value: object, pattern: str = "{:.2f}") -> str:
         return "–" if value is None else pattern.format(value)
 
-    for run in runs:
+    per_run: list[list[dict[str, Any]] | None] = [*crowd_reports] or [None] * len(runs)
+    for run, reports in zip(runs, per_run, strict=True):
         if overrides:
             run.summary["params"] = overrides
+        if reports is not None:
+            _summarise_crowd(run.summary, reports)
         title = f"ILC {run.site.name} · {run.summary['engine']}"
         per_floor: dict[str, dict[str, object]] = run.summary.get("per_floor", {})
         _print_report(title, {k: v for k, v in run.summary.items() if k != "per_floor"})

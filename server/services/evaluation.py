@@ -188,6 +188,7 @@ class TrainingSurvey:
     scans: LabelledScans
     field: LabelledField | None = None
     plans: tuple[dict[str, Any] | None, ...] = ()
+    traces: tuple[tuple[int, Path], ...] = ()  # (floor index, file) of each training trace
 
 
 def site_plans(site: IlcSite) -> tuple[FloorPlan | None, ...]:
@@ -221,10 +222,10 @@ def build_site_maps(
     radio = in_place_order(labelled.radio_map()) if labelled.events else None
     maps = SiteMaps(site_floors(site), radio, version="train")
     if not magnetic:
-        return maps, TrainingSurvey(labelled), bad_lines
+        return maps, TrainingSurvey(labelled, traces=tuple(train)), bad_lines
     maps = replace(maps, plans=site_plans(site), magnetic=field_samples.magnetic_map(site))
-    survey = TrainingSurvey(labelled, field_samples, tuple(f.plan for f in site.floors))
-    return maps, survey, bad_lines
+    plans = tuple(f.plan for f in site.floors)
+    return maps, TrainingSurvey(labelled, field_samples, plans, tuple(train)), bad_lines
 
 
 def trace_events(trace: IlcTrace, engine: str) -> list[Event]:

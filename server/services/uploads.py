@@ -228,7 +228,8 @@ def contribution(upload: Upload) -> Contribution:
         not_used.append("magnetometer: uncalibrated only")
     report["not_used"] = not_used
     if not points and magnetic is None:
-        return Contribution(level, rejected="nothing could be placed", report=report)
+        why = f": {not_used[0]}" if not_used else ""
+        return Contribution(level, rejected=f"nothing could be placed{why}", report=report)
     return Contribution(level, points, magnetic, report=report)
 
 

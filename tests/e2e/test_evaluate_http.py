@@ -34,3 +34,23 @@ def test_same_figures_through_the_api(live_url: str, tmp_path: Path) -> None:
         assert a[key] == b[key]
     for key in ("mean_m", "p50_m", "p90_m", "max_m"):
         assert b[key] == pytest.approx(a[key], rel=1e-6)
+
+
+@pytest.mark.skipif(not FLOOR.is_dir(), reason="../shared/data is not beside the project")
+def test_crowd_maps_come_close_to_the_survey_maps(tmp_path: Path) -> None:
+    """The training walks go through the upload API keeping only their first and last
+    waypoint; the service's worker places them by their steps and builds the maps."""
+    runner = CliRunner()
+    args = ["evaluate", "ilc", str(FLOOR), "--engine", "wknn", "--json"]
+    survey = runner.invoke(app, [*args, str(tmp_path / "survey.json")])
+    crowd = runner.invoke(app, [*args, str(tmp_path / "crowd.json"), "--map-source", "crowd"])
+    assert survey.exit_code == 0, survey.output
+    assert crowd.exit_code == 0, crowd.output
+    a = json.loads((tmp_path / "survey.json").read_text())
+    b = json.loads((tmp_path / "crowd.json").read_text())
+    assert b["map_source"] == "crowd"
+    statuses = b["uploads"]["status"]
+    assert sum(statuses.values()) == a["train_paths"]
+    assert statuses.get("done", 0) >= 0.8 * a["train_paths"]
+    assert b["n_points"] == a["n_points"]
+    assert b["mean_m"] < 1.6 * a["mean_m"]
