@@ -10,7 +10,7 @@ from fastapi import FastAPI
 from fastapi.routing import APIRoute
 
 from server import worker
-from server.api import admin, errors, health, live, locate, sessions, uploads
+from server.api import admin, errors, health, live, locate, quality, sessions, uploads
 from server.config import Settings, get_settings
 from server.services.runtime import open_runtime
 from server.storage import db
@@ -48,6 +48,6 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         generate_unique_id_function=_operation_id,
     )
     errors.install(app)
-    for module in (health, admin, sessions, live, locate, uploads):
+    for module in (health, admin, sessions, live, locate, uploads, quality):
         app.include_router(module.router)
     return app

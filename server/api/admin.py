@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Annotated, Any
 
-from fastapi import APIRouter, status
+from fastapi import APIRouter, Path, status
 
 from server.api import schemas as sc
 from server.api.convert import ble_pairs, wifi_pairs
 from server.api.deps import AdminDep, IdPath, SqlDep
 from server.services import magnetic_maps, maps, sites
+
+VersionPath = Annotated[int, Path(ge=1, le=2**31 - 1, description="map version number")]
 
 router = APIRouter(prefix="/v1", tags=["admin"], dependencies=[AdminDep])
 
@@ -150,3 +152,20 @@ async def list_magnetic_maps(floor_id: IdPath, s: SqlDep) -> sc.MagneticMapList:
     rows = await magnetic_maps.list_magnetic_maps(s, floor_id)
     items = [sc.MagneticMapRead.model_validate(m, from_attributes=True) for m in rows]
     return sc.MagneticMapList(items=items, count=len(items))
+
+
+@router.post("/buildings/{building_id}/radio-maps/{version}:activate")
+async def activate_radio_map(
+    building_id: IdPath, version: VersionPath, s: SqlDep
+) -> sc.RadioMapRead:
+    """Roll back (or forward) to a version: it becomes the building's current radio map."""
+    return _radio_map(await maps.activate_radio_map(s, building_id, version))
+
+
+@router.post("/floors/{floor_id}/magnetic-maps/{version}:activate")
+async def activate_magnetic_map(
+    floor_id: IdPath, version: VersionPath, s: SqlDep
+) -> sc.MagneticMapRead:
+    """Roll back (or forward) to a version: it becomes the floor's current magnetic map."""
+    row = await magnetic_maps.activate_magnetic_map(s, floor_id, version)
+    return sc.MagneticMapRead.model_validate(row, from_attributes=True)

@@ -55,7 +55,9 @@ class RadioMap:
 
     rp_xy: (n_rp, 2) float32 metres; rp_floor: (n_rp,) int32 floor index;
     mean_dbm, var_db2: (n_rp, n_em) float32 (MISSING_DBM / 0 where not heard);
-    count: (n_rp, n_em) int32; emitters: column keys ``"wifi:<bssid>"`` / ``"ble:<id>"``.
+    count: (n_rp, n_em) int32; emitters: column keys ``"wifi:<bssid>"`` / ``"ble:<id>"``;
+    rp_points: (n_rp,) int32 labelled points gridded into each RP, where known (it weighs
+    the RP's position when maps are folded together; matching does not read it).
     """
 
     rp_xy: np.ndarray
@@ -64,6 +66,7 @@ class RadioMap:
     var_db2: np.ndarray
     count: np.ndarray
     emitters: tuple[str, ...]
+    rp_points: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

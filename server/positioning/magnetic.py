@@ -76,6 +76,7 @@ particle over an unknown cell) gets ``inf``.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
@@ -464,12 +465,21 @@ def merge_grids(a: MagneticGrid, b: MagneticGrid) -> MagneticGrid:
 def known_share(grid: MagneticGrid | None, plan: FloorPlan | None) -> float | None:
     """Share of a floor's walkable cells whose magnitude is known (the map's coverage).
 
-    A cell counts as walkable when its centre is (``floorplan.walkable_at``); without a
-    plan every cell of the grid counts. No grid: nothing is known (0). None when no cell
-    counts at all.
+    A cell counts as walkable when its centre is (``floorplan.walkable_at``); with a plan
+    the grid is first widened, on its own lattice, to the plan's extent, so walkable cells
+    the grid does not reach count as unknown. Without a plan every cell of the grid
+    counts. No grid: nothing is known (0). None when no cell counts at all.
     """
     if grid is None:
         return 0.0
+    if plan is not None:
+        c, (gx, gy) = grid.cell_m, grid.origin_m
+        (px, py), (py_n, px_n) = plan.origin_m, plan.walkable.shape
+        x0 = gx + math.floor((px - gx) / c) * c
+        y0 = gy + math.floor((py - gy) / c) * c
+        extent = (x0, y0, px + px_n * plan.cell_m, py + py_n * plan.cell_m)
+        empty = grid_from_samples(np.zeros((0, 2)), np.zeros(0), cell_m=c, extent=extent)
+        grid = merge_grids(grid, empty)
     ny, nx = grid.magnitude.shape
     known = np.isfinite(grid.magnitude).ravel()
     if plan is None:

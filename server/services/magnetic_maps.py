@@ -25,7 +25,7 @@ from server.positioning.magnetic import (
 )
 from server.services.errors import Invalid, NotFound
 from server.storage import repositories as repo
-from server.storage.models import MagneticMapVersion
+from server.storage.models import MagneticMapVersion, utcnow
 
 
 @dataclass(frozen=True)
@@ -119,3 +119,17 @@ async def list_magnetic_maps(s: AsyncSession, floor_id: str) -> Sequence[Magneti
     if await repo.get_floor(s, floor_id) is None:
         raise NotFound(f"floor {floor_id} not found", field="floor_id")
     return await repo.list_magnetic_maps(s, floor_id)
+
+
+async def activate_magnetic_map(s: AsyncSession, floor_id: str, version: int) -> MagneticMapVersion:
+    """Make a version the floor's current magnetic map again (see
+    ``maps.activate_radio_map``)."""
+    floor = await repo.get_floor(s, floor_id)
+    if floor is None:
+        raise NotFound(f"floor {floor_id} not found", field="floor_id")
+    await repo.lock_building(s, floor.building_id)
+    row = await repo.get_magnetic_map_version(s, floor_id, version)
+    if row is None:
+        raise NotFound(f"magnetic map version {version} not found", field="version")
+    row.activated_at = utcnow()
+    return row

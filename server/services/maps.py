@@ -21,12 +21,12 @@ from server.positioning.events import radio_key
 from server.positioning.fingerprint import MISSING_DBM, RadioMap, in_place_order
 from server.positioning.floorplan import FloorPlan, plan_from_geojson
 from server.positioning.magnetic import MagneticMap, MagneticSamples
-from server.positioning.mapping.gridding import build_radio_map
+from server.positioning.mapping.gridding import build_radio_map, fold_radio_maps
 from server.positioning.mapping.matrices import merge_radio_maps, readings_matrix
 from server.services.errors import Invalid, NotFound
 from server.services.magnetic_maps import fold_sources
 from server.storage import repositories as repo
-from server.storage.models import RadioMapVersion
+from server.storage.models import RadioMapVersion, utcnow
 
 # A dense survey (points every metre or two) keeps its resolution with 1 m cells; points
 # closer than that are merged into one reference point at their mean position.
@@ -187,7 +187,13 @@ async def add_survey(
             for p in points
         ],
     )
-    radio = await rebuild_radio_map(s, building_id)
+    radio = await fold_survey(
+        s,
+        building_id,
+        points,
+        {level: f.id for level, f in floor_by_level.items()},
+        source="upload" if upload_id else "survey",
+    )
     # the magnetometer readings of the points go into their floors' magnetic maps
     for level, floor in floor_by_level.items():
         with_field = [p for p in points if p.floor_level == level and p.mag_ut is not None]
@@ -206,32 +212,73 @@ async def list_radio_maps(s: AsyncSession, building_id: str) -> Sequence[RadioMa
     return await repo.list_radio_maps(s, building_id)
 
 
-async def rebuild_radio_map(s: AsyncSession, building_id: str) -> RadioMapVersion:
-    stored = await repo.list_survey_points(s, building_id)
-    floor_ids = sorted({p.floor_id for p in stored})
-    floor_index = {f: i for i, f in enumerate(floor_ids)}
+async def fold_survey(
+    s: AsyncSession,
+    building_id: str,
+    points: Sequence[SurveyPointData],
+    floor_ids: dict[int, str],
+    source: str = "survey",
+) -> RadioMapVersion:
+    """Grid the new points' scans (``gridding.build_radio_map``) and fold them into the
+    building's current radio map (``gridding.fold_radio_maps``): the next version holds
+    the statistics of every point folded so far along the chain of current versions, and
+    is written as one blob. ``floor_ids`` maps the points' levels to floor ids. The
+    caller holds the building lock."""
+    order = sorted(floor_ids.values())
+    floor_index = {f: i for i, f in enumerate(order)}
+    with_readings = [p for p in points if p.wifi or p.ble]
     scans = [
-        [(radio_key("wifi", k), float(v)) for k, v in p.readings.get("wifi", [])]
-        + [(radio_key("ble", k), float(v)) for k, v in p.readings.get("ble", [])]
-        for p in stored
+        [(radio_key("wifi", k), float(v)) for k, v in p.wifi]
+        + [(radio_key("ble", k), float(v)) for k, v in p.ble]
+        for p in with_readings
     ]
     emitters, rssi = readings_matrix(scans)
-    xy = np.array([(p.x_m, p.y_m) for p in stored], dtype=np.float64).reshape(-1, 2)
-    floor = np.array([floor_index[p.floor_id] for p in stored], dtype=np.int64)
-    radio = await anyio.to_thread.run_sync(
-        lambda: build_radio_map(xy, floor, rssi, emitters, cell_m=SURVEY_CELL_M)
-    )
+    xy = np.array([(p.x_m, p.y_m) for p in with_readings], dtype=np.float64).reshape(-1, 2)
+    floor = np.array([floor_index[floor_ids[p.floor_level]] for p in with_readings], dtype=np.int64)
+    current = await repo.latest_radio_map(s, building_id)
+    base = None
+    if current is not None:
+        stored = await repo.load_radio_map(s, current.id, MISSING_DBM)
+        base = RadioMap(
+            rp_xy=stored.rp_xy,
+            rp_floor=np.array([floor_index[f] for f in stored.rp_floor_id], dtype=np.int32),
+            mean_dbm=stored.mean_dbm,
+            var_db2=stored.var_db2,
+            count=stored.count,
+            emitters=tuple(radio_key(kind, key) for kind, key in stored.emitters),
+            # versions stored as rows do not know their points: one per RP
+            rp_points=stored.rp_points
+            if stored.rp_points is not None
+            else np.ones(len(stored.rp_xy), dtype=np.int32),
+        )
+
+    def build() -> RadioMap:
+        new = build_radio_map(xy, floor, rssi, emitters, cell_m=SURVEY_CELL_M)
+        return fold_radio_maps(base, new, cell_m=SURVEY_CELL_M) if base is not None else new
+
+    radio = await anyio.to_thread.run_sync(build)
     kinds_keys = [tuple(key.split(":", 1)) for key in radio.emitters]
     ids = await repo.ensure_emitters(s, building_id, [(k, v) for k, v in kinds_keys])
     return await repo.save_radio_map(
         s,
         building_id,
         cell_m=SURVEY_CELL_M,
-        n_survey_points=len(stored),
-        rp_floor_id=[floor_ids[i] for i in radio.rp_floor.tolist()],
-        rp_xy=radio.rp_xy,
+        n_survey_points=(current.n_survey_points if current else 0) + len(points),
+        floor_ids=order,
+        radio=radio,
         emitter_ids=[ids[(k, v)] for k, v in kinds_keys],
-        mean_dbm=radio.mean_dbm,
-        var_db2=radio.var_db2,
-        count=radio.count,
+        source=source,
     )
+
+
+async def activate_radio_map(s: AsyncSession, building_id: str, version: int) -> RadioMapVersion:
+    """Make an earlier (or later) version the building's current radio map again: sessions
+    use it from their next map refresh, and later surveys and uploads fold into it (so
+    what came after it is left out from then on)."""
+    if await repo.lock_building(s, building_id) is None:
+        raise NotFound(f"building {building_id} not found", field="building_id")
+    row = await repo.get_radio_map_version(s, building_id, version)
+    if row is None:
+        raise NotFound(f"radio map version {version} not found", field="version")
+    row.activated_at = utcnow()
+    return row

@@ -150,7 +150,12 @@ class RadioMapVersion(Base):
     n_emitters: Mapped[int] = mapped_column(Integer)
     n_survey_points: Mapped[int] = mapped_column(Integer)
     source: Mapped[str] = mapped_column(String(32), default="survey")
+    # versions written since migration 0004 hold their arrays here (ReferencePoint and
+    # RadioStat rows only for older ones)
+    arrays: Mapped[bytes | None] = mapped_column(LargeBinary)
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
+    # the current version is the one activated last (rollback: activate an older one)
+    activated_at: Mapped[datetime] = mapped_column(default=utcnow)
 
 
 class ReferencePoint(Base):
@@ -198,6 +203,7 @@ class MagneticMapVersion(Base):
     source: Mapped[str] = mapped_column(String(32), default="survey")
     arrays: Mapped[bytes] = mapped_column(LargeBinary)
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
+    activated_at: Mapped[datetime] = mapped_column(default=utcnow)
 
 
 class Upload(Base):

@@ -13,8 +13,9 @@ from numpy.typing import NDArray
 from sqlalchemy import func, insert, select
 from sqlalchemy.ext.asyncio import AsyncSession
 
+from server.positioning.fingerprint import RadioMap
 from server.positioning.magnetic import MagneticGrid
-from server.storage.codec import compress_arrays, decompress_arrays
+from server.storage.codec import array_to_str, compress_arrays, decompress_arrays, str_to_array
 from server.storage.models import (
     ApiKey,
     Building,
@@ -27,6 +28,7 @@ from server.storage.models import (
     Site,
     SurveyPoint,
     Upload,
+    utcnow,
 )
 
 INSERT_CHUNK = 5000
@@ -146,6 +148,7 @@ class RadioMapArrays:
     mean_dbm: NDArray[np.float32]
     var_db2: NDArray[np.float32]
     count: NDArray[np.int32]
+    rp_points: NDArray[np.int32] | None = None  # None for versions stored as rows
 
 
 async def save_radio_map(
@@ -154,59 +157,64 @@ async def save_radio_map(
     *,
     cell_m: float,
     n_survey_points: int,
-    rp_floor_id: Sequence[str],
-    rp_xy: NDArray[np.floating[Any]],
+    floor_ids: Sequence[str],
+    radio: RadioMap,
     emitter_ids: Sequence[int],
-    mean_dbm: NDArray[np.floating[Any]],
-    var_db2: NDArray[np.floating[Any]],
-    count: NDArray[np.integer[Any]],
     source: str = "survey",
 ) -> RadioMapVersion:
-    """Store a new version (the next number for the building); only heard cells are rows."""
+    """Store a new version (the next number for the building) and make it current. The
+    arrays go into one compressed blob: RPs (position, floor as an index into
+    ``floor_ids``, points behind each) and only the heard RP x emitter entries."""
     last = await s.scalar(
         select(func.max(RadioMapVersion.version)).where(RadioMapVersion.building_id == building_id)
     )
-    heard_rp, heard_em = np.nonzero(count > 0)
+    heard_rp, heard_em = np.nonzero(radio.count > 0)
+    points = radio.rp_points if radio.rp_points is not None else np.ones(len(radio.rp_xy))
+    arrays = {
+        "rp_xy": np.asarray(radio.rp_xy, dtype=np.float32),
+        "rp_floor": np.asarray(radio.rp_floor, dtype=np.int32),
+        "rp_points": np.asarray(points, dtype=np.int32),
+        "floor_ids": str_to_array(",".join(floor_ids)),
+        "emitter_ids": np.asarray(emitter_ids, dtype=np.int64),
+        "heard_rp": heard_rp.astype(np.int32),
+        "heard_em": heard_em.astype(np.int32),
+        "mean_dbm": radio.mean_dbm[heard_rp, heard_em].astype(np.float32),
+        "var_db2": radio.var_db2[heard_rp, heard_em].astype(np.float32),
+        "count": radio.count[heard_rp, heard_em].astype(np.int32),
+    }
     row = RadioMapVersion(
         building_id=building_id,
         version=(last or 0) + 1,
         cell_m=cell_m,
-        n_reference_points=len(rp_floor_id),
+        n_reference_points=int(radio.rp_xy.shape[0]),
         n_emitters=int(np.unique(heard_em).size),
         n_survey_points=n_survey_points,
         source=source,
+        arrays=compress_arrays(arrays),
+        activated_at=utcnow(),
     )
     s.add(row)
     await s.flush()
-    rps = [
-        {"map_id": row.id, "idx": i, "floor_id": f, "x_m": float(xy[0]), "y_m": float(xy[1])}
-        for i, (f, xy) in enumerate(zip(rp_floor_id, rp_xy.tolist(), strict=True))
-    ]
-    for start in range(0, len(rps), INSERT_CHUNK):
-        await s.execute(insert(ReferencePoint), rps[start : start + INSERT_CHUNK])
-    ids = np.asarray(emitter_ids, dtype=np.int64)
-    stats = [
-        {
-            "map_id": row.id,
-            "rp_idx": int(r),
-            "emitter_id": int(ids[e]),
-            "mean_dbm": float(mean_dbm[r, e]),
-            "var_db2": float(var_db2[r, e]),
-            "count": int(count[r, e]),
-        }
-        for r, e in zip(heard_rp.tolist(), heard_em.tolist(), strict=True)
-    ]
-    for start in range(0, len(stats), INSERT_CHUNK):
-        await s.execute(insert(RadioStat), stats[start : start + INSERT_CHUNK])
     return row
 
 
 async def latest_radio_map(s: AsyncSession, building_id: str) -> RadioMapVersion | None:
+    """The building's current version: the one activated last (a new version is
+    activated when it is written; an older one again when it is rolled back to)."""
     stmt = (
         select(RadioMapVersion)
         .where(RadioMapVersion.building_id == building_id)
-        .order_by(RadioMapVersion.version.desc())
+        .order_by(RadioMapVersion.activated_at.desc(), RadioMapVersion.version.desc())
         .limit(1)
+    )
+    return (await s.scalars(stmt)).one_or_none()
+
+
+async def get_radio_map_version(
+    s: AsyncSession, building_id: str, version: int
+) -> RadioMapVersion | None:
+    stmt = select(RadioMapVersion).where(
+        RadioMapVersion.building_id == building_id, RadioMapVersion.version == version
     )
     return (await s.scalars(stmt)).one_or_none()
 
@@ -217,6 +225,9 @@ async def list_radio_maps(s: AsyncSession, building_id: str) -> Sequence[RadioMa
 
 
 async def load_radio_map(s: AsyncSession, map_id: str, missing_dbm: float) -> RadioMapArrays:
+    row = await s.get(RadioMapVersion, map_id)
+    if row is not None and row.arrays is not None:
+        return await _radio_map_from_blob(s, row, missing_dbm)
     rps = (
         await s.execute(
             select(ReferencePoint.floor_id, ReferencePoint.x_m, ReferencePoint.y_m)
@@ -262,6 +273,34 @@ async def load_radio_map(s: AsyncSession, map_id: str, missing_dbm: float) -> Ra
     )
 
 
+async def _radio_map_from_blob(
+    s: AsyncSession, row: RadioMapVersion, missing_dbm: float
+) -> RadioMapArrays:
+    assert row.arrays is not None
+    a = decompress_arrays(row.arrays)
+    floor_ids = array_to_str(a["floor_ids"]).split(",")
+    ids = a["emitter_ids"].tolist()
+    stmt = select(Emitter.id, Emitter.kind, Emitter.key).where(Emitter.id.in_(ids))
+    by_id = {i: (kind, key) for i, kind, key in (await s.execute(stmt)).all()}
+    n_rp, n_em = a["rp_xy"].shape[0], len(ids)
+    mean = np.full((n_rp, n_em), missing_dbm, dtype=np.float32)
+    var = np.zeros((n_rp, n_em), dtype=np.float32)
+    count = np.zeros((n_rp, n_em), dtype=np.int32)
+    mean[a["heard_rp"], a["heard_em"]] = a["mean_dbm"]
+    var[a["heard_rp"], a["heard_em"]] = a["var_db2"]
+    count[a["heard_rp"], a["heard_em"]] = a["count"]
+    return RadioMapArrays(
+        map_id=row.id,
+        rp_floor_id=[floor_ids[i] for i in a["rp_floor"].tolist()],
+        rp_xy=a["rp_xy"],
+        emitters=[by_id[i] for i in ids],
+        mean_dbm=mean,
+        var_db2=var,
+        count=count,
+        rp_points=a["rp_points"],
+    )
+
+
 # ---------------------------------------------------------------- magnetic maps
 
 
@@ -289,6 +328,7 @@ async def save_magnetic_map(
         known_cells=int(np.isfinite(grid.magnitude).sum()),
         source=source,
         arrays=compress_arrays(arrays),
+        activated_at=utcnow(),
     )
     s.add(row)
     await s.flush()
@@ -296,11 +336,21 @@ async def save_magnetic_map(
 
 
 async def latest_magnetic_map(s: AsyncSession, floor_id: str) -> MagneticMapVersion | None:
+    """The floor's current version: the one activated last."""
     stmt = (
         select(MagneticMapVersion)
         .where(MagneticMapVersion.floor_id == floor_id)
-        .order_by(MagneticMapVersion.version.desc())
+        .order_by(MagneticMapVersion.activated_at.desc(), MagneticMapVersion.version.desc())
         .limit(1)
+    )
+    return (await s.scalars(stmt)).one_or_none()
+
+
+async def get_magnetic_map_version(
+    s: AsyncSession, floor_id: str, version: int
+) -> MagneticMapVersion | None:
+    stmt = select(MagneticMapVersion).where(
+        MagneticMapVersion.floor_id == floor_id, MagneticMapVersion.version == version
     )
     return (await s.scalars(stmt)).one_or_none()
 

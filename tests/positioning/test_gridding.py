@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from numpy.typing import NDArray
 
 from server.positioning.fingerprint import MISSING_DBM, RadioMap
-from server.positioning.mapping.gridding import build_radio_map
+from server.positioning.mapping.gridding import build_radio_map, fold_radio_maps
 
 NAN = float("nan")
 EMITTERS = ("wifi:a", "wifi:b", "wifi:c", "ble:never")
@@ -162,3 +162,56 @@ def test_points_in_one_cell_merge(
     assert m.rp_xy.shape == (1, 2)
     np.testing.assert_allclose(m.rp_xy[0], xy.mean(axis=0), rtol=1e-6, atol=1e-5)
     assert m.count[0, 0] == len(offsets)
+
+
+def _columns(m: RadioMap, emitters: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The map's statistics with its columns put in the order of ``emitters``."""
+    idx = [m.emitters.index(k) for k in emitters]
+    return m.count[:, idx], m.mean_dbm[:, idx], m.var_db2[:, idx]
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n_parts=st.integers(2, 4))
+def test_folding_parts_equals_gridding_all_points(seed: int, n_parts: int) -> None:
+    rng = np.random.default_rng(seed)
+    n, n_em = 120, 6
+    xy = rng.uniform(0.0, 6.0, (n, 2))
+    floor = rng.integers(0, 2, n)
+    rssi = rng.normal(-70.0, 6.0, (n, n_em))
+    rssi[rng.random((n, n_em)) < 0.4] = np.nan
+    names = tuple(f"wifi:ap{i}" for i in range(n_em))
+    # no variance floor here, so the fold must be exact (the floor is tested by hand above)
+    whole = build_radio_map(xy, floor, rssi, names, min_var_db2=0.0)
+    parts = np.array_split(rng.permutation(n), n_parts)
+    # each part hears only some of the emitters: columns come and go between parts
+    folded = None
+    for part in parts:
+        keep = np.array([j for j in range(n_em) if not np.all(np.isnan(rssi[part, j]))])
+        piece = build_radio_map(
+            xy[part],
+            floor[part],
+            rssi[np.ix_(part, keep)],
+            tuple(names[j] for j in keep),
+            min_var_db2=0.0,
+        )
+        folded = piece if folded is None else fold_radio_maps(folded, piece, min_var_db2=0.0)
+    assert folded is not None
+    np.testing.assert_array_equal(folded.rp_floor, whole.rp_floor)
+    np.testing.assert_allclose(folded.rp_xy, whole.rp_xy, atol=1e-5)
+    assert folded.rp_points is not None
+    np.testing.assert_array_equal(folded.rp_points, whole.rp_points)
+    heard = tuple(k for k in names if k in folded.emitters)
+    count, mean, var = _columns(folded, heard)
+    w_count, w_mean, w_var = _columns(whole, heard)
+    np.testing.assert_array_equal(count, w_count)
+    np.testing.assert_allclose(mean, w_mean, atol=1e-3)
+    two = w_count >= 2
+    np.testing.assert_allclose(var[two], w_var[two], rtol=1e-3, atol=1e-3)
+    np.testing.assert_array_equal(var[w_count == 1], 16.0)
+
+
+def test_folding_needs_point_counts() -> None:
+    m = build_radio_map([(0.5, 0.5)], [0], [[-60.0]], ("wifi:a",))
+    bare = RadioMap(m.rp_xy, m.rp_floor, m.mean_dbm, m.var_db2, m.count, m.emitters)
+    with pytest.raises(ValueError, match="rp_points"):
+        fold_radio_maps(bare, m)

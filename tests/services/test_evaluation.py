@@ -322,7 +322,8 @@ def test_magnetic_coverage_counts_known_walkable_cells() -> None:
     assert known_share(grid, None) == 4 / 16  # without a plan: all cells
     assert known_share(None, plan) == 0.0
     beside = grid_from_samples([(3.5, 3.5)], [50.0], cell_m=1.0, extent=(3.0, 3.0, 4.0, 4.0))
-    assert known_share(beside, plan) is None  # no walkable cell under it
+    # a grid that reaches no walkable cell: the plan's walkable cells count, none known
+    assert known_share(beside, plan) == 0.0
 
     floors = (FloorRef("toy", "F1", 0), FloorRef("toy", "F2", 1))
     maps = SiteMaps(floors, None, "v", plans=(plan, None), magnetic=MagneticMap((grid, None), "v"))

@@ -121,4 +121,96 @@ def build_radio_map(
         var_db2=var.astype(np.float32),
         count=count.astype(np.int32),
         emitters=tuple(emitters),
+        rp_points=n_points.astype(np.int32),
+    )
+
+
+def fold_radio_maps(
+    base: RadioMap,
+    new: RadioMap,
+    cell_m: float = 1.0,
+    default_var_db2: float = 16.0,
+    min_var_db2: float = 1.0,
+) -> RadioMap:
+    """Fold a newly gridded contribution into a map: the statistics of both point sets.
+
+    Both maps must come from ``build_radio_map`` (or this function) with the same
+    ``cell_m`` and floor indices, and carry ``rp_points``. RPs are matched by their cell
+    ``(floor, floor(y / cell_m), floor(x / cell_m))`` (an RP's mean position lies in its
+    cell); a cell of only one map is copied. Per RP: the position is the mean of both
+    positions weighted by the points behind them. Per RP x emitter, with ``M2 = var (n - 1)``
+    (0 when ``n < 2``), the pairwise update of Chan, Golub and LeVeque::
+
+        n = n_a + n_b,  d = mean_b - mean_a,  mean = mean_a + d n_b / n,
+        M2 = M2_a + M2_b + d^2 n_a n_b / n,  var = M2 / (n - 1)
+
+    then the variance rules of ``build_radio_map`` (``default_var_db2`` for ``n = 1``, at
+    least ``min_var_db2``). Counts and means equal those of gridding both point sets at
+    once, whatever the order of the folds; a variance that was raised to ``min_var_db2``
+    carries that floor into ``M2`` (slightly larger than the exact value). Columns are the
+    base's emitters, then the new ones in the contribution's order.
+    """
+    if base.rp_points is None or new.rp_points is None:
+        raise ValueError("both maps need rp_points (grid them with build_radio_map)")
+    emitters = base.emitters + tuple(k for k in new.emitters if k not in set(base.emitters))
+    col = {k: i for i, k in enumerate(emitters)}
+    new_cols = np.fromiter((col[k] for k in new.emitters), dtype=np.int64, count=len(new.emitters))
+
+    def cells(m: RadioMap) -> np.ndarray:
+        xy = np.asarray(m.rp_xy, dtype=np.float64)
+        return np.column_stack(
+            [m.rp_floor.astype(np.int64), np.floor(xy[:, 1] / cell_m), np.floor(xy[:, 0] / cell_m)]
+        ).astype(np.int64)
+
+    n_a = base.rp_xy.shape[0]
+    keys, inverse = np.unique(
+        np.vstack([cells(base), cells(new)]).reshape(-1, 3), axis=0, return_inverse=True
+    )
+    inverse = inverse.ravel()
+    rows_a, rows_b = inverse[:n_a], inverse[n_a:]
+    n_rp, n_em = keys.shape[0], len(emitters)
+
+    points = np.zeros(n_rp, dtype=np.int64)
+    np.add.at(points, rows_a, base.rp_points)
+    np.add.at(points, rows_b, new.rp_points)
+    weighted = np.zeros((n_rp, 2))
+    np.add.at(weighted, rows_a, base.rp_xy.astype(np.float64) * base.rp_points[:, None])
+    np.add.at(weighted, rows_b, new.rp_xy.astype(np.float64) * new.rp_points[:, None])
+    rp_xy = weighted / np.maximum(points, 1)[:, None]
+
+    # the base, laid out on the union; then the contribution's RPs folded in
+    count = np.zeros((n_rp, n_em), dtype=np.int64)
+    mean = np.full((n_rp, n_em), MISSING_DBM, dtype=np.float64)
+    var = np.zeros((n_rp, n_em), dtype=np.float64)
+    count[rows_a, : len(base.emitters)] = base.count
+    mean[rows_a, : len(base.emitters)] = base.mean_dbm
+    var[rows_a, : len(base.emitters)] = base.var_db2
+
+    grid_b = np.ix_(rows_b, new_cols)
+    n1, m1, v1 = count[grid_b], mean[grid_b], var[grid_b]
+    n2 = new.count.astype(np.int64)
+    m2_, v2 = new.mean_dbm.astype(np.float64), new.var_db2.astype(np.float64)
+    n = n1 + n2
+    d = m2_ - m1
+    with np.errstate(invalid="ignore", divide="ignore"):
+        folded_mean = np.where(n1 == 0, m2_, np.where(n2 == 0, m1, m1 + d * n2 / np.maximum(n, 1)))
+        ss = (
+            np.where(n1 >= 2, v1 * (n1 - 1), 0.0)
+            + np.where(n2 >= 2, v2 * (n2 - 1), 0.0)
+            + np.where((n1 > 0) & (n2 > 0), d * d * n1 * n2 / np.maximum(n, 1), 0.0)
+        )
+        folded_var = np.where(n >= 2, ss / np.maximum(n - 1, 1), default_var_db2)
+    folded_var = np.where(n > 0, np.maximum(folded_var, min_var_db2), 0.0)
+    count[grid_b] = n
+    mean[grid_b] = np.where(n > 0, folded_mean, MISSING_DBM)
+    var[grid_b] = folded_var
+
+    return RadioMap(
+        rp_xy=rp_xy.astype(np.float32),
+        rp_floor=keys[:, 0].astype(np.int32),
+        mean_dbm=mean.astype(np.float32),
+        var_db2=var.astype(np.float32),
+        count=count.astype(np.int32),
+        emitters=emitters,
+        rp_points=points.astype(np.int32),
     )
