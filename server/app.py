@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
+from typing import Any
 
 import anyio
 from fastapi import FastAPI
@@ -50,4 +51,21 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     errors.install(app)
     for module in (health, admin, sessions, live, locate, uploads, quality):
         app.include_router(module.router)
+    _with_hand_read_schemas(app)
     return app
+
+
+def _with_hand_read_schemas(app: FastAPI) -> None:
+    """Add the schemas of bodies read by hand to the OpenAPI document's components."""
+    generate = app.openapi
+
+    def openapi() -> dict[str, Any]:
+        if app.openapi_schema is None:
+            document = generate()  # FastAPI keeps it as app.openapi_schema
+            components = document.setdefault("components", {}).setdefault("schemas", {})
+            for name, schema in uploads.openapi_schemas().items():
+                components.setdefault(name, schema)
+        assert app.openapi_schema is not None
+        return app.openapi_schema
+
+    app.openapi = openapi  # type: ignore[method-assign]

@@ -47,11 +47,12 @@ async def handle(rt: Runtime, delivery: Delivery) -> None:
     """Process one delivery (see the module docstring)."""
     async with rt.transaction() as s:
         upload = await uploads.begin_attempt(s, delivery.upload_id)
+        beacons = await uploads.building_beacons(s, upload) if upload is not None else []
     if upload is None:
         await rt.uploads.ack(delivery)
         return
     try:
-        result = await anyio.to_thread.run_sync(uploads.contribution, upload)
+        result = await anyio.to_thread.run_sync(uploads.contribution, upload, beacons)
         async with rt.transaction() as s:
             await uploads.settle(s, delivery.upload_id, result)
     except Exception as exc:

@@ -457,6 +457,26 @@ class MagneticMapList(Strict):
 # ---------------------------------------------------------------- uploads
 
 
+MAX_UPLOAD_EVENTS = 200_000
+MAX_UPLOAD_ANCHORS = 10_000
+
+
+class UploadAnchorIn(Strict):
+    """A place the walker was known to be at, at a time (a tap on the map, a QR code)."""
+
+    t: TimestampMs
+    x_m: Coordinate
+    y_m: Coordinate
+
+
+class UploadTraceIn(Strict):
+    """A walk as our own events (as a session's batches carry them) and its anchors.
+    Without two anchors the worker looks for passes by the floor plan's beacons."""
+
+    events: Annotated[list[EventIn], Field(min_length=1, max_length=MAX_UPLOAD_EVENTS)]
+    anchors: Annotated[list[UploadAnchorIn], Field(max_length=MAX_UPLOAD_ANCHORS)] = []
+
+
 class UploadRead(Strict):
     id: str
     site_id: str

@@ -1,7 +1,8 @@
 """Crowdsourced uploads: a trace in, 202 and an id out; its status and report later.
 
 The body is an ILC 2.0 path file (``text/plain``), optionally xz-compressed
-(``Content-Encoding: xz`` or ``Content-Type: application/x-xz``); the site, building,
+(``Content-Encoding: xz`` or ``Content-Type: application/x-xz``), or a walk as our own
+events with its anchors (``application/json``, ``UploadTraceIn``); the site, building,
 floor hint and device model come as query parameters. An ``Idempotency-Key`` header makes
 a retried upload return the first one instead of creating another.
 """
@@ -13,10 +14,14 @@ import lzma
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Header, Query, Request, Response, status
+from fastapi.exceptions import RequestValidationError
+from pydantic import ValidationError
+from pydantic.json_schema import models_json_schema
 
 from server.api import schemas as sc
+from server.api.convert import to_events
 from server.api.deps import AdminDep, IdPath, RuntimeDep, SqlDep
-from server.services import uploads
+from server.services import traces, uploads
 from server.services.errors import Invalid, TooLarge
 
 router = APIRouter(prefix="/v1", tags=["uploads"], dependencies=[AdminDep])
@@ -52,6 +57,17 @@ def _decompress(data: bytes, limit: int) -> bytes:
     return out
 
 
+def _events_trace(payload: bytes) -> bytes:
+    """A JSON walk (``UploadTraceIn``), validated (422 naming the field) and stored in the
+    shape the map builder reads (``services.traces``)."""
+    try:
+        walk = sc.UploadTraceIn.model_validate_json(payload)
+    except ValidationError as exc:
+        raise RequestValidationError(exc.errors()) from None
+    anchors = [(a.t, a.x_m, a.y_m) for a in walk.anchors]
+    return traces.encode_trace(traces.trace_from_events(to_events(walk.events), anchors))
+
+
 @router.post(
     "/uploads",
     status_code=status.HTTP_202_ACCEPTED,
@@ -62,6 +78,7 @@ def _decompress(data: bytes, limit: int) -> bytes:
             "content": {
                 "text/plain": {"schema": {"type": "string"}},
                 "application/x-xz": {"schema": {"type": "string", "format": "binary"}},
+                "application/json": {"schema": {"$ref": "#/components/schemas/UploadTraceIn"}},
             },
         }
     },
@@ -85,6 +102,8 @@ async def create_upload(
     if media in XZ_TYPES or (content_encoding or "").strip().lower() == "xz":
         payload = _decompress(payload, limit)
         media = uploads.ILC_TEXT if media in XZ_TYPES else media
+    if media == "application/json":
+        payload, media = _events_trace(payload), traces.CONTENT_TYPE
     new = uploads.NewUpload(
         site_id=site_id,
         building_id=building_id,
@@ -127,3 +146,13 @@ def _read(row: Any) -> sc.UploadRead:
         created_at=row.created_at,
         updated_at=row.updated_at,
     )
+
+
+def openapi_schemas() -> dict[str, Any]:
+    """Schemas of bodies this router reads by hand (the JSON walk), for the OpenAPI
+    document's components: FastAPI lists only models it validates itself."""
+    _, top = models_json_schema(
+        [(sc.UploadTraceIn, "validation")], ref_template="#/components/schemas/{model}"
+    )
+    schemas: dict[str, Any] = top.get("$defs", {})
+    return schemas

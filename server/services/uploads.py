@@ -37,16 +37,20 @@ from numpy.typing import NDArray
 from sqlalchemy.ext.asyncio import AsyncSession
 
 from server.datasets.ilc import IlcTrace, TraceFormatError, floor_level, parse_trace_text
+from server.positioning.anchors import anchors_from_plan
 from server.positioning.events import WifiEvent
 from server.positioning.magnetic import MagneticSamples
+from server.positioning.mapping.anchors import ble_anchors
 from server.positioning.mapping.labelled import interpolate_track
 from server.positioning.mapping.placement import place_samples
 from server.positioning.step_tracker import TrackerParams
+from server.services import traces
 from server.services.errors import Conflict, Invalid, NotFound
 from server.services.magnetic_maps import fold_sources
 from server.services.maps import SurveyPointData, add_survey
 from server.services.pdr_evaluation import trace_steps
 from server.storage import repositories as repo
+from server.storage.codec import CodecError
 from server.storage.models import Floor, Upload
 
 QUEUED, PROCESSING, DONE, REJECTED, FAILED = "queued", "processing", "done", "rejected", "failed"
@@ -79,8 +83,17 @@ class Contribution:
 
 def parse_payload(content_type: str, payload: bytes, path_id: str) -> IlcTrace:
     """The trace an upload carries; :class:`Invalid` naming the line when it cannot be read."""
+    if content_type == traces.CONTENT_TYPE:
+        try:
+            return traces.decode_trace(payload, path_id)
+        except (CodecError, KeyError) as exc:
+            raise Invalid(f"not a stored trace: {exc}", field="body") from None
     if content_type != ILC_TEXT:
-        raise Invalid(f"unsupported content type {content_type!r}", field="content-type")
+        raise Invalid(
+            f"unsupported content type {content_type!r}: send text/plain (ILC 2.0), "
+            "application/x-xz or application/json (our events)",
+            field="content-type",
+        )
     try:
         text = payload.decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -180,8 +193,35 @@ def _settle_failed(row: Upload, error: str) -> None:
     }
 
 
-def contribution(upload: Upload) -> Contribution:
-    """The readings an upload adds to the maps (CPU work, no I/O: run it in a thread)."""
+@dataclass(frozen=True)
+class Beacon:
+    """A BLE beacon a floor plan marks at a known place (an entrance, an elevator)."""
+
+    emitter: str  # lower-case beacon id, as scans carry it
+    xy_m: tuple[float, float]
+    level: int
+
+
+async def building_beacons(s: AsyncSession, upload: Upload) -> list[Beacon]:
+    """The beacons the floor plans of the upload's building mark (none when the site has
+    several buildings and the upload names none)."""
+    building_id = upload.building_id
+    if building_id is None:
+        buildings = await repo.list_buildings(s, upload.site_id)
+        if len(buildings) != 1:
+            return []
+        building_id = buildings[0].id
+    found = []
+    for floor in await repo.list_floors(s, building_id):
+        for a in anchors_from_plan(floor.plan_geojson, 0):
+            found.append(Beacon(a.emitter.split(":", 1)[1], (a.x_m, a.y_m), floor.level))
+    return found
+
+
+def contribution(upload: Upload, beacons: Sequence[Beacon] = ()) -> Contribution:
+    """The readings an upload adds to the maps (CPU work, no I/O: run it in a thread).
+    Its anchors are its waypoints; a walk with fewer than two takes them from its passes
+    by the ``beacons`` of its floor (``mapping.anchors.ble_anchors``)."""
     try:
         trace = parse_payload(upload.content_type, upload.payload, upload.id)
     except Invalid as exc:  # stored before a stricter reader: say why, do not retry
@@ -192,12 +232,20 @@ def contribution(upload: Upload) -> Contribution:
             level = floor_level(trace.floor)
         except ValueError:
             return Contribution(None, rejected="no floor: give the floor hint (floor)")
+    report: dict[str, Any] = {
+        "anchors": int(trace.waypoint_t_ms.size),
+        "anchor_source": "waypoints",
+    }
+    if trace.waypoint_t_ms.size < 2:
+        trace = _with_beacon_anchors(trace, [b for b in beacons if b.level == level])
+        report |= {"anchors": int(trace.waypoint_t_ms.size), "anchor_source": "beacons"}
     if trace.waypoint_t_ms.size < 2:
         return Contribution(
             level,
-            rejected="fewer than two anchors (waypoints): the walk cannot be placed",
+            rejected="fewer than two anchors: no waypoints, and passes by fewer than two "
+            "of the floor plan's beacons",
+            report=report,
         )
-    report: dict[str, Any] = {"anchors": int(trace.waypoint_t_ms.size)}
     events = [e for e in trace.radio_events() if e.readings]
     samples = trace.magnetic
     field_usable = bool(samples.shape[0]) and "magnetic" not in trace.uncalibrated
@@ -231,6 +279,17 @@ def contribution(upload: Upload) -> Contribution:
         why = f": {not_used[0]}" if not_used else ""
         return Contribution(level, rejected=f"nothing could be placed{why}", report=report)
     return Contribution(level, points, magnetic, report=report)
+
+
+def _with_beacon_anchors(trace: IlcTrace, beacons: Sequence[Beacon]) -> IlcTrace:
+    """The trace with its passes by known beacons as its waypoints (``papers/003_*``
+    section IV-B: the smoothed RSS peak of an elevator or entrance beacon)."""
+    readings = [(e.t_ms, r.emitter.lower(), r.rssi_dbm) for e in trace.ble for r in e.readings]
+    if not beacons or not readings:
+        return trace
+    t, ids, rssi = zip(*readings, strict=True)
+    found = ble_anchors(t, list(ids), rssi, [(b.emitter, b.xy_m, b.level) for b in beacons])
+    return replace(trace, waypoint_t_ms=found.t_ms.astype(np.int64), waypoint_xy_m=found.xy_m)
 
 
 def _place(

@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import asyncio
 import lzma
+import math
 import time
 from collections.abc import AsyncIterator
 from typing import Any
 
 import httpx
+import numpy as np
 import pytest
 from fastapi import FastAPI
 from sqlalchemy import func, select
@@ -168,8 +170,8 @@ async def test_malformed_and_huge_traces_are_refused_without_rows(
     r = await client.post(
         "/v1/uploads",
         params={"site_id": site_id},
-        content=b"{}",
-        headers={**admin, "content-type": "application/json"},
+        content=b"<walk/>",
+        headers={**admin, "content-type": "application/xml"},
     )
     assert r.status_code == 422
     assert "content-type" in r.json()["message"]
@@ -210,3 +212,101 @@ async def test_a_walk_without_waypoints_is_rejected_with_the_reason(
     upload = await _settled(client, admin, r.json()["id"])
     assert upload["status"] == "rejected"
     assert "floor level 7" in upload["report"]["reason"]
+
+
+WALK_T0 = 1_700_000_000_000
+WALK_S, STEP_HZ, STEP_M, WALK_Y = 12, 2.0, 0.7, 5.0
+BEACONS = {"beac:1:1": (2.0, WALK_Y), "beac:1:2": (2.0 + WALK_S * STEP_HZ * STEP_M, WALK_Y)}
+
+
+def _walk_events() -> list[dict[str, Any]]:
+    """A phone walking east along y = 5 m from x = 2 m (raw IMU, ``client_sim.imu``), a
+    WiFi scan every 2 s and a BLE scan every 0.5 s hearing two beacons at the ends."""
+    from client_sim.imu import Gait, blocks, synthesize_walk
+    from tests.api.toy_site import rssi_at
+
+    trace = synthesize_walk(
+        lambda t_s: np.full_like(t_s, math.pi / 2),  # east all the way
+        WALK_S + 2,
+        np.random.default_rng(3),
+        walking=[(1.0, 1.0 + WALK_S)],
+        gait=Gait(cadence_hz=STEP_HZ, step_length_m=STEP_M, bounce_ms2=2.0),
+        t0_ms=WALK_T0,
+    )
+    events: list[dict[str, Any]] = [b.event() for b in blocks(trace)]
+    for k in range(2 * (WALK_S + 2)):
+        t_s = k / 2
+        x = 2.0 + STEP_M * STEP_HZ * min(max(t_s - 1.0, 0.0), WALK_S)
+        readings = [
+            {"id": key, "rssi_dbm": -55.0 - 20 * math.log10(max(abs(x - bx), 0.5))}
+            for key, (bx, _) in BEACONS.items()
+        ]
+        events.append({"type": "ble", "t": WALK_T0 + 500 * k, "readings": readings})
+        if k % 4 == 0:
+            events.append(
+                {"type": "wifi", "t": WALK_T0 + 500 * k, "readings": rssi_at(x, WALK_Y, 0)}
+            )
+    return events
+
+
+async def test_a_walk_of_our_events_is_placed_by_the_plans_beacons(
+    client: httpx.AsyncClient, admin: dict[str, str], app: FastAPI, upload_worker: None
+) -> None:
+    site_id = await _site(client, admin, [0])
+    r = await client.get(f"/v1/sites/{site_id}/buildings", headers=admin)
+    building_id = r.json()["items"][0]["id"]
+    r = await client.get(f"/v1/buildings/{building_id}/floors", headers=admin)
+    floor_id = r.json()["items"][0]["id"]
+    plan = {
+        "type": "FeatureCollection",
+        "features": [
+            {
+                "type": "Feature",
+                "properties": {"anchor": "entrance", "beacon": key},
+                "geometry": {"type": "Point", "coordinates": list(xy)},
+            }
+            for key, xy in BEACONS.items()
+        ],
+    }
+    r = await client.put(f"/v1/floors/{floor_id}/plan", json=plan, headers=admin)
+    assert r.status_code == 200, r.text
+    r = await client.post(
+        "/v1/uploads",
+        params={"site_id": site_id, "floor": 0},
+        json={"events": _walk_events()},
+        headers=admin,
+    )
+    assert r.status_code == 202, r.text
+    upload = await _settled(client, admin, r.json()["id"])
+    assert upload["status"] == "done", upload
+    report = upload["report"]
+    assert report["anchor_source"] == "beacons"
+    assert report["anchors"] == 2
+    assert report["placement"] == "steps between anchors"
+    assert report["scans"] >= 5
+    # each scan where the walker was
+    async with app.state.runtime.transaction() as s:
+        rows = (
+            await s.scalars(select(SurveyPoint).where(SurveyPoint.upload_id == upload["id"]))
+        ).all()
+    for p in rows:
+        t_s = (p.t_ms - WALK_T0) / 1000
+        x = 2.0 + STEP_M * STEP_HZ * min(max(t_s - 1.0, 0.0), WALK_S)
+        assert math.hypot(p.x_m - x, p.y_m - WALK_Y) < 2.5, (t_s, p.x_m, p.y_m)
+
+
+async def test_a_malformed_walk_of_our_events_names_the_field(
+    client: httpx.AsyncClient, admin: dict[str, str], app: FastAPI
+) -> None:
+    site_id = await _site(client, admin, [0])
+    before = await _count_uploads(app)
+    bad = {"events": [{"type": "wifi", "t": -5, "readings": []}]}
+    r = await client.post("/v1/uploads", params={"site_id": site_id}, json=bad, headers=admin)
+    assert r.status_code == 422, r.text
+    assert "events.0.t" in r.json()["message"]
+    r = await client.post(
+        "/v1/uploads", params={"site_id": site_id}, json={"events": []}, headers=admin
+    )
+    assert r.status_code == 422
+    assert "events" in r.json()["message"]
+    assert await _count_uploads(app) == before

@@ -1,0 +1,191 @@
+"""Recorded walks in one shape: built from our own events, joined, stored as bytes.
+
+The map builder reads a walk as an ``IlcTrace`` (scans, raw motion samples, the known
+positions as waypoints), whatever it came as: an ILC 2.0 path file, or our own events
+(a JSON upload, the batches of a session offered for map building). This module makes
+that trace from events (``trace_from_events``), joins traces cut into pieces
+(``join_traces``) and encodes a trace as one array container (``encode_trace`` /
+``decode_trace``, ``storage.codec``: nothing pickled, a corrupt blob raises
+``CodecError``).
+
+From events: scans keep their readings; IMU blocks are concatenated per sensor (the
+rotation vector keeps its vector part, sign chosen so the scalar part is not negative,
+as ILC files carry it); ``mag`` events with a field vector join the magnetometer samples
+(magnitude-only ones carry nothing a map can place and are dropped); phone-detected
+steps are not kept (steps are found on the server in the raw samples). A block whose
+magnetometer is uncalibrated marks the whole walk's magnetometer so.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from types import MappingProxyType
+
+import numpy as np
+from numpy.typing import NDArray
+
+from server.datasets.ilc import IlcTrace
+from server.positioning.events import BleEvent, Event, ImuEvent, MagEvent, RadioReading, WifiEvent
+from server.storage.codec import array_to_str, compress_arrays, decompress_arrays, str_to_array
+
+CONTENT_TYPE = "application/vnd.indoorpos.trace"
+_SENSORS = ("accel", "gyro", "magnetic", "rotation")
+
+
+def _rows(parts: Sequence[NDArray[np.float64]], width: int) -> NDArray[np.float64]:
+    rows = np.concatenate([p.reshape(-1, width) for p in parts]) if parts else np.empty((0, width))
+    rows = rows[np.argsort(rows[:, 0], kind="stable")]
+    # a sample sent twice (a retried batch) is kept once
+    keep = np.ones(len(rows), dtype=bool)
+    keep[1:] = np.diff(rows[:, 0]) > 0
+    return np.ascontiguousarray(rows[keep])
+
+
+def _trace(
+    path_id: str,
+    floor: str,
+    anchors: NDArray[np.float64],
+    wifi: Sequence[WifiEvent],
+    ble: Sequence[BleEvent],
+    sensors: dict[str, NDArray[np.float64]],
+    uncalibrated: frozenset[str],
+) -> IlcTrace:
+    times = [anchors[:, 0], *(a[:, 0] for a in sensors.values())]
+    scan_t = [e.t_ms for e in wifi] + [e.t_ms for e in ble]
+    times.append(np.array(scan_t, dtype=np.float64))
+    t_all = np.concatenate(times)
+    order = np.argsort(anchors[:, 0], kind="stable")
+    return IlcTrace(
+        path_id=path_id,
+        floor=floor,
+        site_id=None,
+        waypoint_t_ms=anchors[order, 0].astype(np.int64),
+        waypoint_xy_m=np.ascontiguousarray(anchors[order, 1:3]),
+        wifi=tuple(sorted(wifi, key=lambda e: e.t_ms)),
+        ble=tuple(sorted(ble, key=lambda e: e.t_ms)),
+        accel=sensors["accel"],
+        gyro=sensors["gyro"],
+        magnetic=sensors["magnetic"],
+        rotation=sensors["rotation"],
+        uncalibrated=uncalibrated,
+        bad_lines=0,
+        joined_lines=0,
+        stale_wifi_readings=0,
+        skipped_types=MappingProxyType({}),
+        t_first_ms=int(t_all.min()) if t_all.size else 0,
+        t_last_ms=int(t_all.max()) if t_all.size else 0,
+    )
+
+
+def trace_from_events(
+    events: Sequence[Event],
+    anchors: Sequence[tuple[int, float, float]] = (),
+    *,
+    path_id: str = "",
+    floor: str = "",
+) -> IlcTrace:
+    """A walk from our events and its known positions ``(t_ms, x_m, y_m)``."""
+    parts: dict[str, list[NDArray[np.float64]]] = {name: [] for name in _SENSORS}
+    uncalibrated: set[str] = set()
+    for e in events:
+        if isinstance(e, ImuEvent):
+            parts["accel"].append(e.accel)
+            parts["gyro"].append(e.gyro)
+            parts["magnetic"].append(e.magnetic)
+            if e.magnetic.shape[0] and not e.magnetic_calibrated:
+                uncalibrated.add("magnetic")
+            if e.rotation.shape[0]:
+                q = e.rotation.copy()
+                q[q[:, 4] < 0, 1:] *= -1.0  # the same rotation with w >= 0
+                parts["rotation"].append(q[:, :4])
+        elif isinstance(e, MagEvent) and e.field_ut is not None:
+            parts["magnetic"].append(np.array([[e.t_ms, *e.field_ut]], dtype=np.float64))
+    sensors = {name: _rows(parts[name], 4) for name in _SENSORS}
+    return _trace(
+        path_id,
+        floor,
+        np.asarray(anchors, dtype=np.float64).reshape(-1, 3),
+        [e for e in events if isinstance(e, WifiEvent)],
+        [e for e in events if isinstance(e, BleEvent)],
+        sensors,
+        frozenset(uncalibrated),
+    )
+
+
+def join_traces(traces: Sequence[IlcTrace], *, path_id: str = "", floor: str = "") -> IlcTrace:
+    """One walk from its pieces (e.g. a session's batches), in time order."""
+    anchors = [np.column_stack([t.waypoint_t_ms, t.waypoint_xy_m]) for t in traces]
+    sensors = {name: _rows([getattr(t, name) for t in traces], 4) for name in _SENSORS}
+    return _trace(
+        path_id,
+        floor,
+        np.concatenate(anchors).reshape(-1, 3) if anchors else np.empty((0, 3)),
+        [e for t in traces for e in t.wifi],
+        [e for t in traces for e in t.ble],
+        sensors,
+        frozenset().union(*(t.uncalibrated for t in traces)),
+    )
+
+
+def _scans(prefix: str, scans: Sequence[WifiEvent | BleEvent]) -> dict[str, np.ndarray]:
+    emitters = sorted({r.emitter for e in scans for r in e.readings})
+    index = {k: i for i, k in enumerate(emitters)}
+    readings = [(i, index[r.emitter], r.rssi_dbm) for i, e in enumerate(scans) for r in e.readings]
+    table = np.array(readings, dtype=np.float64).reshape(-1, 3)
+    return {
+        f"{prefix}_t": np.array([e.t_ms for e in scans], dtype=np.int64),
+        f"{prefix}_scan": table[:, 0].astype(np.int32),
+        f"{prefix}_emitter": table[:, 1].astype(np.int32),
+        f"{prefix}_rssi": table[:, 2].astype(np.float32),
+        f"{prefix}_names": str_to_array("\n".join(emitters)),
+    }
+
+
+def _unscans(a: dict[str, np.ndarray], prefix: str) -> list[list[RadioReading]]:
+    text = array_to_str(a[f"{prefix}_names"])
+    names = text.split("\n") if text else []
+    scans: list[list[RadioReading]] = [[] for _ in range(len(a[f"{prefix}_t"]))]
+    for scan, emitter, rssi in zip(
+        a[f"{prefix}_scan"].tolist(),
+        a[f"{prefix}_emitter"].tolist(),
+        a[f"{prefix}_rssi"].tolist(),
+        strict=True,
+    ):
+        scans[scan].append(RadioReading(names[emitter], rssi))
+    return scans
+
+
+def encode_trace(trace: IlcTrace) -> bytes:
+    """The walk as one compressed array container (deterministic: equal walks, equal bytes)."""
+    arrays: dict[str, np.ndarray] = {
+        "anchors": np.column_stack([trace.waypoint_t_ms, trace.waypoint_xy_m]).astype(np.float64),
+        "floor": str_to_array(trace.floor),
+        "uncalibrated": str_to_array(",".join(sorted(trace.uncalibrated))),
+        **{name: getattr(trace, name) for name in _SENSORS},
+        **_scans("wifi", trace.wifi),
+        **_scans("ble", trace.ble),
+    }
+    return compress_arrays(arrays)
+
+
+def decode_trace(data: bytes, path_id: str = "") -> IlcTrace:
+    """The inverse of ``encode_trace``; ``CodecError`` (or ``KeyError``) for foreign bytes."""
+    a = decompress_arrays(data)
+    wifi = [
+        WifiEvent(int(t), tuple(r))
+        for t, r in zip(a["wifi_t"].tolist(), _unscans(a, "wifi"), strict=True)
+    ]
+    ble = [
+        BleEvent(int(t), tuple(r))
+        for t, r in zip(a["ble_t"].tolist(), _unscans(a, "ble"), strict=True)
+    ]
+    marks = array_to_str(a["uncalibrated"])
+    return _trace(
+        path_id,
+        array_to_str(a["floor"]),
+        a["anchors"].reshape(-1, 3),
+        wifi,
+        ble,
+        {name: a[name].reshape(-1, 4) for name in _SENSORS},
+        frozenset(marks.split(",")) if marks else frozenset(),
+    )
