@@ -293,6 +293,12 @@ class FixOut(Strict):
 class SessionCreate(Strict):
     site_id: Id
     engine: Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[a-z0-9_]+$")] = "step_ekf"
+    contribute: bool = Field(
+        False,
+        description="offer this walk for map building: its batches are kept and, when the "
+        "session ends, become one upload (anchored by the floor plan's beacons)",
+    )
+    device_model: Annotated[str | None, Field(min_length=1, max_length=128)] = None
 
 
 class SessionCreated(Strict):

@@ -14,7 +14,9 @@ router = APIRouter(prefix="/v1/sessions", tags=["sessions"])
 
 @router.post("", status_code=status.HTTP_201_CREATED)
 async def create_session(body: sc.SessionCreate, rt: RuntimeDep) -> sc.SessionCreated:
-    created = await sessions.create_session(rt, body.site_id, body.engine)
+    created = await sessions.create_session(
+        rt, body.site_id, body.engine, contribute=body.contribute, device_model=body.device_model
+    )
     return sc.SessionCreated(
         id=created.id,
         token=created.token,
@@ -52,5 +54,8 @@ async def get_session(session_id: IdPath, rt: RuntimeDep, token: BearerDep) -> s
 
 @router.delete("/{session_id}", status_code=status.HTTP_204_NO_CONTENT)
 async def end_session(session_id: IdPath, rt: RuntimeDep, token: BearerDep) -> Response:
-    await sessions.end_session(rt, session_id, token)
-    return Response(status_code=status.HTTP_204_NO_CONTENT)
+    """End the session. A session opened with ``contribute`` leaves its walk to the map
+    builder: the ``Location`` header names the upload made of it."""
+    upload_id = await sessions.end_session(rt, session_id, token)
+    headers = {"Location": f"/v1/uploads/{upload_id}"} if upload_id else None
+    return Response(status_code=status.HTTP_204_NO_CONTENT, headers=headers)

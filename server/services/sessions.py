@@ -29,9 +29,11 @@ import orjson
 from server.positioning.engines import ENGINES, get_engine
 from server.positioning.engines.base import EngineSpec, SiteMaps
 from server.positioning.events import Event, Fix, ImuEvent
+from server.services import traces, uploads
 from server.services.errors import Conflict, Forbidden, Invalid, NotFound
 from server.services.maps import site_maps
 from server.services.runtime import Runtime
+from server.storage import repositories as repo
 from server.storage.codec import array_to_str, decode_arrays, encode_arrays, str_to_array
 from server.storage.session_store import StoredSession
 
@@ -45,6 +47,8 @@ class SessionMeta:
     engine: str
     token_digest: str
     entropy: int
+    contribute: bool = False  # the device offered the walk for map building
+    device_model: str = ""
 
     def to_bytes(self) -> bytes:
         return encode_arrays(
@@ -53,6 +57,8 @@ class SessionMeta:
                 "engine": str_to_array(self.engine),
                 "token_digest": str_to_array(self.token_digest),
                 "entropy": np.frombuffer(self.entropy.to_bytes(16, "little"), dtype=np.uint8),
+                "contribute": np.array([self.contribute], dtype=np.bool_),
+                "device_model": str_to_array(self.device_model),
             }
         )
 
@@ -64,6 +70,9 @@ class SessionMeta:
             engine=array_to_str(a["engine"]),
             token_digest=array_to_str(a["token_digest"]),
             entropy=int.from_bytes(a["entropy"].tobytes(), "little"),
+            # sessions created before these fields existed
+            contribute=bool(a["contribute"][0]) if "contribute" in a else False,
+            device_model=array_to_str(a["device_model"]) if "device_model" in a else "",
         )
 
 
@@ -192,7 +201,16 @@ def fix_to_wire(fix: Fix, maps: SiteMaps, engine: str) -> dict[str, Any]:
     }
 
 
-async def create_session(rt: Runtime, site_id: str, engine: str) -> CreatedSession:
+async def create_session(
+    rt: Runtime,
+    site_id: str,
+    engine: str,
+    *,
+    contribute: bool = False,
+    device_model: str | None = None,
+) -> CreatedSession:
+    """Open a session. With ``contribute`` its batches are kept, and when it ends they
+    become one upload for the map builder (``services.uploads``)."""
     if engine not in ENGINES:
         known = ", ".join(sorted(ENGINES))
         raise Invalid(f"unknown engine {engine!r}; known engines: {known}", field="engine")
@@ -201,7 +219,9 @@ async def create_session(rt: Runtime, site_id: str, engine: str) -> CreatedSessi
     spec = get_engine(engine)
     token = secrets.token_urlsafe(32)
     session_id = uuid.uuid4().hex
-    meta = SessionMeta(site_id, engine, _digest(token), secrets.randbits(128))
+    meta = SessionMeta(
+        site_id, engine, _digest(token), secrets.randbits(128), contribute, device_model or ""
+    )
     state = SessionState(0, spec.initial_state(spec.params_type()), (), b"")
     ttl = rt.settings.session_idle_s
     await rt.store.create(session_id, meta.to_bytes(), state.to_bytes(), ttl)
@@ -243,6 +263,9 @@ async def apply_batch(
             continue
         async with rt.transaction() as s:
             maps = await site_maps(s, rt.maps, meta.site_id)
+            if meta.contribute:  # kept before the batch is acknowledged
+                walk = traces.encode_trace(traces.trace_from_events(events))
+                await repo.keep_session_batch(s, session_id, seq, walk)
         rng = np.random.default_rng(np.random.SeedSequence(meta.entropy, spawn_key=(seq,)))
         params = spec.params_type()
         new_engine_state, fixes = await anyio.to_thread.run_sync(
@@ -293,10 +316,44 @@ async def get_session(rt: Runtime, session_id: str, token: str) -> SessionInfo:
     )
 
 
-async def end_session(rt: Runtime, session_id: str, token: str) -> None:
-    await _load(rt, session_id, token)
+async def end_session(rt: Runtime, session_id: str, token: str) -> str | None:
+    """End a session; for a contributing one, its kept batches become one upload first
+    (its id is returned; None when nothing was kept)."""
+    stored, meta = await _load(rt, session_id, token)
+    upload_id = None
+    if meta.contribute:
+        state = SessionState.from_bytes(stored.state, get_engine(meta.engine))
+        upload_id = await _offer_walk(rt, session_id, meta, state)
     await rt.store.delete(session_id)
     await rt.store.publish(session_id, orjson.dumps({"closed": True}))
+    return upload_id
+
+
+async def _offer_walk(
+    rt: Runtime, session_id: str, meta: SessionMeta, state: SessionState
+) -> str | None:
+    last_fix = orjson.loads(state.last_fix) if state.last_fix else {}
+    async with rt.transaction() as s:
+        kept = await repo.take_session_batches(s, session_id)
+        if not kept:
+            return None
+        walk = traces.join_traces([traces.decode_trace(b) for b in kept])
+        new = uploads.NewUpload(
+            site_id=meta.site_id,
+            building_id=last_fix.get("building_id"),
+            floor_level=last_fix.get("floor"),
+            device_model=meta.device_model or None,
+            content_type=traces.CONTENT_TYPE,
+            payload=traces.encode_trace(walk),
+            idempotency_key=f"session:{session_id}",
+        )
+        try:
+            row, _ = await uploads.create_upload(s, new)
+        except Invalid:  # nothing in it a map could use (no records)
+            return None
+        upload_id = row.id
+    await rt.uploads.publish(upload_id)  # a lost publish is found by the worker's rescan
+    return upload_id
 
 
 @asynccontextmanager

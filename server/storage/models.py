@@ -225,6 +225,17 @@ class Upload(Base):
     updated_at: Mapped[datetime] = mapped_column(default=utcnow, onupdate=utcnow)
 
 
+class SessionContribution(Base):
+    """A batch of a session whose device offered its walk for map building; the batches
+    become one upload when the session ends."""
+
+    __tablename__ = "session_contributions"
+    session_id: Mapped[str] = mapped_column(String(32), primary_key=True)
+    seq: Mapped[int] = mapped_column(BigInteger, primary_key=True)
+    payload: Mapped[bytes] = mapped_column(LargeBinary)  # services.traces encoding
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+
 class ApiKey(Base):
     """An admin API key; only its SHA-256 digest is stored."""
 

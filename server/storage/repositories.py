@@ -25,6 +25,7 @@ from server.storage.models import (
     RadioMapVersion,
     RadioStat,
     ReferencePoint,
+    SessionContribution,
     Site,
     SurveyPoint,
     Upload,
@@ -415,6 +416,30 @@ async def upload_ids(
 async def count_survey_points(s: AsyncSession, upload_id: str) -> int:
     stmt = select(func.count()).select_from(SurveyPoint).where(SurveyPoint.upload_id == upload_id)
     return int(await s.scalar(stmt) or 0)
+
+
+# ---------------------------------------------------------------- session contributions
+
+
+async def keep_session_batch(s: AsyncSession, session_id: str, seq: int, payload: bytes) -> None:
+    """Keep a contributing session's batch (once per seq: a retry finds it there)."""
+    exists = await s.get(SessionContribution, (session_id, seq))
+    if exists is None:
+        s.add(SessionContribution(session_id=session_id, seq=seq, payload=payload))
+        await s.flush()
+
+
+async def take_session_batches(s: AsyncSession, session_id: str) -> list[bytes]:
+    """A session's kept batches in seq order, removed from the table."""
+    stmt = (
+        select(SessionContribution)
+        .where(SessionContribution.session_id == session_id)
+        .order_by(SessionContribution.seq)
+    )
+    rows = list((await s.scalars(stmt)).all())
+    for row in rows:
+        await s.delete(row)
+    return [row.payload for row in rows]
 
 
 # ---------------------------------------------------------------- API keys

@@ -310,3 +310,74 @@ async def test_a_malformed_walk_of_our_events_names_the_field(
     assert r.status_code == 422
     assert "events" in r.json()["message"]
     assert await _count_uploads(app) == before
+
+
+async def test_an_ended_session_offered_for_map_building_becomes_an_upload(
+    client: httpx.AsyncClient, admin: dict[str, str], app: FastAPI, upload_worker: None
+) -> None:
+    site_id = await _site(client, admin, [0])
+    r = await client.get(f"/v1/sites/{site_id}/buildings", headers=admin)
+    building_id = r.json()["items"][0]["id"]
+    r = await client.get(f"/v1/buildings/{building_id}/floors", headers=admin)
+    floor_id = r.json()["items"][0]["id"]
+    plan = {
+        "type": "FeatureCollection",
+        "features": [
+            {
+                "type": "Feature",
+                "properties": {"beacon": key},
+                "geometry": {"type": "Point", "coordinates": list(xy)},
+            }
+            for key, xy in BEACONS.items()
+        ],
+    }
+    await client.put(f"/v1/floors/{floor_id}/plan", json=plan, headers=admin)
+    # the toy floor's radio map places the phone, so the session knows its floor
+    from tests.api.toy_site import rssi_at
+
+    points = [
+        {"x_m": float(x), "y_m": float(y), "floor": 0, "wifi": rssi_at(x, y, 0)}
+        for x in range(0, 21, 2)
+        for y in range(0, 11, 2)
+    ]
+    r = await client.post(
+        f"/v1/buildings/{building_id}/survey", json={"points": points}, headers=admin
+    )
+    assert r.status_code == 201, r.text
+
+    r = await client.post(
+        "/v1/sessions",
+        json={"site_id": site_id, "engine": "wknn", "contribute": True, "device_model": "Pixel 4"},
+    )
+    assert r.status_code == 201, r.text
+    sid, auth = r.json()["id"], {"Authorization": f"Bearer {r.json()['token']}"}
+    events = sorted(_walk_events(), key=lambda e: e["t"])
+    batches = [events[i : i + 12] for i in range(0, len(events), 12)]
+    for seq, batch in enumerate(batches, start=1):
+        r = await client.post(
+            f"/v1/sessions/{sid}/batches", json={"seq": seq, "events": batch}, headers=auth
+        )
+        assert r.status_code == 200, r.text
+    # a retried batch is kept once
+    r = await client.post(
+        f"/v1/sessions/{sid}/batches", json={"seq": 2, "events": batches[1]}, headers=auth
+    )
+    assert r.json()["replayed"] is True
+    r = await client.delete(f"/v1/sessions/{sid}", headers=auth)
+    assert r.status_code == 204
+    upload_id = r.headers["location"].rsplit("/", 1)[1]
+    upload = await _settled(client, admin, upload_id)
+    assert upload["status"] == "done", upload
+    assert upload["floor"] == 0
+    assert upload["device_model"] == "Pixel 4"
+    assert upload["report"]["anchor_source"] == "beacons"
+    assert upload["report"]["scans"] >= 5
+    # a session that did not offer its walk leaves nothing
+    r = await client.post("/v1/sessions", json={"site_id": site_id, "engine": "wknn"})
+    sid, auth = r.json()["id"], {"Authorization": f"Bearer {r.json()['token']}"}
+    await client.post(
+        f"/v1/sessions/{sid}/batches", json={"seq": 1, "events": batches[0]}, headers=auth
+    )
+    r = await client.delete(f"/v1/sessions/{sid}", headers=auth)
+    assert r.status_code == 204
+    assert "location" not in r.headers
