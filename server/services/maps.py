@@ -7,7 +7,7 @@ import hashlib
 import json
 import time
 from collections import OrderedDict
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -119,17 +119,7 @@ async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None
     floor_index = {f.floor_id: i for i, f in enumerate(refs)}
     parts = []
     for row in latest:
-        arrays = await repo.load_radio_map(s, row.id, MISSING_DBM)
-        parts.append(
-            RadioMap(
-                rp_xy=arrays.rp_xy,
-                rp_floor=np.array([floor_index[f] for f in arrays.rp_floor_id], dtype=np.int32),
-                mean_dbm=arrays.mean_dbm,
-                var_db2=arrays.var_db2,
-                count=arrays.count,
-                emitters=tuple(radio_key(kind, key) for kind, key in arrays.emitters),
-            )
-        )
+        parts.append(_radio_map(await repo.load_radio_map(s, row.id, MISSING_DBM), floor_index))
     merged = merge_radio_maps(parts)
     radio = in_place_order(merged) if merged is not None else None
     return SiteMaps(
@@ -139,6 +129,22 @@ async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None
         anchors=anchors,
         plans=plans,
         magnetic=MagneticMap(grids, version) if any(g is not None for g in grids) else None,
+    )
+
+
+def _radio_map(stored: repo.RadioMapArrays, floor_index: Mapping[str, int]) -> RadioMap:
+    """A stored version as the engines and the folding read it, floors by index."""
+    return RadioMap(
+        rp_xy=stored.rp_xy,
+        rp_floor=np.array([floor_index[f] for f in stored.rp_floor_id], dtype=np.int32),
+        mean_dbm=stored.mean_dbm,
+        var_db2=stored.var_db2,
+        count=stored.count,
+        emitters=tuple(radio_key(kind, key) for kind, key in stored.emitters),
+        # versions stored as rows do not know their points: one per RP
+        rp_points=stored.rp_points
+        if stored.rp_points is not None
+        else np.ones(len(stored.rp_xy), dtype=np.int32),
     )
 
 
@@ -238,19 +244,7 @@ async def fold_survey(
     current = await repo.latest_radio_map(s, building_id)
     base = None
     if current is not None:
-        stored = await repo.load_radio_map(s, current.id, MISSING_DBM)
-        base = RadioMap(
-            rp_xy=stored.rp_xy,
-            rp_floor=np.array([floor_index[f] for f in stored.rp_floor_id], dtype=np.int32),
-            mean_dbm=stored.mean_dbm,
-            var_db2=stored.var_db2,
-            count=stored.count,
-            emitters=tuple(radio_key(kind, key) for kind, key in stored.emitters),
-            # versions stored as rows do not know their points: one per RP
-            rp_points=stored.rp_points
-            if stored.rp_points is not None
-            else np.ones(len(stored.rp_xy), dtype=np.int32),
-        )
+        base = _radio_map(await repo.load_radio_map(s, current.id, MISSING_DBM), floor_index)
 
     def build() -> RadioMap:
         new = build_radio_map(xy, floor, rssi, emitters, cell_m=SURVEY_CELL_M)

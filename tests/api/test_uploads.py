@@ -249,12 +249,12 @@ def _walk_events() -> list[dict[str, Any]]:
     return events
 
 
-async def test_a_walk_of_our_events_is_placed_by_the_plans_beacons(
-    client: httpx.AsyncClient, admin: dict[str, str], app: FastAPI, upload_worker: None
-) -> None:
+async def _beacon_site(client: httpx.AsyncClient, admin: dict[str, str]) -> tuple[str, str]:
+    """A one-floor site whose plan marks the two beacons at the ends of the walk; its id
+    and its building's."""
     site_id = await _site(client, admin, [0])
     r = await client.get(f"/v1/sites/{site_id}/buildings", headers=admin)
-    building_id = r.json()["items"][0]["id"]
+    building_id: str = r.json()["items"][0]["id"]
     r = await client.get(f"/v1/buildings/{building_id}/floors", headers=admin)
     floor_id = r.json()["items"][0]["id"]
     plan = {
@@ -270,6 +270,13 @@ async def test_a_walk_of_our_events_is_placed_by_the_plans_beacons(
     }
     r = await client.put(f"/v1/floors/{floor_id}/plan", json=plan, headers=admin)
     assert r.status_code == 200, r.text
+    return site_id, building_id
+
+
+async def test_a_walk_of_our_events_is_placed_by_the_plans_beacons(
+    client: httpx.AsyncClient, admin: dict[str, str], app: FastAPI, upload_worker: None
+) -> None:
+    site_id, _ = await _beacon_site(client, admin)
     r = await client.post(
         "/v1/uploads",
         params={"site_id": site_id, "floor": 0},
@@ -315,23 +322,7 @@ async def test_a_malformed_walk_of_our_events_names_the_field(
 async def test_an_ended_session_offered_for_map_building_becomes_an_upload(
     client: httpx.AsyncClient, admin: dict[str, str], app: FastAPI, upload_worker: None
 ) -> None:
-    site_id = await _site(client, admin, [0])
-    r = await client.get(f"/v1/sites/{site_id}/buildings", headers=admin)
-    building_id = r.json()["items"][0]["id"]
-    r = await client.get(f"/v1/buildings/{building_id}/floors", headers=admin)
-    floor_id = r.json()["items"][0]["id"]
-    plan = {
-        "type": "FeatureCollection",
-        "features": [
-            {
-                "type": "Feature",
-                "properties": {"beacon": key},
-                "geometry": {"type": "Point", "coordinates": list(xy)},
-            }
-            for key, xy in BEACONS.items()
-        ],
-    }
-    await client.put(f"/v1/floors/{floor_id}/plan", json=plan, headers=admin)
+    site_id, building_id = await _beacon_site(client, admin)
     # the toy floor's radio map places the phone, so the session knows its floor
     from tests.api.toy_site import rssi_at
 
