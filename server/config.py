@@ -41,6 +41,11 @@ class Settings(BaseSettings):
         description="an upload a worker has held this long without settling it goes to "
         "another worker (longer than the slowest upload takes)",
     )
+    upload_inertial_selection: bool = Field(
+        False,
+        description="use only the samples of an upload's steady walking (Mansour IV-A); "
+        "off by default: on ILC site2 about a third of the walking time passes",
+    )
     in_process_worker: bool | None = Field(
         None,
         description="run the upload worker inside the api process (default: when no Redis "

@@ -16,6 +16,7 @@ import logging
 import os
 import socket
 import time
+from functools import partial
 
 import anyio
 
@@ -52,7 +53,14 @@ async def handle(rt: Runtime, delivery: Delivery) -> None:
         await rt.uploads.ack(delivery)
         return
     try:
-        result = await anyio.to_thread.run_sync(uploads.contribution, upload, beacons)
+        result = await anyio.to_thread.run_sync(
+            partial(
+                uploads.contribution,
+                upload,
+                beacons,
+                inertial_selection=rt.settings.upload_inertial_selection,
+            )
+        )
         async with rt.transaction() as s:
             await uploads.settle(s, delivery.upload_id, result)
     except Exception as exc:

@@ -43,6 +43,7 @@ from server.positioning.magnetic import MagneticSamples
 from server.positioning.mapping.anchors import ble_anchors
 from server.positioning.mapping.labelled import interpolate_track
 from server.positioning.mapping.placement import place_samples
+from server.positioning.mapping.selection import select_inertial
 from server.positioning.step_tracker import TrackerParams
 from server.services import traces
 from server.services.errors import Conflict, Invalid, NotFound
@@ -218,7 +219,9 @@ async def building_beacons(s: AsyncSession, upload: Upload) -> list[Beacon]:
     return found
 
 
-def contribution(upload: Upload, beacons: Sequence[Beacon] = ()) -> Contribution:
+def contribution(
+    upload: Upload, beacons: Sequence[Beacon] = (), *, inertial_selection: bool = False
+) -> Contribution:
     """The readings an upload adds to the maps (CPU work, no I/O: run it in a thread).
     Its anchors are its waypoints; a walk with fewer than two takes them from its passes
     by the ``beacons`` of its floor (``mapping.anchors.ble_anchors``)."""
@@ -256,6 +259,8 @@ def contribution(upload: Upload, beacons: Sequence[Beacon] = ()) -> Contribution
         ]
     )
     xy, placed, not_used = _place(trace, times, report)
+    if inertial_selection:
+        placed = placed & _selected(trace, times, report, not_used)
     points: list[SurveyPointData] = []
     for event, (x, y), ok in zip(events, xy[: len(events)].tolist(), placed, strict=False):
         if ok:
@@ -279,6 +284,27 @@ def contribution(upload: Upload, beacons: Sequence[Beacon] = ()) -> Contribution
         why = f": {not_used[0]}" if not_used else ""
         return Contribution(level, rejected=f"nothing could be placed{why}", report=report)
     return Contribution(level, points, magnetic, report=report)
+
+
+def _selected(
+    trace: IlcTrace, times: NDArray[np.float64], report: dict[str, Any], not_used: list[str]
+) -> NDArray[np.bool_]:
+    """Which sample times fall in spans of steady walking (``papers/003_*`` IV-A,
+    ``mapping.selection``); the reasons for the rest go into the report."""
+    selection = select_inertial(trace.accel, trace.gyro)
+    spans = selection.kept_spans_ms
+    inside = np.zeros(times.shape, dtype=bool)
+    for start, end in spans.tolist():
+        inside |= (times >= start) & (times < end)
+    total = selection.kept_ms + selection.rejected_ms
+    report["inertial_selection_kept"] = round(selection.kept_ms / total, 3) if total else 0.0
+    worst: dict[str, int] = {}
+    for span in selection.rejected:
+        for criterion in span.criteria:
+            worst[criterion] = worst.get(criterion, 0) + span.end_ms - span.start_ms
+    for name, ms in sorted(worst.items(), key=lambda kv: -kv[1]):
+        not_used.append(f"inertial selection: {ms / 1000:.0f} s failed {name}")
+    return inside
 
 
 def _with_beacon_anchors(trace: IlcTrace, beacons: Sequence[Beacon]) -> IlcTrace:
