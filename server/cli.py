@@ -563,6 +563,14 @@ def evaluate_uji(
     test_csv: Annotated[Path, typer.Argument(exists=True, dir_okay=False)],
     method: Annotated[str, typer.Option(help="fingerprint method")] = "wknn",
     k: Annotated[int, typer.Option(min=1, help="neighbours")] = 4,
+    device_offsets: Annotated[
+        bool,
+        typer.Option(
+            "--device-offsets",
+            help="estimate per-phone RSS offsets on the training set and take them off "
+            "training and test readings (phones unknown to training: not corrected)",
+        ),
+    ] = False,
     json_path: Annotated[Path | None, typer.Option("--json", help="write the metrics here")] = None,
 ) -> None:
     """Fingerprint methods on UJIIndoorLoc-style CSV files (EvAAL score included)."""
@@ -580,9 +588,20 @@ def evaluate_uji(
             method,
             k=k,
             progress=lambda _stage, done, total: bar.update(task, completed=done, total=total),
+            device_offsets=device_offsets,
         )
     result["dataset"] = f"uji:{test_csv.name}"
-    _print_report(f"{method} on {test_csv.name}", result)
+    offsets = result.get("device_offsets", {})
+    if offsets:
+        table = Table(title="per-phone RSS offsets (training set)")
+        for column in ("phone id", "offset dB", "pairs", "std dB"):
+            table.add_column(column, justify="right")
+        for phone, o in offsets.items():
+            table.add_row(phone, f"{o['offset_db']:+.2f}", str(o["n_pairs"]), f"{o['std_db']:.2f}")
+        console.print(table)
+    _print_report(
+        f"{method} on {test_csv.name}", {n: v for n, v in result.items() if n != "device_offsets"}
+    )
     if json_path is not None:
         json_path.write_text(json.dumps(result, indent=2) + "\n")
         console.print(f"metrics written to {json_path}")
