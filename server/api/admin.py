@@ -10,7 +10,7 @@ from fastapi import APIRouter, Path, status
 from server.api import schemas as sc
 from server.api.convert import ble_pairs, wifi_pairs
 from server.api.deps import AdminDep, IdPath, SqlDep
-from server.services import magnetic_maps, maps, sites
+from server.services import device_offsets, magnetic_maps, maps, sites
 
 VersionPath = Annotated[int, Path(ge=1, le=2**31 - 1, description="map version number")]
 
@@ -169,3 +169,18 @@ async def activate_magnetic_map(
     """Roll back (or forward) to a version: it becomes the floor's current magnetic map."""
     row = await magnetic_maps.activate_magnetic_map(s, floor_id, version)
     return sc.MagneticMapRead.model_validate(row, from_attributes=True)
+
+
+@router.get("/buildings/{building_id}/device-offsets")
+async def list_device_offsets(building_id: IdPath, s: SqlDep) -> sc.DeviceOffsetList:
+    """Per device model, the RSSI offset estimated from co-located contributions; a
+    session that names its device model has it taken off its scans."""
+    await sites.get_building(s, building_id)
+    found = await device_offsets.building_offsets(s, building_id)
+    items = [
+        sc.DeviceOffsetRead(
+            device_model=model, offset_db=o.offset_db, n_pairs=o.n_pairs, std_db=o.std_db
+        )
+        for model, o in sorted(found.items())
+    ]
+    return sc.DeviceOffsetList(items=items, count=len(items))

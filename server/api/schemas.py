@@ -460,6 +460,18 @@ class MagneticMapList(Strict):
     count: int
 
 
+class DeviceOffsetRead(Strict):
+    device_model: str = Field(description="(surveyed): the admin API's survey points")
+    offset_db: float = Field(description="what this model reads above the map's common level")
+    n_pairs: int = Field(description="co-located (cell, emitter) pairs behind the estimate")
+    std_db: float
+
+
+class DeviceOffsetList(Strict):
+    items: list[DeviceOffsetRead]
+    count: int
+
+
 # ---------------------------------------------------------------- uploads
 
 

@@ -21,8 +21,10 @@ from server.positioning.events import radio_key
 from server.positioning.fingerprint import MISSING_DBM, RadioMap, in_place_order
 from server.positioning.floorplan import FloorPlan, plan_from_geojson
 from server.positioning.magnetic import MagneticMap, MagneticSamples
+from server.positioning.mapping.device_offsets import DeviceOffset
 from server.positioning.mapping.gridding import build_radio_map, fold_radio_maps
 from server.positioning.mapping.matrices import merge_radio_maps, readings_matrix
+from server.services.device_offsets import building_offsets
 from server.services.errors import Invalid, NotFound
 from server.services.magnetic_maps import fold_sources
 from server.storage import repositories as repo
@@ -122,6 +124,11 @@ async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None
         parts.append(_radio_map(await repo.load_radio_map(s, row.id, MISSING_DBM), floor_index))
     merged = merge_radio_maps(parts)
     radio = in_place_order(merged) if merged is not None else None
+    offsets: dict[str, DeviceOffset] = {}
+    for building_id in building_ids:  # per model, from the building with most evidence
+        for model, found in (await building_offsets(s, building_id)).items():
+            if model not in offsets or found.n_pairs > offsets[model].n_pairs:
+                offsets[model] = found
     return SiteMaps(
         floors=refs,
         radio=radio,
@@ -129,6 +136,7 @@ async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None
         anchors=anchors,
         plans=plans,
         magnetic=MagneticMap(grids, version) if any(g is not None for g in grids) else None,
+        device_offsets={model: o.offset_db for model, o in offsets.items()},
     )
 
 

@@ -30,6 +30,7 @@ from server.positioning.engines import ENGINES, get_engine
 from server.positioning.engines.base import EngineSpec, SiteMaps
 from server.positioning.events import Event, Fix, ImuEvent
 from server.services import traces, uploads
+from server.services.device_offsets import on_common_level
 from server.services.errors import Conflict, Forbidden, Invalid, NotFound
 from server.services.maps import site_maps
 from server.services.runtime import Runtime
@@ -268,8 +269,9 @@ async def apply_batch(
                 await repo.keep_session_batch(s, session_id, seq, walk)
         rng = np.random.default_rng(np.random.SeedSequence(meta.entropy, spawn_key=(seq,)))
         params = spec.params_type()
+        scans_level = maps.device_offsets.get(meta.device_model)
         new_engine_state, fixes = await anyio.to_thread.run_sync(
-            spec.run, state.engine_state, list(events), maps, params, rng
+            spec.run, state.engine_state, on_common_level(events, scans_level), maps, params, rng
         )
         wire = [fix_to_wire(f, maps, meta.engine) for f in fixes]
         body = orjson.dumps(wire)

@@ -120,6 +120,27 @@ async def list_survey_points(s: AsyncSession, building_id: str) -> Sequence[Surv
     return (await s.scalars(stmt.order_by(SurveyPoint.id))).all()
 
 
+async def survey_readings_with_devices(
+    s: AsyncSession, building_id: str
+) -> list[tuple[float, float, str, dict[str, Any], str | None, str | None]]:
+    """Per survey point of the building: x, y, floor id, readings, the upload it came from
+    (None for points surveyed through the admin API) and that upload's device model."""
+    stmt = (
+        select(
+            SurveyPoint.x_m,
+            SurveyPoint.y_m,
+            SurveyPoint.floor_id,
+            SurveyPoint.readings,
+            SurveyPoint.upload_id,
+            Upload.device_model,
+        )
+        .outerjoin(Upload, SurveyPoint.upload_id == Upload.id)
+        .where(SurveyPoint.building_id == building_id)
+        .order_by(SurveyPoint.id)
+    )
+    return [(r[0], r[1], r[2], r[3], r[4], r[5]) for r in (await s.execute(stmt)).all()]
+
+
 # ---------------------------------------------------------------- emitters and radio maps
 
 

@@ -372,3 +372,48 @@ async def test_an_ended_session_offered_for_map_building_becomes_an_upload(
     r = await client.delete(f"/v1/sessions/{sid}", headers=auth)
     assert r.status_code == 204
     assert "location" not in r.headers
+
+
+def _louder(text: bytes, db: float) -> bytes:
+    """The trace with every WiFi reading ``db`` stronger (another phone model)."""
+    lines = []
+    for line in text.decode().splitlines():
+        f = line.split("\t")
+        if len(f) > 4 and f[1] == "TYPE_WIFI":
+            f[4] = str(int(f[4]) + int(db))
+        lines.append("\t".join(f))
+    return "\n".join(lines).encode()
+
+
+@needs_data
+async def test_device_offsets_come_from_co_located_contributions(
+    client: httpx.AsyncClient, admin: dict[str, str], app: FastAPI, upload_worker: None
+) -> None:
+    site_id = await _site(client, admin, [3])
+    text = _trace_text()
+    for model, body in (("quiet phone", text), ("loud phone", _louder(text, 8))):
+        r = await client.post(
+            "/v1/uploads",
+            params={"site_id": site_id, "device_model": model},
+            content=body,
+            headers={**admin, "content-type": "text/plain"},
+        )
+        assert (await _settled(client, admin, r.json()["id"]))["status"] == "done"
+    r = await client.get(f"/v1/sites/{site_id}/buildings", headers=admin)
+    building_id = r.json()["items"][0]["id"]
+    r = await client.get(f"/v1/buildings/{building_id}/device-offsets", headers=admin)
+    assert r.status_code == 200, r.text
+    found = {o["device_model"]: o for o in r.json()["items"]}
+    assert set(found) == {"quiet phone", "loud phone"}
+    gap = found["loud phone"]["offset_db"] - found["quiet phone"]["offset_db"]
+    assert gap == pytest.approx(8.0, abs=0.5)
+    assert found["loud phone"]["n_pairs"] >= 20
+    # a session of the loud phone has its scans brought down by its offset
+    async with app.state.runtime.transaction() as s:
+        from server.services.maps import site_maps
+
+        app.state.runtime.maps.invalidate(site_id)
+        maps = await site_maps(s, app.state.runtime.maps, site_id)
+    assert maps.device_offsets["loud phone"] == pytest.approx(found["loud phone"]["offset_db"])
+    r = await client.get(f"/v1/buildings/{'0' * 32}/device-offsets", headers=admin)
+    assert r.status_code == 404

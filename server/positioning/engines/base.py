@@ -9,7 +9,7 @@ write them as typed raw bytes (never pickle, never JSON).
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
@@ -53,6 +53,9 @@ class SiteMaps:
     anchors: tuple[Anchor, ...] = ()
     plans: tuple[FloorPlan | None, ...] = ()  # per floor index; missing or None: no plan
     magnetic: MagneticMap | None = None
+    # dB a device model reads above the map's common level (subtracted from its scans
+    # before they reach an engine; services.device_offsets)
+    device_offsets: Mapping[str, float] = field(default_factory=dict)
 
 
 class EngineState(Protocol):
