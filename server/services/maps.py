@@ -121,7 +121,9 @@ async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None
     floor_index = {f.floor_id: i for i, f in enumerate(refs)}
     parts = []
     for row in latest:
-        parts.append(_radio_map(await repo.load_radio_map(s, row.id, MISSING_DBM), floor_index))
+        parts.append(
+            stored_radio_map(await repo.load_radio_map(s, row.id, MISSING_DBM), floor_index)
+        )
     merged = merge_radio_maps(parts)
     radio = in_place_order(merged) if merged is not None else None
     offsets: dict[str, DeviceOffset] = {}
@@ -140,7 +142,7 @@ async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None
     )
 
 
-def _radio_map(stored: repo.RadioMapArrays, floor_index: Mapping[str, int]) -> RadioMap:
+def stored_radio_map(stored: repo.RadioMapArrays, floor_index: Mapping[str, int]) -> RadioMap:
     """A stored version as the engines and the folding read it, floors by index."""
     return RadioMap(
         rp_xy=stored.rp_xy,
@@ -252,7 +254,7 @@ async def fold_survey(
     current = await repo.latest_radio_map(s, building_id)
     base = None
     if current is not None:
-        base = _radio_map(await repo.load_radio_map(s, current.id, MISSING_DBM), floor_index)
+        base = stored_radio_map(await repo.load_radio_map(s, current.id, MISSING_DBM), floor_index)
 
     def build() -> RadioMap:
         new = build_radio_map(xy, floor, rssi, emitters, cell_m=SURVEY_CELL_M)

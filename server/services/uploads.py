@@ -27,11 +27,13 @@ anchors is rejected with that reason.
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
+import anyio
 import numpy as np
 from numpy.typing import NDArray
 from sqlalchemy.ext.asyncio import AsyncSession
@@ -39,16 +41,18 @@ from sqlalchemy.ext.asyncio import AsyncSession
 from server.datasets.ilc import IlcTrace, TraceFormatError, floor_level, parse_trace_text
 from server.positioning.anchors import anchors_from_plan
 from server.positioning.events import WifiEvent
+from server.positioning.fingerprint import MISSING_DBM
 from server.positioning.magnetic import MagneticSamples
 from server.positioning.mapping.anchors import ble_anchors
 from server.positioning.mapping.labelled import interpolate_track
 from server.positioning.mapping.placement import place_samples
 from server.positioning.mapping.selection import select_inertial
+from server.positioning.mapping.wifi_anchors import anchor_nodes
 from server.positioning.step_tracker import TrackerParams
 from server.services import traces
 from server.services.errors import Conflict, Invalid, NotFound
 from server.services.magnetic_maps import fold_sources
-from server.services.maps import SurveyPointData, add_survey
+from server.services.maps import SurveyPointData, add_survey, stored_radio_map
 from server.services.pdr_evaluation import trace_steps
 from server.storage import repositories as repo
 from server.storage.codec import CodecError
@@ -196,27 +200,61 @@ def _settle_failed(row: Upload, error: str) -> None:
 
 @dataclass(frozen=True)
 class Beacon:
-    """A BLE beacon a floor plan marks at a known place (an entrance, an elevator)."""
+    """An emitter at a known place: a BLE beacon a floor plan marks (an entrance, an
+    elevator; ``papers/003_*`` IV-B), or one of the floor's own WiFi APs located from the
+    radio map (IV-E2). A walk passes it where its smoothed RSS peaks at or above
+    ``threshold_dbm`` (None: ``mapping.anchors``' default for beacons)."""
 
-    emitter: str  # lower-case beacon id, as scans carry it
+    emitter: str  # lower-case id, as scans carry it
     xy_m: tuple[float, float]
     level: int
+    kind: str = "ble"  # or "wifi"
+    threshold_dbm: float | None = None
 
 
 async def building_beacons(s: AsyncSession, upload: Upload) -> list[Beacon]:
-    """The beacons the floor plans of the upload's building mark (none when the site has
-    several buildings and the upload names none)."""
+    """The beacons the floor plans of the upload's building mark, and the WiFi APs that
+    qualify as anchors in its current radio map (``mapping.wifi_anchors``); none when the
+    site has several buildings and the upload names none."""
     building_id = upload.building_id
     if building_id is None:
         buildings = await repo.list_buildings(s, upload.site_id)
         if len(buildings) != 1:
             return []
         building_id = buildings[0].id
+    floors = await repo.list_floors(s, building_id)
     found = []
-    for floor in await repo.list_floors(s, building_id):
+    for floor in floors:
         for a in anchors_from_plan(floor.plan_geojson, 0):
             found.append(Beacon(a.emitter.split(":", 1)[1], (a.x_m, a.y_m), floor.level))
+    current = await repo.latest_radio_map(s, building_id)
+    if current is not None:
+        found += await _wifi_anchors(s, current.id, {f.id: f.level for f in floors})
     return found
+
+
+_WIFI_ANCHORS: OrderedDict[str, list[Beacon]] = OrderedDict()  # by radio map id
+
+
+async def _wifi_anchors(s: AsyncSession, map_id: str, levels: dict[str, int]) -> list[Beacon]:
+    if map_id not in _WIFI_ANCHORS:
+        stored = await repo.load_radio_map(s, map_id, MISSING_DBM)
+        order = sorted(levels)
+        radio = stored_radio_map(stored, {f: i for i, f in enumerate(order)})
+        nodes = await anyio.to_thread.run_sync(anchor_nodes, radio)
+        _WIFI_ANCHORS[map_id] = [
+            Beacon(
+                n.emitter.split(":", 1)[1],
+                (float(n.fit.xy[0]), float(n.fit.xy[1])),
+                levels[order[n.floor]],
+                kind="wifi",
+                threshold_dbm=n.fit.p0_dbm,
+            )
+            for n in nodes
+        ]
+        while len(_WIFI_ANCHORS) > 4:
+            _WIFI_ANCHORS.popitem(last=False)
+    return _WIFI_ANCHORS[map_id]
 
 
 def contribution(
@@ -235,13 +273,13 @@ def contribution(
             level = floor_level(trace.floor)
         except ValueError:
             return Contribution(None, rejected="no floor: give the floor hint (floor)")
+    n_waypoints = int(trace.waypoint_t_ms.size)
+    trace = _with_passes(trace, [b for b in beacons if b.level == level])
     report: dict[str, Any] = {
         "anchors": int(trace.waypoint_t_ms.size),
-        "anchor_source": "waypoints",
+        "anchor_source": "waypoints" if n_waypoints else "beacons",
+        "anchor_passes": int(trace.waypoint_t_ms.size) - n_waypoints,
     }
-    if trace.waypoint_t_ms.size < 2:
-        trace = _with_beacon_anchors(trace, [b for b in beacons if b.level == level])
-        report |= {"anchors": int(trace.waypoint_t_ms.size), "anchor_source": "beacons"}
     if trace.waypoint_t_ms.size < 2:
         return Contribution(
             level,
@@ -307,15 +345,40 @@ def _selected(
     return inside
 
 
-def _with_beacon_anchors(trace: IlcTrace, beacons: Sequence[Beacon]) -> IlcTrace:
-    """The trace with its passes by known beacons as its waypoints (``papers/003_*``
-    section IV-B: the smoothed RSS peak of an elevator or entrance beacon)."""
-    readings = [(e.t_ms, r.emitter.lower(), r.rssi_dbm) for e in trace.ble for r in e.readings]
-    if not beacons or not readings:
+def _with_passes(trace: IlcTrace, beacons: Sequence[Beacon]) -> IlcTrace:
+    """The trace with its passes by known beacons and anchor APs added to its waypoints
+    (``papers/003_*`` IV-B and IV-E3: where the smoothed RSS of one of them peaks at or
+    above its threshold, the walker was at its place). A pass within a second of a
+    waypoint is left out: the waypoint says it better."""
+    found_t, found_xy = [trace.waypoint_t_ms.astype(np.float64)], [trace.waypoint_xy_m]
+    for kind, scans in (("ble", trace.ble), ("wifi", trace.wifi)):
+        readings = [(e.t_ms, r.emitter.lower(), r.rssi_dbm) for e in scans for r in e.readings]
+        for threshold in {b.threshold_dbm for b in beacons if b.kind == kind}:
+            group = [b for b in beacons if b.kind == kind and b.threshold_dbm == threshold]
+            known = {b.emitter for b in group}
+            mine = [r for r in readings if r[1] in known]
+            if not mine:
+                continue
+            t, ids, rssi = zip(*mine, strict=True)
+            places = [(b.emitter, b.xy_m, b.level) for b in group]
+            options = {} if threshold is None else {"threshold_dbm": threshold}
+            passes = ble_anchors(t, list(ids), rssi, places, **options)
+            found_t.append(passes.t_ms.astype(np.float64))
+            found_xy.append(passes.xy_m)
+    if len(found_t) == 1:
         return trace
-    t, ids, rssi = zip(*readings, strict=True)
-    found = ble_anchors(t, list(ids), rssi, [(b.emitter, b.xy_m, b.level) for b in beacons])
-    return replace(trace, waypoint_t_ms=found.t_ms.astype(np.int64), waypoint_xy_m=found.xy_m)
+    t_all, xy_all = np.concatenate(found_t), np.concatenate(found_xy)
+    n_wp = trace.waypoint_t_ms.size
+    keep = np.ones(t_all.size, dtype=bool)
+    if n_wp:
+        gap = np.abs(t_all[n_wp:, None] - trace.waypoint_t_ms[None, :]).min(axis=1)
+        keep[n_wp:] = gap > 1000
+    order = np.argsort(t_all[keep], kind="stable")
+    return replace(
+        trace,
+        waypoint_t_ms=t_all[keep][order].astype(np.int64),
+        waypoint_xy_m=np.ascontiguousarray(xy_all[keep][order]),
+    )
 
 
 def _place(

@@ -30,3 +30,40 @@ def test_a_walk_is_placed_by_its_steps_and_inertial_selection_thins_it() -> None
     by_time = {p.t_ms: (p.x_m, p.y_m) for p in everything.points}
     assert all(by_time[p.t_ms] == (p.x_m, p.y_m) for p in steady.points)
     assert any(r.startswith("inertial selection") for r in steady.report["not_used"])
+
+
+def test_a_pass_by_an_anchor_ap_becomes_one_more_anchor() -> None:
+    """IV-E3: where the walk's RSS of an anchor AP peaks at or above its P0, the walker was
+    at the AP; that pass joins the waypoints as an anchor."""
+    from server.datasets.ilc import parse_trace_text
+    from server.positioning.mapping.labelled import interpolate_track
+    from server.services.uploads import Beacon
+
+    upload = _upload()
+    trace = parse_trace_text(upload.payload.decode(), "u")
+    # the AP heard loudest away from the waypoints, placed where the walk was then
+    far = [e for e in trace.wifi if abs(trace.waypoint_t_ms - e.t_ms).min() > 2000]
+    t, bssid, rssi = max(
+        ((e.t_ms, r.emitter, r.rssi_dbm) for e in far for r in e.readings),
+        key=lambda x: x[2],
+    )
+    xy, ok = interpolate_track(trace.waypoint_t_ms, trace.waypoint_xy_m, [t])
+    assert ok[0]
+    ap = Beacon(bssid.lower(), (float(xy[0, 0]), float(xy[0, 1])), 3, "wifi", rssi - 5.0)
+    found = contribution(upload, [ap])
+    assert found.rejected is None
+    assert found.report["anchor_passes"] >= 1
+    assert found.report["anchors"] == trace.waypoint_t_ms.size + found.report["anchor_passes"]
+    # on another floor, or never reached, it adds nothing
+    assert (
+        contribution(upload, [Beacon(ap.emitter, ap.xy_m, 2, "wifi", rssi - 5.0)]).report[
+            "anchor_passes"
+        ]
+        == 0
+    )
+    assert (
+        contribution(upload, [Beacon(ap.emitter, ap.xy_m, 3, "wifi", rssi + 10.0)]).report[
+            "anchor_passes"
+        ]
+        == 0
+    )
