@@ -62,6 +62,7 @@ QUEUED, PROCESSING, DONE, REJECTED, FAILED = "queued", "processing", "done", "re
 SETTLED = frozenset({DONE, REJECTED, FAILED})
 MAX_ATTEMPTS = 3
 ILC_TEXT = "text/plain"
+WEAK_DBM = -90.0  # papers/003_* IV-D: weaker readings are not signatures
 
 
 @dataclass(frozen=True)
@@ -300,14 +301,21 @@ def contribution(
     if inertial_selection:
         placed = placed & _selected(trace, times, report, not_used)
     points: list[SurveyPointData] = []
+    weak = 0
     for event, (x, y), ok in zip(events, xy[: len(events)].tolist(), placed, strict=False):
         if ok:
-            pairs = [(r.emitter, r.rssi_dbm) for r in event.readings]
+            # papers/003_* IV-D: readings weaker than -90 dBm are left out of the maps
+            pairs = [(r.emitter, r.rssi_dbm) for r in event.readings if r.rssi_dbm >= WEAK_DBM]
+            weak += len(event.readings) - len(pairs)
+            if not pairs:
+                continue
             wifi = pairs if isinstance(event, WifiEvent) else []
             points.append(
                 SurveyPointData(x, y, level, event.t_ms, wifi, [] if wifi else pairs, None)
             )
     report["scans"] = len(points)
+    if weak:
+        not_used.append(f"{weak} readings weaker than {WEAK_DBM:g} dBm")
     magnetic = None
     if field_usable:
         strength = np.linalg.norm(samples[:, 1:4], axis=1)
