@@ -48,7 +48,7 @@ async def handle(rt: Runtime, delivery: Delivery) -> None:
     """Process one delivery (see the module docstring)."""
     async with rt.transaction() as s:
         upload = await uploads.begin_attempt(s, delivery.upload_id)
-        beacons = await uploads.building_beacons(s, upload) if upload is not None else []
+        context = await uploads.anchor_context(s, upload) if upload is not None else None
     if upload is None:
         await rt.uploads.ack(delivery)
         return
@@ -57,7 +57,7 @@ async def handle(rt: Runtime, delivery: Delivery) -> None:
             partial(
                 uploads.contribution,
                 upload,
-                beacons,
+                context,
                 inertial_selection=rt.settings.upload_inertial_selection,
             )
         )

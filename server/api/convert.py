@@ -13,6 +13,7 @@ from server.positioning.events import (
     BleEvent,
     Event,
     Fix,
+    GnssEvent,
     ImuEvent,
     MagEvent,
     RadioReading,
@@ -20,7 +21,7 @@ from server.positioning.events import (
     WifiEvent,
 )
 
-WireEvent = sc.StepIn | sc.WifiIn | sc.BleIn | sc.MagIn | sc.ImuIn
+WireEvent = sc.StepIn | sc.WifiIn | sc.BleIn | sc.MagIn | sc.ImuIn | sc.GnssIn
 
 
 def _samples(rows: Sequence[tuple[float, ...]], width: int) -> NDArray[np.float64]:
@@ -42,6 +43,8 @@ def to_event(e: WireEvent) -> Event:
             return BleEvent(e.t, tuple(RadioReading(r.id, r.rssi_dbm) for r in e.readings))
         case sc.MagIn():
             return MagEvent(e.t, e.field_ut, e.magnitude_ut)
+        case sc.GnssIn():
+            return GnssEvent(e.t, e.lat_deg, e.lon_deg, e.accuracy_m, e.hdop)
         case sc.ImuIn():
             return ImuEvent(
                 e.t,
@@ -89,6 +92,15 @@ def to_wire(event: Event) -> dict[str, Any]:
                 "t": event.t_ms,
                 "field_ut": list(event.field_ut) if event.field_ut else None,
                 "magnitude_ut": event.magnitude_ut,
+            }
+        case GnssEvent():
+            return {
+                "type": "gnss",
+                "t": event.t_ms,
+                "lat_deg": event.lat_deg,
+                "lon_deg": event.lon_deg,
+                "accuracy_m": event.accuracy_m,
+                "hdop": event.hdop,
             }
         case ImuEvent():
             return {

@@ -21,7 +21,7 @@ def _field(loc: tuple[Any, ...] | list[Any]) -> str:
 
 # pydantic puts the tag of a tagged-union member into the location ("events", 1, "step",
 # "length_m"); clients think of it as events.1.length_m
-EVENT_TAGS = frozenset({"step", "wifi", "ble", "mag", "imu"})
+EVENT_TAGS = frozenset({"step", "wifi", "ble", "mag", "imu", "gnss"})
 
 
 def _clean_loc(loc: tuple[Any, ...] | list[Any]) -> list[Any]:

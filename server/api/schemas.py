@@ -264,7 +264,19 @@ class ImuIn(Strict):
         return sum(len(rows) for rows in sensors)
 
 
-EventIn = Annotated[StepIn | WifiIn | BleIn | MagIn | ImuIn, Field(discriminator="type")]
+class GnssIn(Strict):
+    """A satellite fix; near an entrance it anchors a walk offered for map building
+    (``accuracy_m`` < 5 m and ``hdop`` < 20, Mansour IV-B; without ``hdop``, never)."""
+
+    type: Literal["gnss"]
+    t: TimestampMs
+    lat_deg: Annotated[float, Field(ge=-90, le=90, allow_inf_nan=False)]
+    lon_deg: Annotated[float, Field(ge=-180, le=180, allow_inf_nan=False)]
+    accuracy_m: Annotated[float, Field(gt=0, le=10_000, allow_inf_nan=False)]
+    hdop: Annotated[float | None, Field(gt=0, le=100, allow_inf_nan=False)] = None
+
+
+EventIn = Annotated[StepIn | WifiIn | BleIn | MagIn | ImuIn | GnssIn, Field(discriminator="type")]
 
 
 # ---------------------------------------------------------------- fixes

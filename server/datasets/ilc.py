@@ -56,7 +56,7 @@ import lzma
 import math
 import re
 from collections.abc import Iterable, Iterator, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any
@@ -168,6 +168,9 @@ class IlcTrace:
     skipped_types: Mapping[str, int]
     t_first_ms: int
     t_last_ms: int
+    # [t_ms, lat_deg, lon_deg, accuracy_m, hdop] satellite fixes (ILC files carry none;
+    # walks made of our own events may)
+    gnss: NDArray[np.float64] = field(default_factory=lambda: np.empty((0, 5)))
 
     @property
     def duration_ms(self) -> int:

@@ -102,7 +102,19 @@ class ImuEvent:
         }
 
 
-Event = StepEvent | WifiEvent | BleEvent | MagEvent | ImuEvent
+@dataclass(frozen=True, slots=True)
+class GnssEvent:
+    """A satellite fix: WGS-84 position, the phone's accuracy estimate and, where the
+    phone reports it, the horizontal dilution of precision."""
+
+    t_ms: int
+    lat_deg: float
+    lon_deg: float
+    accuracy_m: float
+    hdop: float | None = None
+
+
+Event = StepEvent | WifiEvent | BleEvent | MagEvent | ImuEvent | GnssEvent
 
 
 @dataclass(frozen=True, slots=True)

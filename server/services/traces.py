@@ -12,7 +12,8 @@ From events: scans keep their readings; IMU blocks are concatenated per sensor (
 rotation vector keeps its vector part, sign chosen so the scalar part is not negative,
 as ILC files carry it); ``mag`` events with a field vector join the magnetometer samples
 (magnitude-only ones carry nothing a map can place and are dropped); phone-detected
-steps are not kept (steps are found on the server in the raw samples). A block whose
+steps are not kept (steps are found on the server in the raw samples); satellite fixes
+are (``gnss``: rows ``[t, lat, lon, accuracy, hdop]``, NaN for a missing HDOP). A block whose
 magnetometer is uncalibrated marks the whole walk's magnetometer so.
 """
 
@@ -25,7 +26,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from server.datasets.ilc import IlcTrace
-from server.positioning.events import BleEvent, Event, ImuEvent, MagEvent, RadioReading, WifiEvent
+from server.positioning.events import (
+    BleEvent,
+    Event,
+    GnssEvent,
+    ImuEvent,
+    MagEvent,
+    RadioReading,
+    WifiEvent,
+)
 from server.storage.codec import array_to_str, compress_arrays, decompress_arrays, str_to_array
 
 CONTENT_TYPE = "application/vnd.indoorpos.trace"
@@ -49,8 +58,9 @@ def _trace(
     ble: Sequence[BleEvent],
     sensors: dict[str, NDArray[np.float64]],
     uncalibrated: frozenset[str],
+    gnss: NDArray[np.float64],
 ) -> IlcTrace:
-    times = [anchors[:, 0], *(a[:, 0] for a in sensors.values())]
+    times = [anchors[:, 0], gnss[:, 0], *(a[:, 0] for a in sensors.values())]
     scan_t = [e.t_ms for e in wifi] + [e.t_ms for e in ble]
     times.append(np.array(scan_t, dtype=np.float64))
     t_all = np.concatenate(times)
@@ -74,6 +84,7 @@ def _trace(
         skipped_types=MappingProxyType({}),
         t_first_ms=int(t_all.min()) if t_all.size else 0,
         t_last_ms=int(t_all.max()) if t_all.size else 0,
+        gnss=gnss,
     )
 
 
@@ -101,6 +112,11 @@ def trace_from_events(
         elif isinstance(e, MagEvent) and e.field_ut is not None:
             parts["magnetic"].append(np.array([[e.t_ms, *e.field_ut]], dtype=np.float64))
     sensors = {name: _rows(parts[name], 4) for name in _SENSORS}
+    fixes = [
+        (e.t_ms, e.lat_deg, e.lon_deg, e.accuracy_m, np.nan if e.hdop is None else e.hdop)
+        for e in events
+        if isinstance(e, GnssEvent)
+    ]
     return _trace(
         path_id,
         floor,
@@ -109,6 +125,7 @@ def trace_from_events(
         [e for e in events if isinstance(e, BleEvent)],
         sensors,
         frozenset(uncalibrated),
+        _rows([np.array(fixes, dtype=np.float64).reshape(-1, 5)], 5),
     )
 
 
@@ -124,6 +141,7 @@ def join_traces(traces: Sequence[IlcTrace], *, path_id: str = "", floor: str = "
         [e for t in traces for e in t.ble],
         sensors,
         frozenset().union(*(t.uncalibrated for t in traces)),
+        _rows([t.gnss for t in traces], 5),
     )
 
 
@@ -162,6 +180,7 @@ def encode_trace(trace: IlcTrace) -> bytes:
         "floor": str_to_array(trace.floor),
         "uncalibrated": str_to_array(",".join(sorted(trace.uncalibrated))),
         **{name: getattr(trace, name) for name in _SENSORS},
+        "gnss": trace.gnss.astype(np.float64),
         **_scans("wifi", trace.wifi),
         **_scans("ble", trace.ble),
     }
@@ -188,4 +207,5 @@ def decode_trace(data: bytes, path_id: str = "") -> IlcTrace:
         ble,
         {name: a[name].reshape(-1, 4) for name in _SENSORS},
         frozenset(marks.split(",")) if marks else frozenset(),
+        a["gnss"].reshape(-1, 5) if "gnss" in a else np.empty((0, 5)),
     )

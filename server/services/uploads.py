@@ -43,7 +43,7 @@ from server.positioning.anchors import anchors_from_plan
 from server.positioning.events import WifiEvent
 from server.positioning.fingerprint import MISSING_DBM
 from server.positioning.magnetic import MagneticSamples
-from server.positioning.mapping.anchors import ble_anchors
+from server.positioning.mapping.anchors import GeoReference, ble_anchors, gnss_anchors
 from server.positioning.mapping.labelled import interpolate_track
 from server.positioning.mapping.placement import place_samples
 from server.positioning.mapping.selection import select_inertial
@@ -213,16 +213,38 @@ class Beacon:
     threshold_dbm: float | None = None
 
 
-async def building_beacons(s: AsyncSession, upload: Upload) -> list[Beacon]:
-    """The beacons the floor plans of the upload's building mark, and the WiFi APs that
-    qualify as anchors in its current radio map (``mapping.wifi_anchors``); none when the
-    site has several buildings and the upload names none."""
-    building_id = upload.building_id
-    if building_id is None:
-        buildings = await repo.list_buildings(s, upload.site_id)
-        if len(buildings) != 1:
-            return []
-        building_id = buildings[0].id
+@dataclass(frozen=True)
+class AnchorContext:
+    """What an upload's building offers to anchor a walk: beacons and anchor APs, and
+    the geo-reference that turns satellite fixes into building coordinates."""
+
+    beacons: Sequence[Beacon] = ()
+    geo: GeoReference | None = None
+
+
+async def _building_id(s: AsyncSession, upload: Upload) -> str | None:
+    if upload.building_id is not None:
+        return upload.building_id
+    buildings = await repo.list_buildings(s, upload.site_id)
+    return buildings[0].id if len(buildings) == 1 else None
+
+
+async def anchor_context(s: AsyncSession, upload: Upload) -> AnchorContext:
+    """The beacons the floor plans of the upload's building mark, the WiFi APs that
+    qualify as anchors in its current radio map (``mapping.wifi_anchors``) and its
+    geo-reference; nothing when the site has several buildings and the upload names
+    none."""
+    building_id = await _building_id(s, upload)
+    building = await repo.get_building(s, building_id) if building_id else None
+    if building is None:
+        return AnchorContext()
+    geo = None
+    if building.origin_lat is not None and building.origin_lon is not None:
+        geo = GeoReference(building.origin_lat, building.origin_lon, building.rotation_rad)
+    return AnchorContext(await _beacons(s, building.id), geo)
+
+
+async def _beacons(s: AsyncSession, building_id: str) -> list[Beacon]:
     floors = await repo.list_floors(s, building_id)
     found = []
     for floor in floors:
@@ -259,11 +281,15 @@ async def _wifi_anchors(s: AsyncSession, map_id: str, levels: dict[str, int]) ->
 
 
 def contribution(
-    upload: Upload, beacons: Sequence[Beacon] = (), *, inertial_selection: bool = False
+    upload: Upload,
+    context: AnchorContext | None = None,
+    *,
+    inertial_selection: bool = False,
 ) -> Contribution:
     """The readings an upload adds to the maps (CPU work, no I/O: run it in a thread).
-    Its anchors are its waypoints; a walk with fewer than two takes them from its passes
-    by the ``beacons`` of its floor (``mapping.anchors.ble_anchors``)."""
+    Its anchors are its waypoints, its passes by the beacons and anchor APs of its floor
+    and its good satellite fixes (``papers/003_*`` IV-B, IV-E3)."""
+    context = context or AnchorContext()
     try:
         trace = parse_payload(upload.content_type, upload.payload, upload.id)
     except Invalid as exc:  # stored before a stricter reader: say why, do not retry
@@ -275,7 +301,7 @@ def contribution(
         except ValueError:
             return Contribution(None, rejected="no floor: give the floor hint (floor)")
     n_waypoints = int(trace.waypoint_t_ms.size)
-    trace = _with_passes(trace, [b for b in beacons if b.level == level])
+    trace = _with_passes(trace, [b for b in context.beacons if b.level == level], context.geo)
     report: dict[str, Any] = {
         "anchors": int(trace.waypoint_t_ms.size),
         "anchor_source": "waypoints" if n_waypoints else "beacons",
@@ -353,12 +379,17 @@ def _selected(
     return inside
 
 
-def _with_passes(trace: IlcTrace, beacons: Sequence[Beacon]) -> IlcTrace:
-    """The trace with its passes by known beacons and anchor APs added to its waypoints
-    (``papers/003_*`` IV-B and IV-E3: where the smoothed RSS of one of them peaks at or
-    above its threshold, the walker was at its place). A pass within a second of a
-    waypoint is left out: the waypoint says it better."""
+def _with_passes(trace: IlcTrace, beacons: Sequence[Beacon], geo: GeoReference | None) -> IlcTrace:
+    """The trace with its passes by known beacons and anchor APs, and its good satellite
+    fixes, added to its waypoints (``papers/003_*`` IV-B and IV-E3: where the smoothed RSS
+    of one of them peaks at or above its threshold, the walker was at its place; a fix
+    with accuracy < 5 m and HDOP < 20 places it too). One within a second of a waypoint
+    is left out: the waypoint says it better."""
     found_t, found_xy = [trace.waypoint_t_ms.astype(np.float64)], [trace.waypoint_xy_m]
+    if geo is not None and trace.gnss.shape[0]:
+        fixes = gnss_anchors(trace.gnss, geo)
+        found_t.append(fixes.t_ms.astype(np.float64))
+        found_xy.append(fixes.xy_m)
     for kind, scans in (("ble", trace.ble), ("wifi", trace.wifi)):
         readings = [(e.t_ms, r.emitter.lower(), r.rssi_dbm) for e in scans for r in e.readings]
         for threshold in {b.threshold_dbm for b in beacons if b.kind == kind}:

@@ -417,3 +417,57 @@ async def test_device_offsets_come_from_co_located_contributions(
     assert maps.device_offsets["loud phone"] == pytest.approx(found["loud phone"]["offset_db"])
     r = await client.get(f"/v1/buildings/{'0' * 32}/device-offsets", headers=admin)
     assert r.status_code == 404
+
+
+async def test_satellite_fixes_at_the_doors_anchor_a_walk(
+    client: httpx.AsyncClient, admin: dict[str, str], app: FastAPI, upload_worker: None
+) -> None:
+    """Mansour IV-B: fixes with accuracy < 5 m and HDOP < 20, turned into the building's
+    frame by its geo-reference, anchor the walk; a poor fix does not."""
+    origin = (22.3, 114.2)
+    r = await client.post("/v1/sites", json={"name": "outdoors"}, headers=admin)
+    site_id = r.json()["id"]
+    body = {"name": "b", "origin_lat": origin[0], "origin_lon": origin[1]}
+    r = await client.post(f"/v1/sites/{site_id}/buildings", json=body, headers=admin)
+    building_id = r.json()["id"]
+    await client.post(f"/v1/buildings/{building_id}/floors", json={"level": 0}, headers=admin)
+
+    def fix(t_s: float, x: float, y: float, accuracy: float) -> dict[str, Any]:
+        earth_m = 6_371_008.8
+        lat = origin[0] + math.degrees(y / earth_m)
+        lon = origin[1] + math.degrees(x / (earth_m * math.cos(math.radians(origin[0]))))
+        return {
+            "type": "gnss",
+            "t": WALK_T0 + int(1000 * t_s),
+            "lat_deg": lat,
+            "lon_deg": lon,
+            "accuracy_m": accuracy,
+            "hdop": 1.1,
+        }
+
+    events = [e for e in _walk_events() if e["type"] != "ble"]
+    end_x = 2.0 + WALK_S * STEP_HZ * STEP_M
+    events += [fix(0.5, 2.0, WALK_Y, 3.0), fix(WALK_S + 1.5, end_x, WALK_Y, 3.0)]
+    events.append(fix(6.0, 40.0, 40.0, 12.0))  # too poor to count
+    r = await client.post(
+        "/v1/uploads",
+        params={"site_id": site_id, "floor": 0},
+        json={"events": events},
+        headers=admin,
+    )
+    assert r.status_code == 202, r.text
+    upload = await _settled(client, admin, r.json()["id"])
+    assert upload["status"] == "done", upload
+    assert upload["report"]["anchors"] == 2
+    async with app.state.runtime.transaction() as s:
+        stmt = select(SurveyPoint).where(SurveyPoint.upload_id == upload["id"])
+        rows = (await s.scalars(stmt)).all()
+    assert rows
+    for p in rows:
+        t_s = (p.t_ms - WALK_T0) / 1000
+        x = 2.0 + STEP_M * STEP_HZ * min(max(t_s - 1.0, 0.0), WALK_S)
+        assert math.hypot(p.x_m - x, p.y_m - WALK_Y) < 2.5, (t_s, p.x_m, p.y_m)
+    bad = {"events": [{**events[-1], "lat_deg": 91.0}]}
+    r = await client.post("/v1/uploads", params={"site_id": site_id}, json=bad, headers=admin)
+    assert r.status_code == 422
+    assert "events.0.lat_deg" in r.json()["message"]

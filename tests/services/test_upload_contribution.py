@@ -37,7 +37,7 @@ def test_a_pass_by_an_anchor_ap_becomes_one_more_anchor() -> None:
     at the AP; that pass joins the waypoints as an anchor."""
     from server.datasets.ilc import parse_trace_text
     from server.positioning.mapping.labelled import interpolate_track
-    from server.services.uploads import Beacon
+    from server.services.uploads import AnchorContext, Beacon
 
     upload = _upload()
     trace = parse_trace_text(upload.payload.decode(), "u")
@@ -50,20 +50,11 @@ def test_a_pass_by_an_anchor_ap_becomes_one_more_anchor() -> None:
     xy, ok = interpolate_track(trace.waypoint_t_ms, trace.waypoint_xy_m, [t])
     assert ok[0]
     ap = Beacon(bssid.lower(), (float(xy[0, 0]), float(xy[0, 1])), 3, "wifi", rssi - 5.0)
-    found = contribution(upload, [ap])
+    found = contribution(upload, AnchorContext([ap]))
     assert found.rejected is None
     assert found.report["anchor_passes"] >= 1
     assert found.report["anchors"] == trace.waypoint_t_ms.size + found.report["anchor_passes"]
     # on another floor, or never reached, it adds nothing
-    assert (
-        contribution(upload, [Beacon(ap.emitter, ap.xy_m, 2, "wifi", rssi - 5.0)]).report[
-            "anchor_passes"
-        ]
-        == 0
-    )
-    assert (
-        contribution(upload, [Beacon(ap.emitter, ap.xy_m, 3, "wifi", rssi + 10.0)]).report[
-            "anchor_passes"
-        ]
-        == 0
-    )
+    for level, threshold in ((2, rssi - 5.0), (3, rssi + 10.0)):
+        other = AnchorContext([Beacon(ap.emitter, ap.xy_m, level, "wifi", threshold)])
+        assert contribution(upload, other).report["anchor_passes"] == 0
