@@ -27,6 +27,7 @@ anchors is rejected with that reason.
 
 from __future__ import annotations
 
+import time
 from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
@@ -252,32 +253,44 @@ async def _beacons(s: AsyncSession, building_id: str) -> list[Beacon]:
             found.append(Beacon(a.emitter.split(":", 1)[1], (a.x_m, a.y_m), floor.level))
     current = await repo.latest_radio_map(s, building_id)
     if current is not None:
-        found += await _wifi_anchors(s, current.id, {f.id: f.level for f in floors})
+        found += await _wifi_anchors(s, building_id, current.id, {f.id: f.level for f in floors})
     return found
 
 
-_WIFI_ANCHORS: OrderedDict[str, list[Beacon]] = OrderedDict()  # by radio map id
+# per building: when located, from which map version, the anchor APs
+_WIFI_ANCHORS: OrderedDict[str, tuple[float, str, list[Beacon]]] = OrderedDict()
+# anchor APs change slowly with the map, and locating them reads the whole radio map:
+# a worker locates them again at most this often per building
+WIFI_ANCHOR_REFRESH_S = 300.0
 
 
-async def _wifi_anchors(s: AsyncSession, map_id: str, levels: dict[str, int]) -> list[Beacon]:
-    if map_id not in _WIFI_ANCHORS:
-        stored = await repo.load_radio_map(s, map_id, MISSING_DBM)
-        order = sorted(levels)
-        radio = stored_radio_map(stored, {f: i for i, f in enumerate(order)})
-        nodes = await anyio.to_thread.run_sync(anchor_nodes, radio)
-        _WIFI_ANCHORS[map_id] = [
-            Beacon(
-                n.emitter.split(":", 1)[1],
-                (float(n.fit.xy[0]), float(n.fit.xy[1])),
-                levels[order[n.floor]],
-                kind="wifi",
-                threshold_dbm=n.fit.p0_dbm,
-            )
-            for n in nodes
-        ]
-        while len(_WIFI_ANCHORS) > 4:
-            _WIFI_ANCHORS.popitem(last=False)
-    return _WIFI_ANCHORS[map_id]
+async def _wifi_anchors(
+    s: AsyncSession, building_id: str, map_id: str, levels: dict[str, int]
+) -> list[Beacon]:
+    cached = _WIFI_ANCHORS.get(building_id)
+    if cached is not None and (
+        cached[1] == map_id or time.monotonic() - cached[0] < WIFI_ANCHOR_REFRESH_S
+    ):
+        return cached[2]
+    stored = await repo.load_radio_map(s, map_id, MISSING_DBM)
+    order = sorted(levels)
+    radio = stored_radio_map(stored, {f: i for i, f in enumerate(order)})
+    nodes = await anyio.to_thread.run_sync(anchor_nodes, radio)
+    beacons = [
+        Beacon(
+            n.emitter.split(":", 1)[1],
+            (float(n.fit.xy[0]), float(n.fit.xy[1])),
+            levels[order[n.floor]],
+            kind="wifi",
+            threshold_dbm=n.fit.p0_dbm,
+        )
+        for n in nodes
+    ]
+    _WIFI_ANCHORS[building_id] = (time.monotonic(), map_id, beacons)
+    _WIFI_ANCHORS.move_to_end(building_id)
+    while len(_WIFI_ANCHORS) > 16:
+        _WIFI_ANCHORS.popitem(last=False)
+    return beacons
 
 
 def contribution(
