@@ -80,7 +80,10 @@ async def run(rt: Runtime, consumer: str, stop: anyio.Event | None = None) -> No
     """Serve the queue until ``stop`` is set (forever without one)."""
     idle_s = rt.settings.upload_visibility_s
     # an in-process queue starts empty: everything unsettled is this process' to redo
-    await requeue_stranded(rt, 0.0 if isinstance(rt.uploads, MemoryUploadQueue) else idle_s)
+    try:
+        await requeue_stranded(rt, 0.0 if isinstance(rt.uploads, MemoryUploadQueue) else idle_s)
+    except Exception:
+        log.exception("could not re-queue stranded uploads; the idle rescan will")
     last_scan = time.monotonic()
     while stop is None or not stop.is_set():
         try:
@@ -90,7 +93,12 @@ async def run(rt: Runtime, consumer: str, stop: anyio.Event | None = None) -> No
             await anyio.sleep(1.0)
             continue
         for delivery in deliveries:
-            await handle(rt, delivery)
+            try:
+                await handle(rt, delivery)
+            except Exception:  # the store failed under us: the entry comes back later
+                log.exception(
+                    "upload %s: could not be handled; it will be redelivered", delivery.upload_id
+                )
         if not deliveries and time.monotonic() - last_scan >= RESCAN_S:
             # an idle worker looks for uploads whose queue entry was lost
             last_scan = time.monotonic()
