@@ -48,11 +48,12 @@ async def handle(rt: Runtime, delivery: Delivery) -> None:
     """Process one delivery (see the module docstring)."""
     async with rt.transaction() as s:
         upload = await uploads.begin_attempt(s, delivery.upload_id)
-        context = await uploads.anchor_context(s, upload) if upload is not None else None
     if upload is None:
         await rt.uploads.ack(delivery)
         return
     try:
+        async with rt.transaction() as s:  # after the attempt is counted: its failures count
+            context = await uploads.anchor_context(s, upload)
         result = await anyio.to_thread.run_sync(
             partial(
                 uploads.contribution,
@@ -86,12 +87,12 @@ async def run(rt: Runtime, consumer: str, stop: anyio.Event | None = None) -> No
         log.exception("could not re-queue stranded uploads; the idle rescan will")
     last_scan = time.monotonic()
     while stop is None or not stop.is_set():
+        deliveries = []
         try:
             deliveries = await rt.uploads.read(consumer, count=1, block_ms=READ_BLOCK_MS)
         except Exception:
             log.exception("upload queue unavailable; retrying")
             await anyio.sleep(1.0)
-            continue
         for delivery in deliveries:
             try:
                 await handle(rt, delivery)
@@ -100,7 +101,7 @@ async def run(rt: Runtime, consumer: str, stop: anyio.Event | None = None) -> No
                     "upload %s: could not be handled; it will be redelivered", delivery.upload_id
                 )
         if not deliveries and time.monotonic() - last_scan >= RESCAN_S:
-            # an idle worker looks for uploads whose queue entry was lost
+            # an idle (or cut off) worker looks for uploads whose queue entry was lost
             last_scan = time.monotonic()
             try:
                 await requeue_stranded(rt, idle_s)

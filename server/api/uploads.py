@@ -98,6 +98,11 @@ async def create_upload(
     """Accept a trace for the map builder (202); the worker folds it in later."""
     limit = rt.settings.upload_max_bytes
     media = content_type.split(";", 1)[0].strip().lower()
+    if media == traces.CONTENT_TYPE:  # our stored shape: made here from validated input only
+        raise Invalid(
+            f"{media} is internal: send application/json, text/plain or application/x-xz",
+            field="content-type",
+        )
     payload = await _body(request, limit)
     if media in XZ_TYPES or (content_encoding or "").strip().lower() == "xz":
         payload = _decompress(payload, limit)

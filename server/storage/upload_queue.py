@@ -37,7 +37,6 @@ from redis.exceptions import ResponseError
 
 CONNECT_TIMEOUT_S = 5.0
 GROUP = "workers"
-STREAM_MAX_LEN = 100_000  # entries kept (approximately) in the stream; settled ones are deleted
 
 
 @dataclass(frozen=True, slots=True)
@@ -122,6 +121,7 @@ class RedisUploadQueue:
         self._visibility_ms = int(visibility_timeout_s * 1000)
         self._key = f"{prefix}:uploads:v1"
         self._group_ready = False
+        self._cursor = "0-0"
 
     async def _ensure_group(self) -> None:
         if self._group_ready:
@@ -135,15 +135,29 @@ class RedisUploadQueue:
 
     async def publish(self, upload_id: str) -> None:
         await self._ensure_group()
-        await self._redis.xadd(
-            self._key, {"upload_id": upload_id}, maxlen=STREAM_MAX_LEN, approximate=True
-        )
+        # no MAXLEN: settled entries are deleted, so trimming could only drop live ones
+        await self._redis.xadd(self._key, {"upload_id": upload_id})
 
     async def read(self, consumer: str, count: int, block_ms: int) -> list[Delivery]:
         await self._ensure_group()
-        _, claimed, _ = await self._redis.xautoclaim(
-            self._key, GROUP, consumer, self._visibility_ms, "0-0", count=count
+        try:
+            return await self._read(consumer, count, block_ms)
+        except ResponseError as exc:
+            if "NOGROUP" not in str(exc):
+                raise
+            # Redis lost the stream (a restart without persistence): make the group again;
+            # the uploads it held are found by the worker's rescan of SQL
+            self._group_ready = False
+            await self._ensure_group()
+            return []
+
+    async def _read(self, consumer: str, count: int, block_ms: int) -> list[Delivery]:
+        # XAUTOCLAIM scans a bounded part of the pending list per call: go on from where
+        # the last call stopped, so stalled entries behind busy ones are reached too
+        cursor, claimed, _ = await self._redis.xautoclaim(
+            self._key, GROUP, consumer, self._visibility_ms, self._cursor, count=count
         )
+        self._cursor = _text(cursor)
         out = await self._with_counts(claimed)
         if len(out) < count:
             streams = await self._redis.xreadgroup(

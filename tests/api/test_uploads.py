@@ -175,6 +175,14 @@ async def test_malformed_and_huge_traces_are_refused_without_rows(
     )
     assert r.status_code == 422
     assert "content-type" in r.json()["message"]
+    r = await client.post(
+        "/v1/uploads",
+        params={"site_id": site_id},
+        content=b"\x78\x9c",
+        headers={**admin, "content-type": "application/vnd.indoorpos.trace"},
+    )
+    assert r.status_code == 422  # the stored shape is never taken from a client
+    assert "content-type" in r.json()["message"]
     assert await _count_uploads(app) == before
     r = await client.post(
         "/v1/uploads",

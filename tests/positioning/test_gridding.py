@@ -215,3 +215,16 @@ def test_folding_needs_point_counts() -> None:
     bare = RadioMap(m.rp_xy, m.rp_floor, m.mean_dbm, m.var_db2, m.count, m.emitters)
     with pytest.raises(ValueError, match="rp_points"):
         fold_radio_maps(bare, m)
+
+
+def test_a_mean_on_a_cells_edge_stays_in_its_cell_through_folds() -> None:
+    """999.99999 m rounds to 1000.0 in float32: the RP must stay in cell 999, so the next
+    fold adds to it rather than overwriting a neighbour."""
+    edge = 1000.0 - 1e-5
+    first = build_radio_map([(edge, 0.5), (edge, 0.5)], [0, 0], [[-60.0], [-62.0]], ("wifi:a",))
+    assert np.floor(first.rp_xy[0, 0]) == 999.0
+    second = build_radio_map([(999.5, 0.5)], [0], [[-70.0]], ("wifi:a",))
+    folded = fold_radio_maps(first, second)
+    assert folded.rp_xy.shape[0] == 1
+    assert folded.count[0, 0] == 3
+    assert folded.mean_dbm[0, 0] == pytest.approx(-64.0)

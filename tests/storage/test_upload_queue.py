@@ -78,3 +78,21 @@ async def test_read_waits_for_a_publish(queue: UploadQueue) -> None:
     await task
     assert [d.upload_id for d in got] == ["late"]
     assert time.monotonic() - start < 1.5
+
+
+async def test_a_redis_that_lost_the_stream_is_recovered_from() -> None:
+    """Redis restarted without persistence: the stream and its group are gone. The queue
+    makes the group again instead of failing every read (the uploads themselves are found
+    in SQL by the worker's rescan)."""
+    client = await redis_or_skip()
+    prefix = f"ips-test-{uuid.uuid4().hex[:8]}"
+    q = RedisUploadQueue(client, VISIBILITY_S, prefix=prefix)
+    try:
+        await q.publish("u1")
+        await client.delete(f"{prefix}:uploads:v1")
+        assert await q.read("w", count=1, block_ms=50) == []
+        await q.publish("u2")
+        assert [d.upload_id for d in await q.read("w", count=1, block_ms=100)] == ["u2"]
+    finally:
+        await client.delete(f"{prefix}:uploads:v1")
+        await q.close()

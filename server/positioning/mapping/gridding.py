@@ -115,7 +115,7 @@ def build_radio_map(
     var = np.where(count > 0, np.maximum(var, min_var_db2), 0.0)
 
     return RadioMap(
-        rp_xy=rp_xy.astype(np.float32),
+        rp_xy=_inside_cells(rp_xy, keys, cell_m),
         rp_floor=keys[:, 0].astype(np.int32),
         mean_dbm=mean.astype(np.float32),
         var_db2=var.astype(np.float32),
@@ -123,6 +123,18 @@ def build_radio_map(
         emitters=tuple(emitters),
         rp_points=n_points.astype(np.int32),
     )
+
+
+def _inside_cells(xy: np.ndarray, keys: np.ndarray, cell_m: float) -> np.ndarray:
+    """RP positions as float32, kept inside their cells ``keys`` (floor, row, col): a mean
+    just below a cell's upper edge could round onto the edge, i.e. into the next cell,
+    where a later fold (which finds RPs' cells from their positions) would misplace it."""
+    out = xy.astype(np.float32)
+    for axis, col in ((0, 2), (1, 1)):
+        lo = (keys[:, col] * cell_m).astype(np.float32)
+        hi = np.nextafter(((keys[:, col] + 1) * cell_m).astype(np.float32), np.float32(-np.inf))
+        out[:, axis] = np.clip(out[:, axis], lo, hi)
+    return out
 
 
 def fold_radio_maps(
@@ -206,7 +218,7 @@ def fold_radio_maps(
     var[grid_b] = folded_var
 
     return RadioMap(
-        rp_xy=rp_xy.astype(np.float32),
+        rp_xy=_inside_cells(rp_xy, keys, cell_m),
         rp_floor=keys[:, 0].astype(np.int32),
         mean_dbm=mean.astype(np.float32),
         var_db2=var.astype(np.float32),
