@@ -215,6 +215,28 @@ def plan_from_geojson(geojson: Mapping[str, Any], cell_m: float = CELL_M) -> Flo
     return FloorPlan(*_raster(area, cell_m), walls=walls)
 
 
+def plan_extent(geojson: Mapping[str, Any] | None) -> tuple[float, float, float, float] | None:
+    """``(x0, y0, x1, y1)``: the bounding box of a plan's walkable features (what
+    ``plan_from_geojson`` builds the walkable area from), without rasterising; None when
+    the plan has none or they are not readable geometries."""
+    boxes = []
+    for feature in (geojson or {}).get("features") or ():
+        if not isinstance(feature, Mapping):
+            continue
+        if (feature.get("properties") or {}).get("kind") not in _WALKABLE_KINDS:
+            continue
+        try:
+            geometry = shapely.geometry.shape(feature["geometry"])
+        except (KeyError, TypeError, ValueError, AttributeError, shapely.errors.ShapelyError):
+            continue
+        if not geometry.is_empty:
+            boxes.append(geometry.bounds)
+    if not boxes:
+        return None
+    b = np.array(boxes, dtype=np.float64)
+    return float(b[:, 0].min()), float(b[:, 1].min()), float(b[:, 2].max()), float(b[:, 3].max())
+
+
 def walkable_at(plan: FloorPlan, xy: ArrayLike) -> NDArray[np.bool_]:
     """Whether points fall in walkable cells.
 

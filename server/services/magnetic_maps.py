@@ -25,7 +25,7 @@ from server.positioning.magnetic import (
 )
 from server.services.errors import Invalid, NotFound
 from server.storage import repositories as repo
-from server.storage.models import MagneticMapVersion, utcnow
+from server.storage.models import MagneticMapVersion
 
 
 @dataclass(frozen=True)
@@ -131,5 +131,7 @@ async def activate_magnetic_map(s: AsyncSession, floor_id: str, version: int) ->
     row = await repo.get_magnetic_map_version(s, floor_id, version)
     if row is None:
         raise NotFound(f"magnetic map version {version} not found", field="version")
-    row.activated_at = utcnow()
+    row.activated_at = await repo.next_activation(
+        s, MagneticMapVersion, MagneticMapVersion.floor_id, floor_id
+    )
     return row

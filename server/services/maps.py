@@ -28,7 +28,7 @@ from server.services.device_offsets import building_offsets
 from server.services.errors import Invalid, NotFound
 from server.services.magnetic_maps import fold_sources
 from server.storage import repositories as repo
-from server.storage.models import RadioMapVersion, utcnow
+from server.storage.models import RadioMapVersion
 
 # A dense survey (points every metre or two) keeps its resolution with 1 m cells; points
 # closer than that are merged into one reference point at their mean position.
@@ -284,5 +284,7 @@ async def activate_radio_map(s: AsyncSession, building_id: str, version: int) ->
     row = await repo.get_radio_map_version(s, building_id, version)
     if row is None:
         raise NotFound(f"radio map version {version} not found", field="version")
-    row.activated_at = utcnow()
+    row.activated_at = await repo.next_activation(
+        s, RadioMapVersion, RadioMapVersion.building_id, building_id
+    )
     return row

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import time
 from collections import OrderedDict
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime, timedelta
 from typing import Any
@@ -43,6 +43,7 @@ from server.datasets.ilc import IlcTrace, TraceFormatError, floor_level, parse_t
 from server.positioning.anchors import anchors_from_plan
 from server.positioning.events import WifiEvent
 from server.positioning.fingerprint import MISSING_DBM
+from server.positioning.floorplan import plan_extent
 from server.positioning.magnetic import MagneticSamples
 from server.positioning.mapping.anchors import GeoReference, ble_anchors, gnss_anchors
 from server.positioning.mapping.labelled import interpolate_track
@@ -64,6 +65,7 @@ SETTLED = frozenset({DONE, REJECTED, FAILED})
 MAX_ATTEMPTS = 3
 ILC_TEXT = "text/plain"
 WEAK_DBM = -90.0  # papers/003_* IV-D: weaker readings are not signatures
+PLAN_MARGIN_M = 10.0
 
 
 @dataclass(frozen=True)
@@ -221,6 +223,9 @@ class AnchorContext:
 
     beacons: Sequence[Beacon] = ()
     geo: GeoReference | None = None
+    # per floor level, the plan's extent: samples placed farther out than PLAN_MARGIN_M
+    # are not used (a wrong anchor must not stretch a floor's maps across a city)
+    extents: Mapping[int, tuple[float, float, float, float]] = field(default_factory=dict)
 
 
 async def _building_id(s: AsyncSession, upload: Upload) -> str | None:
@@ -242,7 +247,12 @@ async def anchor_context(s: AsyncSession, upload: Upload) -> AnchorContext:
     geo = None
     if building.origin_lat is not None and building.origin_lon is not None:
         geo = GeoReference(building.origin_lat, building.origin_lon, building.rotation_rad)
-    return AnchorContext(await _beacons(s, building.id), geo)
+    extents = {
+        f.level: extent
+        for f in await repo.list_floors(s, building.id)
+        if (extent := plan_extent(f.plan_geojson)) is not None
+    }
+    return AnchorContext(await _beacons(s, building.id), geo, extents)
 
 
 async def _beacons(s: AsyncSession, building_id: str) -> list[Beacon]:
@@ -337,6 +347,17 @@ def contribution(
         ]
     )
     xy, placed, not_used = _place(trace, times, report)
+    if level in context.extents:
+        x0, y0, x1, y1 = context.extents[level]
+        m = PLAN_MARGIN_M
+        inside = (xy[:, 0] >= x0 - m) & (xy[:, 0] <= x1 + m) & (xy[:, 1] >= y0 - m)
+        inside &= xy[:, 1] <= y1 + m
+        if np.any(placed & ~inside):
+            not_used.append(
+                f"{int(np.count_nonzero(placed & ~inside))} samples placed more than "
+                f"{m:g} m outside the floor plan"
+            )
+        placed = placed & inside
     if inertial_selection:
         placed = placed & _selected(trace, times, report, not_used)
     points: list[SurveyPointData] = []

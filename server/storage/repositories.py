@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from datetime import datetime
+from datetime import datetime, timedelta
 from typing import Any
 
 import numpy as np
@@ -213,7 +213,9 @@ async def save_radio_map(
         n_survey_points=n_survey_points,
         source=source,
         arrays=compress_arrays(arrays),
-        activated_at=utcnow(),
+        activated_at=await next_activation(
+            s, RadioMapVersion, RadioMapVersion.building_id, building_id
+        ),
     )
     s.add(row)
     await s.flush()
@@ -323,6 +325,15 @@ async def _radio_map_from_blob(
     )
 
 
+async def next_activation(s: AsyncSession, model: Any, owner: Any, owner_id: str) -> datetime:
+    """The activation time for a version made current now: the clock, but always after
+    every earlier activation of the same building or floor, so that a host whose clock
+    lags can never make an older version current again. Call with the building lock."""
+    last = await s.scalar(select(func.max(model.activated_at)).where(owner == owner_id))
+    now = utcnow()
+    return now if last is None or now > last else last + timedelta(microseconds=1)
+
+
 # ---------------------------------------------------------------- magnetic maps
 
 
@@ -350,7 +361,9 @@ async def save_magnetic_map(
         known_cells=int(np.isfinite(grid.magnitude).sum()),
         source=source,
         arrays=compress_arrays(arrays),
-        activated_at=utcnow(),
+        activated_at=await next_activation(
+            s, MagneticMapVersion, MagneticMapVersion.floor_id, floor_id
+        ),
     )
     s.add(row)
     await s.flush()

@@ -413,3 +413,26 @@ def test_ilc_crossings_agree_with_shapely(
     exact = shapely.intersects(walls, shapely.linestrings(np.stack([a, b], axis=1)))
     assert 0.05 < exact.mean() < 0.5
     np.testing.assert_array_equal(crosses_wall(plan, a, b), exact)
+
+
+def test_plan_extent_is_the_box_of_the_walkable_features() -> None:
+    from server.positioning.floorplan import plan_extent
+
+    plan = {
+        "type": "FeatureCollection",
+        "features": [
+            {
+                "type": "Feature",
+                "properties": {"kind": "walkable"},
+                "geometry": {"type": "Polygon", "coordinates": [[[1, 2], [9, 2], [9, 5], [1, 2]]]},
+            },
+            {
+                "type": "Feature",
+                "properties": {"beacon": "b"},
+                "geometry": {"type": "Point", "coordinates": [500, 500]},
+            },
+        ],
+    }
+    assert plan_extent(plan) == (1.0, 2.0, 9.0, 5.0)
+    assert plan_extent({"type": "FeatureCollection", "features": []}) is None
+    assert plan_extent(None) is None

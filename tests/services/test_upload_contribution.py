@@ -58,3 +58,18 @@ def test_a_pass_by_an_anchor_ap_becomes_one_more_anchor() -> None:
     for level, threshold in ((2, rssi - 5.0), (3, rssi + 10.0)):
         other = AnchorContext([Beacon(ap.emitter, ap.xy_m, level, "wifi", threshold)])
         assert contribution(upload, other).report["anchor_passes"] == 0
+
+
+def test_samples_placed_far_outside_the_floor_plan_are_not_used() -> None:
+    from server.services.uploads import PLAN_MARGIN_M, AnchorContext
+
+    everything = contribution(_upload())
+    xs = sorted(p.x_m for p in everything.points)
+    cut = xs[len(xs) // 2] - PLAN_MARGIN_M  # the plan ends where half the scans are
+    half = contribution(_upload(), AnchorContext(extents={3: (-1e4, -1e4, cut, 1e4)}))
+    assert 0 < half.report["scans"] < everything.report["scans"]
+    assert all(p.x_m <= cut + PLAN_MARGIN_M for p in half.points)
+    assert any("outside the floor plan" in r for r in half.report["not_used"])
+    # another floor's extent does not apply
+    other = contribution(_upload(), AnchorContext(extents={2: (0.0, 0.0, 1.0, 1.0)}))
+    assert other.report["scans"] == everything.report["scans"]
