@@ -33,17 +33,12 @@ from server.datasets.ilc import IlcTrace, read_site, read_trace
 from server.positioning import pdr
 from server.positioning.pdr import Detector, LengthModel
 from server.positioning.step_tracker import (
-    StepBlock,
     TrackerParams,
-    initial_tracker,
-    track,
 )
 from server.services.evaluation import split_site
+from server.services.traces import anchored_steps
 
 Progress = Callable[[str, int, int], None]
-
-MIN_PATH_M = 5.0  # shorter walks say more about the waypoint spacing than about steps
-BLOCK_MS = 1000
 
 
 @dataclass(frozen=True)
@@ -68,37 +63,22 @@ class TraceSteps:
 
 
 def trace_steps(trace: IlcTrace, params: TrackerParams) -> TraceSteps | None:
-    """The tracker run over a trace; None when it has under two waypoints or walks less
-    than ``MIN_PATH_M``."""
-    wp_t = trace.waypoint_t_ms
-    if wp_t.size < 2:
+    """The tracker run over a trace (``traces.anchored_steps``); None when it has under two
+    waypoints or walks less than ``traces.MIN_ANCHORED_PATH_M``."""
+    steps = anchored_steps(trace, params)
+    if steps is None:
         return None
-    true_m = float(np.linalg.norm(np.diff(trace.waypoint_xy_m, axis=0), axis=1).sum())
-    if true_m < MIN_PATH_M:
-        return None
-    state = initial_tracker(params)
-    blocks: list[StepBlock] = []
-    for imu in trace.imu_events(BLOCK_MS):
-        state, block = track(state, imu, params)
-        blocks.append(block)
-    t = np.concatenate([b.t_ms for b in blocks]) if blocks else np.empty(0, np.int64)
-    inside = (t > wp_t[0]) & (t <= wp_t[-1])
-
-    def cat(name: str) -> NDArray[np.float64]:
-        parts = [np.asarray(getattr(b, name), dtype=np.float64) for b in blocks]
-        return np.concatenate(parts)[inside] if parts else np.empty(0)
-
     return TraceSteps(
         path_id=trace.path_id,
         floor=trace.floor,
-        true_m=true_m,
-        t_ms=t[inside],
-        length_m=cat("length_m"),
-        heading_rad=cat("heading_rad"),
-        north_rad=cat("north_rad"),
-        status=cat("status").astype(np.int64),
-        segment=cat("segment").astype(np.int64),
-        waypoint_t_ms=wp_t,
+        true_m=float(np.linalg.norm(np.diff(trace.waypoint_xy_m, axis=0), axis=1).sum()),
+        t_ms=steps.t_ms,
+        length_m=steps.length_m.astype(np.float64),
+        heading_rad=steps.heading_rad.astype(np.float64),
+        north_rad=steps.north_rad.astype(np.float64),
+        status=steps.status.astype(np.int64),
+        segment=steps.segment.astype(np.int64),
+        waypoint_t_ms=trace.waypoint_t_ms,
         waypoint_xy_m=trace.waypoint_xy_m,
     )
 

@@ -4,9 +4,9 @@ The map builder reads a walk as an ``IlcTrace`` (scans, raw motion samples, the 
 positions as waypoints), whatever it came as: an ILC 2.0 path file, or our own events
 (a JSON upload, the batches of a session offered for map building). This module makes
 that trace from events (``trace_from_events``), joins traces cut into pieces
-(``join_traces``) and encodes a trace as one array container (``encode_trace`` /
-``decode_trace``, ``storage.codec``: nothing pickled, a corrupt blob raises
-``CodecError``).
+(``join_traces``), finds its steps (``walk_steps``, ``anchored_steps``) and encodes a
+trace as one array container (``encode_trace`` / ``decode_trace``, ``storage.codec``:
+nothing pickled, a corrupt blob raises ``CodecError``).
 
 From events: scans keep their readings; IMU blocks are concatenated per sensor (the
 rotation vector keeps its vector part, sign chosen so the scalar part is not negative,
@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from types import MappingProxyType
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -35,9 +36,13 @@ from server.positioning.events import (
     RadioReading,
     WifiEvent,
 )
+from server.positioning.step_tracker import StepBlock, TrackerParams, initial_tracker, track
 from server.storage.codec import array_to_str, compress_arrays, decompress_arrays, str_to_array
 
 CONTENT_TYPE = "application/vnd.indoorpos.trace"
+STEP_BLOCK_MS = 1000  # raw samples reach the step tracker in blocks of this length
+# shorter walks say more about the waypoint spacing than about steps
+MIN_ANCHORED_PATH_M = 5.0
 _SENSORS = ("accel", "gyro", "magnetic", "rotation")
 
 
@@ -208,4 +213,47 @@ def decode_trace(data: bytes, path_id: str = "") -> IlcTrace:
         {name: a[name].reshape(-1, 4) for name in _SENSORS},
         frozenset(marks.split(",")) if marks else frozenset(),
         a["gnss"].reshape(-1, 5) if "gnss" in a else np.empty((0, 5)),
+    )
+
+
+def walk_steps(trace: IlcTrace, params: TrackerParams, block_ms: int = STEP_BLOCK_MS) -> StepBlock:
+    """Every step the server finds in the walk's raw motion samples (``step_tracker``, the
+    samples fed in blocks of ``block_ms`` as a phone would send them), in time order."""
+    state = initial_tracker(params)
+    blocks: list[StepBlock] = []
+    for imu in trace.imu_events(block_ms):
+        state, block = track(state, imu, params)
+        blocks.append(block)
+    return _steps(blocks, None)
+
+
+def anchored_steps(trace: IlcTrace, params: TrackerParams) -> StepBlock | None:
+    """The walk's steps between its first and last waypoint (its anchors); None when it
+    has fewer than two or they span less than ``MIN_ANCHORED_PATH_M`` along the waypoints."""
+    wp_t = trace.waypoint_t_ms
+    if wp_t.size < 2:
+        return None
+    path_m = float(np.linalg.norm(np.diff(trace.waypoint_xy_m, axis=0), axis=1).sum())
+    if path_m < MIN_ANCHORED_PATH_M:
+        return None
+    steps = walk_steps(trace, params)
+    return _steps([steps], (steps.t_ms > wp_t[0]) & (steps.t_ms <= wp_t[-1]))
+
+
+def _steps(blocks: Sequence[StepBlock], keep: NDArray[np.bool_] | None) -> StepBlock:
+    """The blocks joined into one, then (with ``keep``) the steps kept."""
+
+    def cat(name: str, dtype: type[np.generic]) -> NDArray[Any]:
+        parts = [np.asarray(getattr(b, name), dtype=dtype) for b in blocks]
+        joined = np.concatenate(parts) if parts else np.empty(0, dtype=dtype)
+        return joined if keep is None else joined[keep]
+
+    return StepBlock(
+        t_ms=cat("t_ms", np.int64),
+        length_m=cat("length_m", np.float64),
+        heading_rad=cat("heading_rad", np.float64),
+        north_rad=cat("north_rad", np.float64),
+        status=cat("status", np.int64),
+        segment=cat("segment", np.int64),
+        magnitude_ut=cat("magnitude_ut", np.float64),
     )

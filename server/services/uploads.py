@@ -55,7 +55,6 @@ from server.services import traces
 from server.services.errors import Conflict, Invalid, NotFound
 from server.services.magnetic_maps import fold_sources
 from server.services.maps import SurveyPointData, add_survey, stored_radio_map
-from server.services.pdr_evaluation import trace_steps
 from server.storage import repositories as repo
 from server.storage.codec import CodecError
 from server.storage.models import Floor, Upload
@@ -460,7 +459,7 @@ def _place(
     """Positions of samples at ``times``: by the walker's steps between the anchors
     (``mapping.placement``), or at constant speed between them when the trace has no
     motion data to find steps in."""
-    steps = trace_steps(trace, TrackerParams())
+    steps = traces.anchored_steps(trace, TrackerParams())
     if steps is None or steps.t_ms.size < 2:
         xy, valid = interpolate_track(trace.waypoint_t_ms, trace.waypoint_xy_m, times)
         report["placement"] = "constant speed between anchors (no steps found)"
@@ -512,12 +511,9 @@ async def settle(s: AsyncSession, upload_id: str, result: Contribution) -> bool:
 
 async def _target_floor(s: AsyncSession, row: Upload, result: Contribution) -> Floor | str:
     """The floor an upload's readings go to, or why there is none."""
-    building_id = row.building_id
+    building_id = await _building_id(s, row)
     if building_id is None:
-        buildings = await repo.list_buildings(s, row.site_id)
-        if len(buildings) != 1:
-            return "the site has several buildings (or none): give building_id"
-        building_id = buildings[0].id
+        return "the site has several buildings (or none): give building_id"
     level = result.floor_level if result.floor_level is not None else 0
     floor = await repo.find_floor(s, building_id, level)
     if floor is None:
