@@ -13,6 +13,7 @@ import logging
 import lzma
 from typing import Annotated, Any
 
+import anyio
 from fastapi import APIRouter, Header, Query, Request, Response, status
 from fastapi.exceptions import RequestValidationError
 from pydantic import ValidationError
@@ -105,10 +106,11 @@ async def create_upload(
         )
     payload = await _body(request, limit)
     if media in XZ_TYPES or (content_encoding or "").strip().lower() == "xz":
-        payload = _decompress(payload, limit)
+        payload = await anyio.to_thread.run_sync(_decompress, payload, limit)
         media = uploads.ILC_TEXT if media in XZ_TYPES else media
     if media == "application/json":
-        payload, media = _events_trace(payload), traces.CONTENT_TYPE
+        payload = await anyio.to_thread.run_sync(_events_trace, payload)
+        media = traces.CONTENT_TYPE
     new = uploads.NewUpload(
         site_id=site_id,
         building_id=building_id,

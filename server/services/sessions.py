@@ -262,10 +262,13 @@ async def apply_batch(
                 )
             await anyio.sleep(SEQ_POLL_S)
             continue
+        if meta.contribute:  # CPU work (compression): off the event loop
+            walk = await anyio.to_thread.run_sync(
+                lambda: traces.encode_trace(traces.trace_from_events(events))
+            )
         async with rt.transaction() as s:
             maps = await site_maps(s, rt.maps, meta.site_id)
             if meta.contribute:  # kept before the batch is acknowledged
-                walk = traces.encode_trace(traces.trace_from_events(events))
                 await repo.keep_session_batch(s, session_id, seq, walk)
         rng = np.random.default_rng(np.random.SeedSequence(meta.entropy, spawn_key=(seq,)))
         params = spec.params_type()
@@ -339,14 +342,16 @@ async def _offer_walk(
         kept = await repo.take_session_batches(s, session_id)
         if not kept:
             return None
-        walk = traces.join_traces([traces.decode_trace(b) for b in kept])
+        payload = await anyio.to_thread.run_sync(
+            lambda: traces.encode_trace(traces.join_traces([traces.decode_trace(b) for b in kept]))
+        )
         new = uploads.NewUpload(
             site_id=meta.site_id,
             building_id=last_fix.get("building_id"),
             floor_level=last_fix.get("floor"),
             device_model=meta.device_model or None,
             content_type=traces.CONTENT_TYPE,
-            payload=traces.encode_trace(walk),
+            payload=payload,
             idempotency_key=f"session:{session_id}",
         )
         try:

@@ -135,7 +135,8 @@ async def create_upload(s: AsyncSession, new: NewUpload) -> tuple[Upload, bool]:
             raise NotFound(
                 f"building {new.building_id} not found in this site", field="building_id"
             )
-    parse_payload(new.content_type, new.payload, "upload")
+    # reading a long trace takes seconds: off the event loop
+    await anyio.to_thread.run_sync(parse_payload, new.content_type, new.payload, "upload")
     row = await repo.create_upload(
         s,
         site_id=new.site_id,
