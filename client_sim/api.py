@@ -163,6 +163,11 @@ class ApiClient:
         result: dict[str, Any] = await self._admin("PUT", f"/v1/floors/{floor_id}/plan", plan)
         return result
 
+    async def get(self, path: str) -> dict[str, Any]:
+        """An admin read, e.g. ``/v1/sites/{id}``: the answer's JSON object."""
+        result: dict[str, Any] = await self._admin("GET", path, None)
+        return result
+
     async def post_survey(self, building_id: str, body: Mapping[str, Any]) -> dict[str, Any]:
         """``body`` is a ``SurveyIn``; the answer the new ``RadioMapRead``."""
         result: dict[str, Any] = await self._admin(
@@ -253,11 +258,14 @@ def live_url(base_url: str, session: Session) -> str:
 
 
 class LiveFixes:
-    """Counts what a session's live socket pushes, from a reader task.
+    """Counts what a session's live socket pushes, from a reader task, and posts batches
+    over it.
 
     ``fixes_by_seq`` counts ``{"type": "fix"}`` messages per batch ``seq``; ``fix_messages``
     is their total; ``errors`` keeps the text of ``{"type": "error"}`` messages and of an
     unexpected close; ``closed`` is set once the socket is closed for whatever reason.
+    While :meth:`post_batch` waits for its answer, an error message is that batch's answer
+    (one batch at a time is in flight) and is not kept in ``errors``.
     """
 
     def __init__(self, ws: ClientConnection) -> None:
@@ -269,6 +277,7 @@ class LiveFixes:
         self.ready = asyncio.Event()
         self._changed = asyncio.Event()
         self._closing = False
+        self._pending: asyncio.Future[BatchResult] | None = None
         self._task = asyncio.create_task(self._read())
 
     @classmethod
@@ -315,6 +324,34 @@ class LiveFixes:
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self._changed.wait(), remaining)
 
+    async def post_batch(
+        self, seq: int, events: Sequence[Mapping[str, Any]], timeout_s: float
+    ) -> BatchResult:
+        """Send a batch over the socket and wait for its ``batch_result``; an ``error``
+        message in the meantime raises :class:`ApiError`, a closed socket
+        :class:`ConnectionError`, no answer in time :class:`TimeoutError`."""
+        if self._pending is not None:
+            raise RuntimeError("one batch at a time over a live socket")
+        if self.closed.is_set():
+            raise ConnectionError("live socket closed")
+        self._pending = asyncio.get_running_loop().create_future()
+        try:
+            await self._ws.send(json.dumps({"type": "batch", "seq": seq, "events": list(events)}))
+            return await asyncio.wait_for(asyncio.shield(self._pending), timeout_s)
+        finally:
+            self._pending = None
+
+    def _answer(self, result: BatchResult | BaseException) -> bool:
+        """Settle the batch in flight; False when there is none."""
+        pending = self._pending
+        if pending is None or pending.done():
+            return False
+        if isinstance(result, BaseException):
+            pending.set_exception(result)
+        else:
+            pending.set_result(result)
+        return True
+
     async def _read(self) -> None:
         try:
             async for raw in self._ws:
@@ -327,6 +364,7 @@ class LiveFixes:
         finally:
             self.closed.set()
             self._changed.set()
+            self._answer(ConnectionError("live socket closed before the batch was answered"))
 
     def _handle(self, raw: str | bytes) -> None:
         try:
@@ -341,6 +379,12 @@ class LiveFixes:
             self.fixes_by_seq[int(message.get("seq", 0))] += 1
             self.fix_messages += 1
             self._changed.set()
+        elif kind == "batch_result":
+            fixes = tuple(Fix.from_wire(f) for f in message.get("fixes", []))
+            seq = int(message.get("seq", 0))
+            self._answer(BatchResult(seq, bool(message.get("replayed", False)), fixes))
         elif kind == "error":
             text = message.get("message") or message.get("detail")
-            self.errors.append(f"live socket: {message.get('status')}: {text}")
+            status = int(message.get("status", 0))
+            if not self._answer(ApiError(status, message.get("detail", text), str(text))):
+                self.errors.append(f"live socket: {status}: {text}")

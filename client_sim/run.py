@@ -1,26 +1,31 @@
-"""Load and accuracy run: simulated walkers posting batches in real time to a deployed stack.
+"""Load and accuracy run: simulated walkers posting their steps in real time to a deployed stack.
 
-:func:`run_walkers` provisions one synthetic site (building, plans, survey), then runs the
-walkers concurrently. Walker ``i`` walks level ``levels[i % n_levels]``, starts
-``i / walkers`` of a batch period after the first (to spread the load), creates a session,
-opens its live socket and, every ``batch_period_s``, posts the events its phone produced
-in that wall-clock interval as the next ``seq`` (1, 2, 3, ...). For every fix in a batch
-answer it measures the horizontal error against the walker's true position at the fix's
-``t`` (linear between truths) and whether the floor level is right. After
-``duration_s`` it waits up to ``DRAIN_S`` for the socket to deliver every fix the batch
-answers announced, deletes its session, and gives the server a moment to close the socket.
+:func:`run_walkers` provisions one synthetic site (building, plans, survey) or reuses one
+made before, then runs the walkers concurrently on one event loop. Walker ``i`` walks level
+``levels[i % n_levels]``, takes a step every ``step_period_s`` on average (each step
+jittered by ``N(0, STEP_JITTER_SD_S)``), starts ``i / walkers`` of a batch interval after
+the first (to spread the load), and creates a session. Every ``batch_steps`` steps it
+sends the events its phone produced since the last batch (the steps with their magnetometer
+readings and the WiFi/BLE scans that fell between them) as the next ``seq`` (1, 2, 3,
+...), over HTTP or, with ``transport="ws"``, over the session's live socket. With
+``live_socket`` an HTTP walker also holds the live socket open and counts the fixes pushed
+on it. For every fix in a batch answer it measures the horizontal error against the
+walker's true position at the fix's ``t`` (linear between truths) and whether the floor
+level is right. After ``duration_s`` it waits up to ``DRAIN_S`` for the socket to deliver
+every fix the batch answers announced, deletes its session, and gives the server a moment
+to close the socket.
 
-Errors counted: non-2xx answers, transport failures and other exceptions, error messages
-and unexpected closes on the socket. A batch whose fixes never arrive on the socket is
-counted apart (``batches_missing_on_socket``), not as an error. A batch that failed
-because of the transport, a 5xx, 408 or 429 is sent again, with the same ``seq`` and
-events, at the next period (the server applies a ``seq`` once); one refused with any other
-4xx is dropped and its ``seq`` reused; 401, 403 and 404 end the walker.
+Errors counted: non-2xx answers (error messages on the socket), transport failures and
+other exceptions, unexpected closes of the socket. A batch whose fixes never arrive on the
+socket is counted apart (``batches_missing_on_socket``), not as an error. A batch that
+failed because of the transport, a 5xx, 408 or 429 is sent again, with the same ``seq``
+and events, with the next batch (the server applies a ``seq`` once); one refused with any
+other 4xx is dropped and its ``seq`` reused; 401, 403 and 404 end the walker.
 
-Bounded: walkers stop producing at ``duration_s``; every request has a timeout, and a
-walker still busy ``DRAIN_S + 2 * REQUEST_TIMEOUT_S + 5`` s after that is cancelled
-(its session is still deleted).
-Traffic goes to ``base_url`` only (HTTP and its WebSocket).
+Bounded: at most ``MAX_WALKERS`` walkers and ``MAX_DURATION_S`` seconds; walkers stop
+producing at ``duration_s``; every request has a timeout, and a walker still busy
+``DRAIN_S + 2 * REQUEST_TIMEOUT_S + 5`` s after that is cancelled (its session is still
+deleted). Traffic goes to ``base_url`` only (HTTP and its WebSocket).
 """
 
 from __future__ import annotations
@@ -32,17 +37,23 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 import httpx
 import numpy as np
 
 from client_sim.api import ApiClient, ApiError, BatchResult, LiveFixes, Session
 from client_sim.seeding import sequence
-from client_sim.site import ProvisionedSite, provision_site
-from client_sim.walker import TimedEvent, TruthTrack, Walker
+from client_sim.site import ProvisionedSite, provision_site, reuse_site
+from client_sim.walker import TimedEvent, TruthTrack, Walker, WalkerParams
 from client_sim.world import SyntheticWorld, synthesize_world
 
+Transport = Literal["http", "ws"]
+
+STEP_PERIOD_S = 0.67  # Shao et al.'s step period (papers/001_*, section IV-B)
+STEP_JITTER_SD_S = 0.03
+MAX_WALKERS = 20_000
+MAX_DURATION_S = 24 * 3600.0
 MAX_EVENTS_PER_BATCH = 2000  # the server's limit per batch
 REQUEST_TIMEOUT_S = 30.0
 DELETE_TIMEOUT_S = 5.0
@@ -56,21 +67,26 @@ FATAL_STATUS = frozenset({401, 403, 404})
 
 @dataclass(frozen=True)
 class Summary:
-    """What a run measured. ``to_json_dict`` starts with the six headline figures."""
+    """What a run measured. ``to_json_dict`` starts with the ten headline figures."""
 
-    walkers: int
-    fixes: int
-    mean_error_m: float | None  # horizontal, over every fix in a batch answer
-    p95_error_m: float | None
-    ws_messages: int  # fix messages received on the live sockets
-    errors: int
+    users: int
+    duration_s: float  # wall time from the first walker's start to the last one's end
     batches: int  # batches answered 2xx
+    steps: int  # step events in those batches
+    errors: int
+    p50_ms: float | None  # batch latency: sent to answered
+    p95_ms: float | None
+    p99_ms: float | None
+    fixes_per_s: float
+    mean_error_m: float | None  # horizontal, over every fix in a batch answer
+    fixes: int
+    p95_error_m: float | None
     floor_hit_rate: float | None  # share of fixes on the true level
-    batch_latency_p50_ms: float | None
-    batch_latency_p95_ms: float | None
+    ws_messages: int  # fix messages received on the live sockets
     batches_missing_on_socket: int
     sessions: int
-    duration_s: float  # wall time from the first walker's start to the last one's end
+    transport: str
+    batch_steps: int
     engine: str
     site_id: str | None
     error_messages: tuple[str, ...]  # the first few
@@ -88,6 +104,7 @@ class WalkerStats:
     horizontal_errors_m: list[float] = field(default_factory=list)
     floor_hits: int = 0
     batches: int = 0
+    steps: int = 0
     latencies_ms: list[float] = field(default_factory=list)
     ws_messages: int = 0
     batches_missing_on_socket: int = 0
@@ -104,10 +121,12 @@ class WalkerStats:
 def summarize(
     stats: Sequence[WalkerStats],
     *,
-    walkers: int,
+    users: int,
     engine: str,
     site_id: str | None,
     duration_s: float,
+    transport: str = "http",
+    batch_steps: int = 1,
 ) -> Summary:
     """Pool the walkers' figures."""
     errors_m = np.array([e for s in stats for e in s.horizontal_errors_m], dtype=np.float64)
@@ -120,21 +139,26 @@ def summarize(
         return float(np.mean(values) if q is None else np.percentile(values, q))
 
     return Summary(
-        walkers=walkers,
-        fixes=int(errors_m.size),
-        mean_error_m=stat(errors_m),
-        p95_error_m=stat(errors_m, 95),
-        ws_messages=sum(s.ws_messages for s in stats),
-        errors=len(messages),
+        users=users,
+        duration_s=duration_s,
         batches=sum(s.batches for s in stats),
+        steps=sum(s.steps for s in stats),
+        errors=len(messages),
+        p50_ms=stat(latencies, 50),
+        p95_ms=stat(latencies, 95),
+        p99_ms=stat(latencies, 99),
+        fixes_per_s=errors_m.size / duration_s if duration_s > 0 else 0.0,
+        mean_error_m=stat(errors_m),
+        fixes=int(errors_m.size),
+        p95_error_m=stat(errors_m, 95),
         floor_hit_rate=(sum(s.floor_hits for s in stats) / errors_m.size)
         if errors_m.size
         else None,
-        batch_latency_p50_ms=stat(latencies, 50),
-        batch_latency_p95_ms=stat(latencies, 95),
+        ws_messages=sum(s.ws_messages for s in stats),
         batches_missing_on_socket=sum(s.batches_missing_on_socket for s in stats),
         sessions=sum(s.sessions for s in stats),
-        duration_s=duration_s,
+        transport=transport,
+        batch_steps=batch_steps,
         engine=engine,
         site_id=site_id,
         error_messages=tuple(messages[:MAX_ERROR_MESSAGES]),
@@ -149,17 +173,28 @@ async def run_walkers(
     seed: int = 0,
     engine: str = "step_ekf",
     on_progress: Callable[[float], None] | None = None,
-    batch_period_s: float = 1.0,
+    batch_steps: int = 1,
+    transport: Transport = "http",
+    live_socket: bool = True,
+    step_period_s: float = STEP_PERIOD_S,
+    site_id: str | None = None,
 ) -> Summary:
-    """Provision a synthetic site at ``base_url`` and walk ``walkers`` simulated phones
-    through it for ``duration_s`` seconds of real time (module docstring).
+    """Walk ``walkers`` simulated phones through a synthetic site at ``base_url`` for
+    ``duration_s`` seconds of real time (module docstring).
 
-    ``on_progress(elapsed_s)`` is called about once a second while the walkers walk.
-    Provisioning failures raise :class:`ApiError` (or the transport's error); everything
-    after that is counted in the summary instead.
+    The site is the one ``site_id`` names (it must have been provisioned with the same
+    ``seed``), else one provisioned now. ``on_progress(elapsed_s)`` is called about once a
+    second while the walkers walk. Provisioning failures raise :class:`ApiError` (or the
+    transport's error); everything after that is counted in the summary instead.
     """
-    if walkers < 0 or not duration_s > 0 or not batch_period_s > 0:
-        raise ValueError("walkers must be >= 0, duration_s and batch_period_s > 0")
+    if not 0 <= walkers <= MAX_WALKERS:
+        raise ValueError(f"walkers must be in [0, {MAX_WALKERS}]")
+    if not 0 < duration_s <= MAX_DURATION_S:
+        raise ValueError(f"duration_s must be in (0, {MAX_DURATION_S:.0f}]")
+    if batch_steps < 1 or not step_period_s > 0:
+        raise ValueError("batch_steps must be >= 1 and step_period_s > 0")
+    if transport not in ("http", "ws"):
+        raise ValueError("transport must be 'http' or 'ws'")
     world = synthesize_world(seed)
     pool = min(walkers, MAX_CONNECTIONS) + 4
     async with httpx.AsyncClient(
@@ -168,10 +203,17 @@ async def run_walkers(
         limits=httpx.Limits(max_connections=pool, max_keepalive_connections=pool),
     ) as http:
         api = ApiClient(http, admin_key)
-        site = await provision_site(api, world.building, seed, world=world)
+        if site_id is None:
+            site = await provision_site(api, world.building, seed, world=world)
+        else:
+            site = await reuse_site(api, site_id, world)
         loop = asyncio.get_running_loop()
         start = loop.time()
         stats = [WalkerStats() for _ in range(walkers)]
+        params = WalkerParams(
+            step_period_s=(step_period_s, step_period_s), step_period_sd_s=STEP_JITTER_SD_S
+        )
+        interval_s = batch_steps * step_period_s
         progress = asyncio.create_task(_report_progress(on_progress, start, duration_s))
         try:
             await asyncio.gather(
@@ -185,9 +227,12 @@ async def run_walkers(
                             index=i,
                             seed=seed,
                             engine=engine,
-                            start=start + batch_period_s * i / max(walkers, 1),
+                            start=start + interval_s * i / max(walkers, 1),
                             end=start + duration_s,
-                            batch_period_s=batch_period_s,
+                            batch_steps=batch_steps,
+                            transport=transport,
+                            live_socket=live_socket or transport == "ws",
+                            params=params,
                         ),
                         stats[i],
                     )
@@ -202,7 +247,13 @@ async def run_walkers(
         if on_progress is not None:
             on_progress(min(elapsed, duration_s))
     return summarize(
-        stats, walkers=walkers, engine=engine, site_id=site.site_id, duration_s=elapsed
+        stats,
+        users=walkers,
+        engine=engine,
+        site_id=site.site_id,
+        duration_s=elapsed,
+        transport=transport,
+        batch_steps=batch_steps,
     )
 
 
@@ -228,7 +279,10 @@ class _WalkPlan:
     engine: str
     start: float  # event-loop time the walker starts
     end: float  # event-loop time every walker stops producing
-    batch_period_s: float
+    batch_steps: int
+    transport: Transport
+    live_socket: bool
+    params: WalkerParams
 
 
 async def _guarded_walk(plan: _WalkPlan, stats: WalkerStats) -> None:
@@ -268,11 +322,14 @@ async def _walk(plan: _WalkPlan, stats: WalkerStats) -> None:
     try:
         async with contextlib.AsyncExitStack() as stack:
             live: LiveFixes | None = None
-            try:
-                live = await stack.enter_async_context(LiveFixes.open(plan.base_url, session))
-            except Exception as exc:  # refused, unreachable, timed out: walk on without it
-                stats.errors.append(f"{name}: live socket: {type(exc).__name__}: {exc}")
-            expected = await _post_batches(plan, session, stats)
+            if plan.live_socket:
+                try:
+                    live = await stack.enter_async_context(LiveFixes.open(plan.base_url, session))
+                except Exception as exc:  # refused, unreachable, timed out
+                    stats.errors.append(f"{name}: live socket: {type(exc).__name__}: {exc}")
+                    if plan.transport == "ws":
+                        return
+            expected = await _post_batches(plan, session, stats, live)
             if live is not None:
                 await live.wait_for(expected, DRAIN_S)
             await end_session()
@@ -290,7 +347,9 @@ async def _walk(plan: _WalkPlan, stats: WalkerStats) -> None:
             await end_session()
 
 
-async def _post_batches(plan: _WalkPlan, session: Session, stats: WalkerStats) -> dict[int, int]:
+async def _post_batches(
+    plan: _WalkPlan, session: Session, stats: WalkerStats, live: LiveFixes | None
+) -> dict[int, int]:
     """Post the walk in real time; the number of fixes each acknowledged ``seq`` carried."""
     loop = asyncio.get_running_loop()
     name = f"walker {plan.index}"
@@ -300,32 +359,36 @@ async def _post_batches(plan: _WalkPlan, session: Session, stats: WalkerStats) -
         levels[plan.index % len(levels)],
         sequence(plan.seed, "walker", plan.index),
         t0_ms=int(time.time() * 1000),
+        params=plan.params,
     )
     walk_start = loop.time()
     walk_end_s = plan.end - walk_start  # seconds of walk this walker produces
-    events = _Peekable(walker.events())
+    batches = _batches(walker.events(), plan.batch_steps)
     track = TruthTrack()
-    queue: deque[tuple[int, list[dict[str, Any]]]] = deque()
+    queue: deque[tuple[int, list[dict[str, Any]], int]] = deque()  # seq, events, steps
     next_seq = 1
     expected: dict[int, int] = {}
-    tick = 0
     while True:
-        tick += 1
-        upto_s = min(tick * plan.batch_period_s, walk_end_s)
-        await asyncio.sleep(max(0.0, walk_start + upto_s - loop.time()))
-        produced: list[dict[str, Any]] = []
-        while events.peek().sim_s <= upto_s:
-            timed = events.pop()
-            track.add(timed.truth)
-            produced.append(timed.event)
+        due_s, timed = next(batches)
+        if due_s > walk_end_s:
+            return expected
+        await asyncio.sleep(max(0.0, walk_start + due_s - loop.time()))
+        for item in timed:
+            track.add(item.truth)
+        produced = [item.event for item in timed]
         for i in range(0, len(produced), MAX_EVENTS_PER_BATCH):
-            queue.append((next_seq, produced[i : i + MAX_EVENTS_PER_BATCH]))
+            part = produced[i : i + MAX_EVENTS_PER_BATCH]
+            queue.append((next_seq, part, sum(e["type"] == "step" for e in part)))
             next_seq += 1
         while queue:
-            seq, batch = queue[0]
+            seq, batch, steps = queue[0]
             sent = loop.time()
             try:
-                result = await plan.api.post_batch(session, seq, batch)
+                if plan.transport == "ws":
+                    assert live is not None
+                    result = await live.post_batch(seq, batch, REQUEST_TIMEOUT_S)
+                else:
+                    result = await plan.api.post_batch(session, seq, batch)
             except ApiError as exc:
                 stats.errors.append(f"{name}: batch seq {seq}: {_describe(exc)}")
                 if exc.status in RETRYABLE_STATUS:
@@ -333,33 +396,39 @@ async def _post_batches(plan: _WalkPlan, session: Session, stats: WalkerStats) -
                 if exc.status in FATAL_STATUS:
                     return expected
                 queue.popleft()  # refused as it is: drop it and give its seq to the next
-                queue = deque((s - 1, b) for s, b in queue)
+                queue = deque((s - 1, b, n) for s, b, n in queue)
                 next_seq -= 1
                 continue
-            except httpx.HTTPError as exc:
+            except (httpx.HTTPError, OSError, TimeoutError) as exc:
                 stats.errors.append(f"{name}: batch seq {seq}: {_describe(exc)}")
+                if plan.transport == "ws":
+                    return expected  # the socket is gone: nothing more can be sent
                 break
             queue.popleft()
             stats.batches += 1
+            stats.steps += steps
             stats.latencies_ms.append(1000.0 * (loop.time() - sent))
             stats.add_fixes(result, track)
             if result.fixes:
                 expected[seq] = len(result.fixes)
-        if upto_s >= walk_end_s:
-            return expected
 
 
-class _Peekable:
-    def __init__(self, it: Iterator[TimedEvent]) -> None:
-        self._it = it
-        self._next = next(it)
-
-    def peek(self) -> TimedEvent:
-        return self._next
-
-    def pop(self) -> TimedEvent:
-        out, self._next = self._next, next(self._it)
-        return out
+def _batches(events: Iterator[TimedEvent], steps: int) -> Iterator[tuple[float, list[TimedEvent]]]:
+    """Cut the walk's events into batches of ``steps`` steps: each batch with when it is
+    due (seconds into the walk: its last step, with that step's magnetometer reading)."""
+    pending: list[TimedEvent] = []
+    counted = 0
+    due = math.inf
+    for item in events:
+        if item.sim_s > due:
+            yield due, pending
+            pending, counted, due = [], 0, math.inf
+        pending.append(item)
+        if item.event["type"] == "step":
+            counted += 1
+            if counted == steps:
+                due = item.sim_s
+    raise AssertionError("a walk has no end")
 
 
 def _describe(exc: BaseException) -> str:

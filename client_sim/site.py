@@ -75,3 +75,30 @@ async def provision_site(
         radio_map=radio_map,
         world=world,
     )
+
+
+async def reuse_site(api: ApiClient, site_id: str, world: SyntheticWorld) -> ProvisionedSite:
+    """A site :func:`provision_site` made before for ``world``'s building: its ids, checked
+    to have one building with a floor of every level, each with a plan, and a radio map."""
+    await api.get(f"/v1/sites/{site_id}")
+    buildings = (await api.get(f"/v1/sites/{site_id}/buildings"))["items"]
+    if len(buildings) != 1:
+        raise ValueError(f"site {site_id} has {len(buildings)} buildings, not the simulator's one")
+    building_id = str(buildings[0]["id"])
+    floors = (await api.get(f"/v1/buildings/{building_id}/floors"))["items"]
+    floor_ids = {int(f["level"]): str(f["id"]) for f in floors if f["has_plan"]}
+    missing = sorted(set(world.building.levels) - set(floor_ids))
+    if missing:
+        raise ValueError(f"site {site_id} has no planned floor at levels {missing}")
+    maps = (await api.get(f"/v1/buildings/{building_id}/radio-maps"))["items"]
+    if not maps:
+        raise ValueError(f"site {site_id} has no radio map")
+    latest = max(maps, key=lambda m: str(m["activated_at"]))
+    return ProvisionedSite(
+        site_id=site_id,
+        building_id=building_id,
+        floor_ids=floor_ids,
+        survey_points=int(latest["n_survey_points"]),
+        radio_map=latest,
+        world=world,
+    )

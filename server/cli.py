@@ -12,7 +12,7 @@ import time
 from collections.abc import Callable, Iterator
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 import typer
 import uvicorn
@@ -206,6 +206,7 @@ def demo(
                 walkers=walkers,
                 duration_s=duration,
                 seed=seed,
+                batch_steps=2,
                 on_progress=lambda elapsed: progress.update(task, completed=min(elapsed, duration)),
             )
         )
@@ -631,3 +632,74 @@ def bench_particle(
     if json_path is not None:
         json_path.write_text(json.dumps(result, indent=2) + "\n")
         console.print(f"figures written to {json_path}")
+
+
+@app.command()
+def simulate(
+    url: Annotated[
+        str | None,
+        typer.Option(help="the service to load (default: a throw-away embedded one in-process)"),
+    ] = None,
+    users: Annotated[int, typer.Option(min=1, max=20_000, help="simulated walking users")] = 10,
+    duration: Annotated[
+        float, typer.Option(min=1, max=24 * 3600, help="seconds of walking")
+    ] = 30.0,
+    engine: Annotated[str, typer.Option(help="fusion engine of every session")] = "pf_magnetic",
+    batch_steps: Annotated[
+        int, typer.Option(min=1, max=100, help="steps per batch (a step every 0.67 s)")
+    ] = 1,
+    ws: Annotated[bool, typer.Option("--ws", help="post batches over the live WebSocket")] = False,
+    live: Annotated[
+        bool, typer.Option(help="HTTP walkers also hold the live socket open for their fixes")
+    ] = False,
+    admin_key: Annotated[
+        str | None,
+        typer.Option(envvar="INDOORPOS_ADMIN_KEY", help="admin key of --url (to set up the site)"),
+    ] = None,
+    site_id: Annotated[
+        str | None, typer.Option(help="reuse this site, set up before with the same --seed")
+    ] = None,
+    seed: Annotated[int, typer.Option(help="seed of the synthetic building and walkers")] = 0,
+    json_path: Annotated[Path | None, typer.Option("--json", help="write the summary here")] = None,
+) -> None:
+    """Walk simulated users through a synthetic site over HTTP (or the WebSocket), each
+    stepping every 0.67 s and posting every --batch-steps steps; latency and accuracy."""
+    from client_sim.run import run_walkers
+
+    with contextlib.ExitStack() as stack:
+        if url is None:
+            url, admin_key = stack.enter_context(_embedded_service())
+            console.print(f"embedded service on {url}")
+        elif admin_key is None and site_id is None:
+            console.print("[red]--admin-key (or INDOORPOS_ADMIN_KEY) is needed to set up a site")
+            raise typer.Exit(code=2)
+        transport: Literal["http", "ws"] = "ws" if ws else "http"
+        with _progress_bar("{task.completed:.0f}/{task.total:.0f} s") as progress:
+            task = progress.add_task(f"{users} users over {transport}", total=duration)
+            summary = asyncio.run(
+                run_walkers(
+                    url,
+                    admin_key or "",
+                    walkers=users,
+                    duration_s=duration,
+                    seed=seed,
+                    engine=engine,
+                    batch_steps=batch_steps,
+                    transport=transport,
+                    live_socket=live,
+                    site_id=site_id,
+                    on_progress=lambda elapsed: progress.update(task, completed=elapsed),
+                )
+            )
+    result = summary.to_json_dict()
+    _print_report(
+        f"simulate: {users} users, {engine}, {batch_steps} step(s) per batch over {transport}",
+        {k: v for k, v in result.items() if not isinstance(v, list | dict)},
+    )
+    for message in result["error_messages"]:
+        console.print(f"[red]error:[/] {message}")
+    if json_path is not None:
+        json_path.write_text(json.dumps(result, indent=2) + "\n")
+        console.print(f"summary written to {json_path}")
+    if result["errors"]:
+        raise typer.Exit(code=1)

@@ -9,10 +9,23 @@ import httpx
 import pytest
 
 from client_sim.api import ApiClient, ApiError, BatchResult, Fix, Session, live_url
-from client_sim.run import Summary, WalkerStats, summarize
-from client_sim.walker import Truth, TruthTrack
+from client_sim.run import Summary, WalkerStats, _batches, summarize
+from client_sim.seeding import sequence
+from client_sim.walker import TimedEvent, Truth, TruthTrack, Walker
+from client_sim.world import synthesize_world
 
-HEADLINE = ["walkers", "fixes", "mean_error_m", "p95_error_m", "ws_messages", "errors"]
+HEADLINE = [
+    "users",
+    "duration_s",
+    "batches",
+    "steps",
+    "errors",
+    "p50_ms",
+    "p95_ms",
+    "p99_ms",
+    "fixes_per_s",
+    "mean_error_m",
+]
 CREATED = {"id": "s1", "token": "t", "site_id": "site", "engine": "step_ekf", "idle_timeout_s": 60}
 FIX = {"t": 5, "x_m": 1, "y_m": 2, "floor": None}
 PLAN = {"type": "FeatureCollection", "features": []}
@@ -33,17 +46,20 @@ def test_summary_json_starts_with_the_headline_figures() -> None:
     result = BatchResult(1, False, (fix(500, 5.0, 3.0), fix(1000, 10.0, 4.0, floor=1)))
     stats.add_fixes(result, track)
     stats.latencies_ms += [10.0, 30.0]
-    stats.batches, stats.ws_messages, stats.sessions = 2, 2, 1
+    stats.batches, stats.steps, stats.ws_messages, stats.sessions = 2, 3, 2, 1
     stats.errors.append("walker 0: batch seq 3: 503 busy")
     other = WalkerStats(errors=[f"e{i}" for i in range(20)])
-    summary = summarize([stats, other], walkers=2, engine="step_ekf", site_id="x", duration_s=5.0)
+    summary = summarize([stats, other], users=2, engine="step_ekf", site_id="x", duration_s=5.0)
     out = summary.to_json_dict()
-    assert list(out)[:6] == HEADLINE
+    assert list(out)[:10] == HEADLINE
     assert out["fixes"] == 2
+    assert out["fixes_per_s"] == pytest.approx(0.4)
+    assert out["steps"] == 3
     assert out["mean_error_m"] == pytest.approx(3.5)
     assert out["p95_error_m"] == pytest.approx(3.95)
     assert out["floor_hit_rate"] == 0.5
-    assert out["batch_latency_p50_ms"] == pytest.approx(20.0)
+    assert out["p50_ms"] == pytest.approx(20.0)
+    assert out["p99_ms"] == pytest.approx(29.8)
     assert out["errors"] == 21
     assert out["error_messages"][0] == "walker 0: batch seq 3: 503 busy"
     assert len(out["error_messages"]) == 10
@@ -51,11 +67,12 @@ def test_summary_json_starts_with_the_headline_figures() -> None:
 
 
 def test_summary_without_fixes_is_still_json() -> None:
-    summary = summarize([WalkerStats()], walkers=1, engine="e", site_id=None, duration_s=1.0)
+    summary = summarize([WalkerStats()], users=1, engine="e", site_id=None, duration_s=1.0)
     assert isinstance(summary, Summary)
     out = summary.to_json_dict()
     assert out["fixes"] == 0
     assert out["mean_error_m"] is None
+    assert out["p99_ms"] is None
     assert out["floor_hit_rate"] is None
     assert json.loads(json.dumps(out, allow_nan=False)) == out
 
@@ -120,3 +137,24 @@ async def test_client_sends_the_contract() -> None:
         ("POST", "/base/v1/sessions/s1/batches", "Bearer t", {"seq": 2, "events": []}),
         ("DELETE", "/base/v1/sessions/s1", "Bearer t", None),
     ]  # fmt: skip
+
+
+def test_batches_hold_b_steps_with_their_scans_and_are_due_at_the_last_step() -> None:
+    world = synthesize_world(0)
+    walker = Walker(world, world.building.levels[0], sequence(0, "walker", 0), t0_ms=0)
+    batches = _batches(walker.events(), 3)
+    seen: list[TimedEvent] = []
+    previous_due = -1.0
+    for _ in range(20):
+        due, items = next(batches)
+        steps = [i for i in items if i.event["type"] == "step"]
+        assert len(steps) == 3
+        assert due == steps[-1].sim_s > previous_due
+        # the last step's magnetometer reading comes with it; nothing later does
+        assert items[-1].event["type"] == "mag"
+        assert all(i.sim_s <= due for i in items)
+        previous_due = due
+        seen += items
+    # cut without loss or repetition: the same events as the walk itself
+    again = walker.events()
+    assert [i.event for i in seen] == [next(again).event for _ in seen]
