@@ -3,13 +3,13 @@
 :func:`run_walkers` provisions one synthetic site (building, plans, survey) or reuses one
 made before, then runs the walkers concurrently on one event loop. Walker ``i`` walks level
 ``levels[i % n_levels]``, takes a step every ``step_period_s`` on average (each step
-jittered by ``N(0, STEP_JITTER_SD_S)``), starts ``i / walkers`` of a batch interval after
-the first (to spread the load), and creates a session. Every ``batch_steps`` steps it
-sends the events its phone produced since the last batch (the steps with their magnetometer
-readings and the WiFi/BLE scans that fell between them) as the next ``seq`` (1, 2, 3,
-...), over HTTP or, with ``transport="ws"``, over the session's live socket. With
-``live_socket`` an HTTP walker also holds the live socket open and counts the fixes pushed
-on it. For every fix in a batch answer it measures the horizontal error against the
+jittered by ``N(0, STEP_JITTER_SD_S)``), starts ``i / walkers`` of a batch interval (or of
+``ramp_s``) after the first, to spread the load, and creates a session. Every
+``batch_steps`` steps it sends the events its phone produced since the last batch (the
+steps with their magnetometer readings and the WiFi/BLE scans that fell between them) as
+the next ``seq`` (1, 2, 3, ...), over HTTP or, with ``transport="ws"``, over the session's
+live socket. With ``live_socket`` an HTTP walker also holds the live socket open and counts
+the fixes pushed on it. For every fix in a batch answer it measures the horizontal error against the
 walker's true position at the fix's ``t`` (linear between truths) and whether the floor
 level is right. After ``duration_s`` it waits up to ``DRAIN_S`` for the socket to deliver
 every fix the batch answers announced, deletes its session, and gives the server a moment
@@ -178,14 +178,17 @@ async def run_walkers(
     live_socket: bool = True,
     step_period_s: float = STEP_PERIOD_S,
     site_id: str | None = None,
+    ramp_s: float | None = None,
 ) -> Summary:
     """Walk ``walkers`` simulated phones through a synthetic site at ``base_url`` for
     ``duration_s`` seconds of real time (module docstring).
 
     The site is the one ``site_id`` names (it must have been provisioned with the same
-    ``seed``), else one provisioned now. ``on_progress(elapsed_s)`` is called about once a
-    second while the walkers walk. Provisioning failures raise :class:`ApiError` (or the
-    transport's error); everything after that is counted in the summary instead.
+    ``seed``), else one provisioned now. The walkers' starts are spread evenly over
+    ``ramp_s`` seconds (default: one batch interval). ``on_progress(elapsed_s)`` is called
+    about once a second while the walkers walk. Provisioning failures raise
+    :class:`ApiError` (or the transport's error); everything after that is counted in the
+    summary instead.
     """
     if not 0 <= walkers <= MAX_WALKERS:
         raise ValueError(f"walkers must be in [0, {MAX_WALKERS}]")
@@ -193,6 +196,8 @@ async def run_walkers(
         raise ValueError(f"duration_s must be in (0, {MAX_DURATION_S:.0f}]")
     if batch_steps < 1 or not step_period_s > 0:
         raise ValueError("batch_steps must be >= 1 and step_period_s > 0")
+    if ramp_s is not None and not 0 <= ramp_s < duration_s:
+        raise ValueError("ramp_s must be in [0, duration_s)")
     if transport not in ("http", "ws"):
         raise ValueError("transport must be 'http' or 'ws'")
     world = synthesize_world(seed)
@@ -210,10 +215,8 @@ async def run_walkers(
         loop = asyncio.get_running_loop()
         start = loop.time()
         stats = [WalkerStats() for _ in range(walkers)]
-        params = WalkerParams(
-            step_period_s=(step_period_s, step_period_s), step_period_sd_s=STEP_JITTER_SD_S
-        )
-        interval_s = batch_steps * step_period_s
+        params = walker_params(step_period_s)
+        spread_s = batch_steps * step_period_s if ramp_s is None else ramp_s
         progress = asyncio.create_task(_report_progress(on_progress, start, duration_s))
         try:
             await asyncio.gather(
@@ -227,7 +230,7 @@ async def run_walkers(
                             index=i,
                             seed=seed,
                             engine=engine,
-                            start=start + interval_s * i / max(walkers, 1),
+                            start=start + spread_s * i / max(walkers, 1),
                             end=start + duration_s,
                             batch_steps=batch_steps,
                             transport=transport,
@@ -353,17 +356,12 @@ async def _post_batches(
     """Post the walk in real time; the number of fixes each acknowledged ``seq`` carried."""
     loop = asyncio.get_running_loop()
     name = f"walker {plan.index}"
-    levels = plan.world.building.levels
-    walker = Walker(
-        plan.world,
-        levels[plan.index % len(levels)],
-        sequence(plan.seed, "walker", plan.index),
-        t0_ms=int(time.time() * 1000),
-        params=plan.params,
+    walker = simulated_walker(
+        plan.world, plan.seed, plan.index, int(time.time() * 1000), plan.params
     )
     walk_start = loop.time()
     walk_end_s = plan.end - walk_start  # seconds of walk this walker produces
-    batches = _batches(walker.events(), plan.batch_steps)
+    batches = step_batches(walker.events(), plan.batch_steps)
     track = TruthTrack()
     queue: deque[tuple[int, list[dict[str, Any]], int]] = deque()  # seq, events, steps
     next_seq = 1
@@ -413,7 +411,26 @@ async def _post_batches(
                 expected[seq] = len(result.fixes)
 
 
-def _batches(events: Iterator[TimedEvent], steps: int) -> Iterator[tuple[float, list[TimedEvent]]]:
+def walker_params(step_period_s: float = STEP_PERIOD_S) -> WalkerParams:
+    """Walkers stepping every ``step_period_s`` on average, each step jittered."""
+    return WalkerParams(
+        step_period_s=(step_period_s, step_period_s), step_period_sd_s=STEP_JITTER_SD_S
+    )
+
+
+def simulated_walker(
+    world: SyntheticWorld, seed: int, index: int, t0_ms: int, params: WalkerParams
+) -> Walker:
+    """Walker ``index`` of a run with ``seed``: on level ``levels[index % n_levels]``."""
+    levels = world.building.levels
+    return Walker(
+        world, levels[index % len(levels)], sequence(seed, "walker", index), t0_ms, params
+    )
+
+
+def step_batches(
+    events: Iterator[TimedEvent], steps: int
+) -> Iterator[tuple[float, list[TimedEvent]]]:
     """Cut the walk's events into batches of ``steps`` steps: each batch with when it is
     due (seconds into the walk: its last step, with that step's magnetometer reading)."""
     pending: list[TimedEvent] = []

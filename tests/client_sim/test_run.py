@@ -9,7 +9,7 @@ import httpx
 import pytest
 
 from client_sim.api import ApiClient, ApiError, BatchResult, Fix, Session, live_url
-from client_sim.run import Summary, WalkerStats, _batches, summarize
+from client_sim.run import Summary, WalkerStats, step_batches, summarize
 from client_sim.seeding import sequence
 from client_sim.walker import TimedEvent, Truth, TruthTrack, Walker
 from client_sim.world import synthesize_world
@@ -142,7 +142,7 @@ async def test_client_sends_the_contract() -> None:
 def test_batches_hold_b_steps_with_their_scans_and_are_due_at_the_last_step() -> None:
     world = synthesize_world(0)
     walker = Walker(world, world.building.levels[0], sequence(0, "walker", 0), t0_ms=0)
-    batches = _batches(walker.events(), 3)
+    batches = step_batches(walker.events(), 3)
     seen: list[TimedEvent] = []
     previous_due = -1.0
     for _ in range(20):
