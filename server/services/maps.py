@@ -59,12 +59,19 @@ class MapCache:
     def invalidate(self, site_id: str) -> None:
         self._entries.pop(site_id, None)
 
-    async def get(self, s: AsyncSession, site_id: str) -> SiteMaps:
-        now = time.monotonic()
+    def fresh(self, site_id: str) -> SiteMaps | None:
+        """The cached map set when it was checked against SQL less than
+        ``VERSION_CHECK_S`` ago (no SQL needed), else None."""
         entry = self._entries.get(site_id)
-        if entry is not None and now - entry[0] < VERSION_CHECK_S:
+        if entry is not None and time.monotonic() - entry[0] < VERSION_CHECK_S:
             self._entries.move_to_end(site_id)
             return entry[1]
+        return None
+
+    async def get(self, s: AsyncSession, site_id: str) -> SiteMaps:
+        cached = self.fresh(site_id)
+        if cached is not None:
+            return cached
         lock = self._locks.setdefault(site_id, anyio.Lock())
         async with lock:
             entry = self._entries.get(site_id)

@@ -59,11 +59,17 @@ class SessionStore(Protocol):
         ...
 
     async def compare_and_set(
-        self, session_id: str, expected_version: int, state: bytes, ttl_s: int
+        self,
+        session_id: str,
+        expected_version: int,
+        state: bytes,
+        ttl_s: int,
+        publish: bytes | None = None,
     ) -> bool:
         """Atomically: if the record exists at ``expected_version``, store ``state``,
-        bump the version, reset the expiry to ``ttl_s`` and return ``True``; otherwise
-        change nothing and return ``False``."""
+        bump the version, reset the expiry to ``ttl_s``, send ``publish`` (when given) to
+        the session's subscribers as :meth:`publish` would, and return ``True``; otherwise
+        change nothing, send nothing and return ``False``."""
         ...
 
     async def delete(self, session_id: str) -> bool:
@@ -175,7 +181,12 @@ class MemorySessionStore:
         return StoredSession(record.version, record.meta, record.state)
 
     async def compare_and_set(
-        self, session_id: str, expected_version: int, state: bytes, ttl_s: int
+        self,
+        session_id: str,
+        expected_version: int,
+        state: bytes,
+        ttl_s: int,
+        publish: bytes | None = None,
     ) -> bool:
         _ttl_ms(ttl_s)
         record = self._live(session_id)
@@ -184,6 +195,8 @@ class MemorySessionStore:
         record.state = bytes(state)
         record.version += 1
         record.expires_at = self._clock() + ttl_s
+        if publish is not None:
+            await self.publish(session_id, publish)
         return True
 
     async def delete(self, session_id: str) -> bool:
@@ -231,6 +244,9 @@ if redis.call('EXISTS', KEYS[1]) == 1 then
 end
 redis.call('HSET', KEYS[1], 'ver', 1, 'meta', ARGV[1], 'state', ARGV[2])
 redis.call('PEXPIRE', KEYS[1], ARGV[3])
+if ARGV[4] then
+  redis.call('PUBLISH', ARGV[4], ARGV[5])
+end
 return 1
 """
 
@@ -243,6 +259,9 @@ end
 redis.call('HSET', KEYS[1], 'state', ARGV[2])
 redis.call('HINCRBY', KEYS[1], 'ver', 1)
 redis.call('PEXPIRE', KEYS[1], ARGV[3])
+if ARGV[4] then
+  redis.call('PUBLISH', ARGV[4], ARGV[5])
+end
 return 1
 """
 
@@ -302,11 +321,17 @@ class RedisSessionStore:
         return StoredSession(int(ver), meta, state)
 
     async def compare_and_set(
-        self, session_id: str, expected_version: int, state: bytes, ttl_s: int
+        self,
+        session_id: str,
+        expected_version: int,
+        state: bytes,
+        ttl_s: int,
+        publish: bytes | None = None,
     ) -> bool:
-        written = await self._cas(
-            keys=[self.state_key(session_id)], args=[expected_version, state, _ttl_ms(ttl_s)]
-        )
+        args: list[Any] = [expected_version, state, _ttl_ms(ttl_s)]
+        if publish is not None:  # in the same script: one round trip for both
+            args += [self.live_channel(session_id), publish]
+        written = await self._cas(keys=[self.state_key(session_id)], args=args)
         return bool(written)
 
     async def delete(self, session_id: str) -> bool:

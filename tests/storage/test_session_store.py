@@ -216,6 +216,23 @@ async def test_publish_subscribe(store: SessionStore, new_id: Callable[..., str]
         await _assert_no_subscribers(store, sid)
 
 
+async def test_compare_and_set_publishes_only_what_it_writes(
+    store: SessionStore, new_id: Callable[..., str]
+) -> None:
+    sid = new_id()
+    await store.create(sid, b"m", b"s1", TTL_S)
+    async with store.subscribe(sid) as messages:
+        assert not await store.compare_and_set(sid, 5, b"stale", TTL_S, publish=b"lost")
+        assert await store.compare_and_set(sid, 1, b"s2", TTL_S, publish=b"fix 1")
+        assert await store.compare_and_set(sid, 2, b"s3", TTL_S)  # nothing to publish
+        await store.publish(sid, b"marker")
+        assert await _next(messages) == b"fix 1"
+        assert await _next(messages) == b"marker"  # neither "lost" nor an empty message
+    stored = await store.get(sid)
+    assert stored is not None
+    assert (stored.version, stored.state) == (3, b"s3")
+
+
 async def _assert_no_subscribers(store: RedisSessionStore, session_id: str) -> None:
     """Redis drops a closed subscription when it sees the connection go, soon after."""
     channel = store.live_channel(session_id)
