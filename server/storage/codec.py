@@ -79,26 +79,36 @@ def encode_arrays(arrays: Mapping[str, np.ndarray]) -> bytes:
 
 
 class _Reader:
-    """Bounds-checked cursor over the container bytes."""
+    """Bounds-checked cursor over the container bytes. ``what.format(*args)`` names the
+    field in the error message; the text is only built when something is wrong."""
 
     def __init__(self, data: bytes) -> None:
         self.view = memoryview(data)
+        self.size = len(self.view)
         self.pos = 0
 
-    def take(self, n: int, what: str) -> memoryview:
+    def take(self, n: int, what: str, *args: object) -> memoryview:
         end = self.pos + n
-        if end > len(self.view):
+        if end > self.size:
             raise CodecError(
-                f"truncated array container: {what} needs {n} bytes at offset {self.pos}, "
-                f"only {len(self.view) - self.pos} left"
+                f"truncated array container: {what.format(*args)} needs {n} bytes at offset "
+                f"{self.pos}, "
+                f"only {self.size - self.pos} left"
             )
         chunk = self.view[self.pos : end]
         self.pos = end
         return chunk
 
-    def unpack(self, fmt: struct.Struct, what: str) -> int:
-        value: int = fmt.unpack(self.take(fmt.size, what))[0]
+    def unpack(self, fmt: struct.Struct, what: str, *args: object) -> int:
+        if self.pos + fmt.size > self.size:
+            self.take(fmt.size, what, *args)  # raises
+        value: int = fmt.unpack_from(self.view, self.pos)[0]
+        self.pos += fmt.size
         return value
+
+
+# wire dtype string -> (wire dtype, the same in native byte order)
+_DTYPES = {name: (np.dtype(name), np.dtype(name).newbyteorder("=")) for name in ALLOWED_DTYPES}
 
 
 def decode_arrays(data: bytes) -> dict[str, np.ndarray]:
@@ -118,32 +128,34 @@ def decode_arrays(data: bytes) -> dict[str, np.ndarray]:
         raise CodecError(f"unsupported array container version {version}")
     arrays: dict[str, np.ndarray] = {}
     for index in range(count):
-        where = f"array {index}"
-        name_raw = reader.take(reader.unpack(_U16, f"{where} name length"), f"{where} name")
+        name_len = reader.unpack(_U16, "array {} name length", index)
+        name_raw = reader.take(name_len, "array {} name", index)
         try:
             name = str(name_raw, "utf-8")
         except UnicodeDecodeError as exc:
-            raise CodecError(f"{where}: name is not valid utf-8") from exc
-        where = f"array {name!r}"
+            raise CodecError(f"array {index}: name is not valid utf-8") from exc
         if name in arrays:
-            raise CodecError(f"{where} appears twice")
-        dtype_raw = bytes(reader.take(reader.unpack(_U8, f"{where} dtype length"), where))
-        dtype_str = dtype_raw.decode("ascii", errors="replace")
-        if dtype_str not in ALLOWED_DTYPES:
-            raise CodecError(f"{where}: unknown or unsupported dtype {dtype_str!r}")
-        dtype = np.dtype(dtype_str)
-        ndim = reader.unpack(_U8, f"{where} ndim")
+            raise CodecError(f"array {name!r} appears twice")
+        dtype_len = reader.unpack(_U8, "array {!r} dtype length", name)
+        dtype_str = str(reader.take(dtype_len, "array {!r}", name), "ascii", "replace")
+        dtypes = _DTYPES.get(dtype_str)
+        if dtypes is None:
+            raise CodecError(f"array {name!r}: unknown or unsupported dtype {dtype_str!r}")
+        dtype, native = dtypes
+        ndim = reader.unpack(_U8, "array {!r} ndim", name)
         if ndim > MAX_NDIM:
-            raise CodecError(f"{where}: ndim {ndim} exceeds {MAX_NDIM}")
-        shape = tuple(reader.unpack(_U64, f"{where} shape") for _ in range(ndim))
-        raw = reader.take(math.prod(shape) * dtype.itemsize, f"{where} data of shape {shape}")
+            raise CodecError(f"array {name!r}: ndim {ndim} exceeds {MAX_NDIM}")
+        shape = tuple(reader.unpack(_U64, "array {!r} shape", name) for _ in range(ndim))
+        raw = reader.take(
+            math.prod(shape) * dtype.itemsize, "array {!r} data of shape {}", name, shape
+        )
         flat = np.frombuffer(raw, dtype=dtype)
         if dtype.kind == "b" and flat.view(np.uint8).max(initial=0) > 1:
-            raise CodecError(f"{where}: boolean data holds bytes other than 0 and 1")
+            raise CodecError(f"array {name!r}: boolean data holds bytes other than 0 and 1")
         try:
-            arrays[name] = flat.astype(dtype.newbyteorder("="), copy=True).reshape(shape)
+            arrays[name] = flat.astype(native, copy=True).reshape(shape)
         except ValueError as exc:  # e.g. a zero-sized shape with a dimension numpy cannot index
-            raise CodecError(f"{where}: shape {shape} is not a valid numpy shape") from exc
+            raise CodecError(f"array {name!r}: shape {shape} is not a valid numpy shape") from exc
     if reader.pos != len(data):
         raise CodecError(f"{len(data) - reader.pos} trailing bytes after the last array")
     return arrays
