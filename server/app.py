@@ -11,8 +11,9 @@ from fastapi import FastAPI
 from fastapi.routing import APIRoute
 
 from server import worker
-from server.api import admin, errors, health, live, locate, quality, sessions, uploads
+from server.api import admin, errors, health, live, locate, metrics, quality, sessions, uploads
 from server.config import Settings, get_settings
+from server.services import telemetry
 from server.services.runtime import open_runtime
 from server.storage import db
 
@@ -40,6 +41,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 tasks.start_soon(worker.run, runtime, worker.consumer_name())
             yield
             tasks.cancel_scope.cancel()
+        telemetry.process_exited()
 
     app = FastAPI(
         title="indoorpos",
@@ -49,8 +51,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         generate_unique_id_function=_operation_id,
     )
     errors.install(app)
-    for module in (health, admin, sessions, live, locate, uploads, quality):
+    for module in (health, admin, sessions, live, locate, uploads, quality, metrics):
         app.include_router(module.router)
+    app.add_middleware(metrics.RequestTimer)
     _with_hand_read_schemas(app)
     return app
 

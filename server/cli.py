@@ -76,9 +76,13 @@ def serve(
     host: Annotated[str, typer.Option(help="interface to listen on")] = "127.0.0.1",
     port: Annotated[int, typer.Option(help="TCP port")] = 8000,
     workers: Annotated[int, typer.Option(help="uvicorn worker processes")] = 1,
+    access_log: Annotated[bool, typer.Option(help="log every request")] = True,
 ) -> None:
-    """Run the API server."""
+    """Run the API server (logs: INDOORPOS_LOG_FORMAT=json|text, INDOORPOS_LOG_LEVEL)."""
+    from server import logs
+
     settings = get_settings()
+    logs.configure(settings.log_format, settings.log_level)
     if workers > 1 and settings.redis_url is None:
         raise typer.BadParameter(
             "several workers need a shared session store: set INDOORPOS_REDIS_URL",
@@ -92,7 +96,10 @@ def serve(
         host=host,
         port=port,
         workers=workers,
-        log_level="info",
+        # uvicorn applies this in every worker process instead of its own logging setup
+        log_config=logs.dict_config(settings.log_format, settings.log_level),
+        log_level=settings.log_level.lower(),
+        access_log=access_log,
     )
 
 
@@ -100,8 +107,7 @@ def serve(
 def worker() -> None:
     """Run an upload worker: fold crowdsourced uploads into new map versions (needs
     INDOORPOS_REDIS_URL; without Redis the api process runs the worker itself)."""
-    import logging
-
+    from server import logs
     from server import worker as upload_worker
 
     settings = get_settings()
@@ -110,7 +116,7 @@ def worker() -> None:
             "a separate worker needs the shared queue: set INDOORPOS_REDIS_URL "
             "(embedded, `indoorpos serve` runs the worker in-process)"
         )
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
+    logs.configure(settings.log_format, settings.log_level)
 
     async def main() -> None:
         async with open_runtime(settings) as rt:

@@ -1,17 +1,25 @@
 """Error responses: every 4xx names the field it is about.
 
 Body: ``{"detail": [{"loc": [...], "msg": ..., "type": ...}], "message": "field: text"}``.
+A failure talking to a store (Redis, the database, the upload queue) is counted in
+``indoorpos_store_errors_total`` and answered 503 with ``Retry-After``; any other
+unexpected error stays a 500.
 """
 
 from __future__ import annotations
 
+import logging
 from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
+from server.services import telemetry
 from server.services.errors import ServiceError
+
+logger = logging.getLogger(__name__)
+STORE_RETRY_AFTER_S = 1
 
 
 def _field(loc: tuple[Any, ...] | list[Any]) -> str:
@@ -64,6 +72,24 @@ async def _on_service(_request: Request, exc: Exception) -> JSONResponse:
     return JSONResponse(service_detail(exc), status_code=exc.status, headers=headers)
 
 
+async def _on_store_error(_request: Request, exc: Exception) -> JSONResponse:
+    store = telemetry.count_store_error(exc)
+    if store is None:
+        raise exc  # not a store failure: the usual 500, logged by the server
+    logger.warning("the %s store failed", store, exc_info=exc)
+    msg = f"the {store} store is unavailable; retry later"
+    return JSONResponse(
+        {
+            "detail": [{"loc": ["request"], "msg": msg, "type": "StoreUnavailable"}],
+            "message": f"request: {msg}",
+        },
+        status_code=503,
+        headers={"Retry-After": str(STORE_RETRY_AFTER_S)},
+    )
+
+
 def install(app: FastAPI) -> None:
     app.add_exception_handler(RequestValidationError, _on_validation)
     app.add_exception_handler(ServiceError, _on_service)
+    for error_type in telemetry.STORE_ERROR_TYPES:
+        app.add_exception_handler(error_type, _on_store_error)

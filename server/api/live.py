@@ -24,7 +24,8 @@ from server.api import schemas as sc
 from server.api.convert import to_events
 from server.api.deps import IdPath, get_ws_runtime
 from server.api.errors import service_detail, validation_detail
-from server.services import sessions
+from server.logs import session_context
+from server.services import sessions, telemetry
 from server.services.errors import ServiceError, Unauthorized
 from server.services.runtime import Runtime
 
@@ -64,6 +65,11 @@ async def live(
     rt: Annotated[Runtime, Depends(get_ws_runtime)],
     token: Annotated[str | None, Query()] = None,
 ) -> None:
+    with session_context(session_id):  # every log line of the socket names the session
+        await _serve(websocket, session_id, rt, token)
+
+
+async def _serve(websocket: WebSocket, session_id: str, rt: Runtime, token: str | None) -> None:
     await websocket.accept()
     sock = _Socket(websocket)
     try:
@@ -109,18 +115,21 @@ async def _read(sock: _Socket, rt: Runtime, session_id: str, secret: str) -> Non
             await sock.send({"type": "error", "status": 422, **validation_detail(errors)})
             continue
         try:
-            result = await sessions.apply_batch(
-                rt, session_id, secret, batch.seq, to_events(batch.events)
-            )
+            events = to_events(batch.events)
+            result = await sessions.apply_batch(rt, session_id, secret, batch.seq, events)
         except ServiceError as exc:
             await sock.send({"type": "error", "status": exc.status, **service_detail(exc)})
             continue
-        except Exception:  # one bad batch must not end the socket; its state is unchanged
+        except Exception as exc:  # one bad batch must not end the socket; its state is unchanged
+            telemetry.count_store_error(exc)
             logger.exception("batch over the live socket failed")
             await sock.send(
                 {"type": "error", "status": 500, "message": "internal error; batch not applied"}
             )
             continue
+        telemetry.count_batch(
+            "ws", events, result, session_id=session_id, idle_s=rt.settings.session_idle_s
+        )
         await sock.send(
             {
                 "type": "batch_result",

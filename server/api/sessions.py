@@ -7,7 +7,8 @@ from fastapi import APIRouter, Response, status
 from server.api import schemas as sc
 from server.api.convert import to_events
 from server.api.deps import BearerDep, IdPath, RuntimeDep
-from server.services import sessions
+from server.logs import session_context
+from server.services import sessions, telemetry
 
 router = APIRouter(prefix="/v1/sessions", tags=["sessions"])
 
@@ -17,6 +18,7 @@ async def create_session(body: sc.SessionCreate, rt: RuntimeDep) -> sc.SessionCr
     created = await sessions.create_session(
         rt, body.site_id, body.engine, contribute=body.contribute, device_model=body.device_model
     )
+    telemetry.touch_session(created.id, created.idle_timeout_s)
     return sc.SessionCreated(
         id=created.id,
         token=created.token,
@@ -30,7 +32,12 @@ async def create_session(body: sc.SessionCreate, rt: RuntimeDep) -> sc.SessionCr
 async def post_batch(
     session_id: IdPath, body: sc.BatchIn, rt: RuntimeDep, token: BearerDep
 ) -> sc.BatchOut:
-    result = await sessions.apply_batch(rt, session_id, token, body.seq, to_events(body.events))
+    with session_context(session_id):
+        events = to_events(body.events)
+        result = await sessions.apply_batch(rt, session_id, token, body.seq, events)
+        telemetry.count_batch(
+            "http", events, result, session_id=session_id, idle_s=rt.settings.session_idle_s
+        )
     return sc.BatchOut(
         session_id=session_id,
         seq=result.seq,
@@ -41,7 +48,8 @@ async def post_batch(
 
 @router.get("/{session_id}")
 async def get_session(session_id: IdPath, rt: RuntimeDep, token: BearerDep) -> sc.SessionRead:
-    info = await sessions.get_session(rt, session_id, token)
+    with session_context(session_id):
+        info = await sessions.get_session(rt, session_id, token)
     return sc.SessionRead(
         id=info.id,
         site_id=info.site_id,
@@ -56,6 +64,8 @@ async def get_session(session_id: IdPath, rt: RuntimeDep, token: BearerDep) -> s
 async def end_session(session_id: IdPath, rt: RuntimeDep, token: BearerDep) -> Response:
     """End the session. A session opened with ``contribute`` leaves its walk to the map
     builder: the ``Location`` header names the upload made of it."""
-    upload_id = await sessions.end_session(rt, session_id, token)
+    with session_context(session_id):
+        upload_id = await sessions.end_session(rt, session_id, token)
+    telemetry.forget_session(session_id)
     headers = {"Location": f"/v1/uploads/{upload_id}"} if upload_id else None
     return Response(status_code=status.HTTP_204_NO_CONTENT, headers=headers)

@@ -29,7 +29,7 @@ import orjson
 from server.positioning.engines import ENGINES, get_engine
 from server.positioning.engines.base import EngineSpec, SiteMaps
 from server.positioning.events import Event, Fix, ImuEvent
-from server.services import traces, uploads
+from server.services import telemetry, traces, uploads
 from server.services.device_offsets import on_common_level
 from server.services.errors import Conflict, Forbidden, Invalid, NotFound
 from server.services.maps import site_maps
@@ -273,8 +273,9 @@ async def apply_batch(
         rng = np.random.default_rng(np.random.SeedSequence(meta.entropy, spawn_key=(seq,)))
         params = spec.params_type()
         scans_level = maps.device_offsets.get(meta.device_model)
+        run = telemetry.timed_engine(meta.engine, spec.run)  # timed in the worker thread
         new_engine_state, fixes = await anyio.to_thread.run_sync(
-            spec.run, state.engine_state, on_common_level(events, scans_level), maps, params, rng
+            run, state.engine_state, on_common_level(events, scans_level), maps, params, rng
         )
         wire = [fix_to_wire(f, maps, meta.engine) for f in fixes]
         body = orjson.dumps(wire)
