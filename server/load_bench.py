@@ -1,0 +1,466 @@
+"""``indoorpos bench load``: walking users per core through the real HTTP + Redis path.
+
+Shao et al. size their cloud by one CPU core serving 130 users at a 0.67 s step period
+with N = 3000 particles (``papers/001_*``, section IV-B). This measures our figure:
+
+1. **Service.** The api runs as it does in production -- ``uvicorn`` with ``k`` worker
+   processes, sessions in Redis, maps in PostgreSQL, no access log -- as a child process
+   of this one. With one api process and at least two CPUs, the api is pinned to CPU 0
+   and this process (the simulator) to the others, so the api has one core to itself and
+   "users per core" means what it says. Two api processes are not pinned.
+2. **Site.** One synthetic site is set up through the admin API (``client_sim``) and
+   reused by every level.
+3. **Levels.** ``client_sim.run.run_walkers`` walks ``U`` users for ``hold_s`` seconds,
+   each stepping every 0.67 s and posting every ``batch_steps`` steps over HTTP; their
+   starts are spread over ``RAMP_S``. A level is **held** when no request failed and the
+   99th percentile of the batch latency (sent to answered, as the phone sees it) is at
+   most ``p99_limit_ms``. The count grows by half from ``users_start`` while levels are
+   held (at most ``users_max``), falls by a third from the start while they are not, and
+   the bracket between the last held and the first failed count is then halved until it
+   is narrower than ``RESOLUTION`` of the held count.
+4. **CPU.** The api processes' CPU time (user + system, the process and its children,
+   from ``/proc``) over a level, divided by the steps the level applied:
+   ``server_cpu_us_per_step``. The simulator's own CPU time is reported beside it, as the
+   simulator may run out of CPU before the api does.
+5. **Ceiling.** In this process, with no HTTP and no Redis, the same engine steps the
+   same simulated walks (the site's maps read once from the database, engine states held
+   in memory, one batch of ``batch_steps`` steps per call, as a session would): steps per
+   second of engine time alone. ``ceiling_ratio`` is the steps per second the one-process
+   service held, over that.
+6. **Scale-out.** Steps 3-4 again with two api processes; ``two_process_ratio`` is the
+   users two processes held over the users one held.
+
+Linux only (CPU times from ``/proc``, pinning by ``sched_setaffinity``).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import os
+import platform
+import secrets
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+
+from client_sim.api import ApiClient
+from client_sim.run import (
+    STEP_PERIOD_S,
+    run_walkers,
+    simulated_walker,
+    step_batches,
+    walker_params,
+)
+from client_sim.site import provision_site
+from client_sim.world import synthesize_world
+from server.api import schemas as sc
+from server.api.convert import to_events
+from server.config import Settings
+from server.positioning.engines import get_engine
+from server.positioning.events import StepEvent
+from server.services.maps import site_maps
+from server.services.runtime import open_runtime
+from server.storage import db
+
+RAMP_S = 5.0  # users' starts spread over this much of a level
+RESOLUTION = 0.1  # bisect until the bracket is narrower than this share of the held count
+START_TIMEOUT_S = 60.0
+CEILING_WALKERS = 16
+CEILING_BATCHES = 60
+
+
+@dataclass(frozen=True)
+class Level:
+    """One hold of ``users`` users against ``processes`` api processes."""
+
+    processes: int
+    users: int
+    held: bool
+    p50_ms: float | None
+    p95_ms: float | None
+    p99_ms: float | None
+    errors: int
+    batches: int
+    steps: int
+    duration_s: float
+    steps_per_s: float
+    server_cpu_s: float
+    server_cpu_us_per_step: float | None
+    client_cpu_s: float
+    mean_error_m: float | None
+    first_error: str | None
+
+
+class ApiProcesses:
+    """``uvicorn`` serving the app with ``workers`` processes, as a child of this one."""
+
+    def __init__(
+        self,
+        workers: int,
+        env: dict[str, str],
+        cpus: set[int] | None,
+    ) -> None:
+        self.port = _free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        command = [
+            sys.executable,
+            "-m",
+            "uvicorn",
+            "server.app:create_app",
+            "--factory",
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(self.port),
+            "--workers",
+            str(workers),
+            "--no-access-log",
+            "--log-level",
+            "warning",
+        ]
+
+        def pin() -> None:
+            if cpus is not None:
+                os.sched_setaffinity(0, cpus)
+
+        self.process = subprocess.Popen(
+            command, env={**os.environ, **env}, preexec_fn=pin, stdin=subprocess.DEVNULL
+        )
+        self._wait_ready(workers)
+
+    def _wait_ready(self, workers: int) -> None:
+        deadline = time.monotonic() + START_TIMEOUT_S
+        while time.monotonic() < deadline:
+            if self.process.poll() is not None:
+                raise RuntimeError(f"the api exited with code {self.process.returncode}")
+            try:
+                if httpx.get(f"{self.url}/readyz", timeout=2.0).status_code == 200 and (
+                    len(_descendants(self.process.pid)) >= (workers if workers > 1 else 0)
+                ):
+                    return
+            except httpx.HTTPError:
+                pass
+            time.sleep(0.2)
+        self.stop()
+        raise RuntimeError(f"the api did not answer on {self.url} within {START_TIMEOUT_S} s")
+
+    def cpu_seconds(self) -> float:
+        """User + system CPU time of the api process and its children so far."""
+        return sum(_cpu_seconds(pid) for pid in [self.process.pid, *_descendants(self.process.pid)])
+
+    def stop(self) -> None:
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGTERM)
+            try:
+                self.process.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+
+
+def run_load_bench(
+    *,
+    users_max: int,
+    database_url: str,
+    redis_url: str,
+    users_start: int = 50,
+    hold_s: float = 30.0,
+    batch_steps: int = 1,
+    engine: str = "pf_magnetic",
+    p99_limit_ms: float = 50.0,
+    seed: int = 0,
+    two_processes: bool = True,
+    on_level: Callable[[Level], None] | None = None,
+    on_stage: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """Measure as the module docstring says; the figures as a JSON-ready dict."""
+    if users_max < 1 or users_start < 1 or not hold_s > RAMP_S:
+        raise ValueError(f"users_max and users_start must be >= 1 and hold_s > {RAMP_S}")
+
+    def stage(text: str) -> None:
+        if on_stage is not None:
+            on_stage(text)
+
+    db.migrate(database_url)
+    key = secrets.token_urlsafe(24)
+    env = {
+        "INDOORPOS_DATABASE_URL": database_url,
+        "INDOORPOS_REDIS_URL": redis_url,
+        "INDOORPOS_ADMIN_KEY": key,
+    }
+    cpus = sorted(os.sched_getaffinity(0))
+    own_cpus = set(cpus)
+    configs = [1, 2] if two_processes else [1]
+    runs: dict[int, list[Level]] = {}
+    walk: _Walk | None = None
+    try:
+        for processes in configs:
+            api_cpus = {cpus[0]} if processes == 1 and len(cpus) >= 2 else None
+            stage(f"starting {processes} api process(es)")
+            api = ApiProcesses(processes, env, api_cpus)
+            os.sched_setaffinity(0, own_cpus - api_cpus if api_cpus else own_cpus)
+            try:
+                if walk is None:
+                    stage("setting up the synthetic site")
+                    site_id = asyncio.run(_provision(api.url, key, seed))
+                    walk = _Walk(key, site_id, hold_s, batch_steps, engine, seed)
+                this_walk = walk
+
+                def hold(
+                    users: int,
+                    api: ApiProcesses = api,
+                    walk: _Walk = this_walk,
+                    processes: int = processes,
+                ) -> Level:
+                    stage(f"{processes} process(es): {users} users for {hold_s:.0f} s")
+                    level = _hold(api, walk, users, processes, p99_limit_ms)
+                    if on_level is not None:
+                        on_level(level)
+                    return level
+
+                start = users_start if processes == 1 else _best_users(runs[1]) or users_start
+                runs[processes] = find_capacity(hold, start, users_max)
+            finally:
+                api.stop()
+                os.sched_setaffinity(0, own_cpus)
+        assert walk is not None
+        stage("in-process ceiling: the engine alone")
+        ceiling = asyncio.run(_ceiling(database_url, walk))
+    finally:
+        os.sched_setaffinity(0, own_cpus)
+
+    best = _best(runs[1])
+    best_two = _best(runs[2]) if two_processes else None
+    particles = _particles(engine)
+    result = {
+        "particles": particles,
+        "users_per_core": best.users if best else 0,
+        "p99_ms": best.p99_ms if best else None,
+        "server_cpu_us_per_step": best.server_cpu_us_per_step if best else None,
+        "ceiling_steps_per_s": ceiling,
+        "ceiling_ratio": best.steps_per_s / ceiling if best else 0.0,
+        "two_process_ratio": (best_two.users if best_two else 0) / best.users
+        if best and two_processes
+        else None,
+        "two_process_users": best_two.users if best_two else None,
+        "engine": engine,
+        "batch_steps": batch_steps,
+        "step_period_s": STEP_PERIOD_S,
+        "hold_s": hold_s,
+        "p99_limit_ms": p99_limit_ms,
+        "users_max": users_max,
+        "machine": _machine(),
+        "levels": [asdict(level) for levels in runs.values() for level in levels],
+    }
+    return result
+
+
+def find_capacity(hold: Callable[[int], Level], start: int, users_max: int) -> list[Level]:
+    """Levels run to find the largest user count held (module docstring, step 3)."""
+    levels: list[Level] = []
+    held: int | None = None
+    failed: int | None = None
+    users = min(start, users_max)
+    while True:  # grow while held, shrink while not, until a bracket (or a bound) is found
+        level = hold(users)
+        levels.append(level)
+        if level.held:
+            held = users
+            if failed is not None or users >= users_max:
+                break
+            users = min(users_max, math.ceil(users * 1.5))
+        else:
+            failed = users
+            if held is not None or users <= 1:
+                break
+            users = max(1, math.floor(users / 1.5))
+    while held is not None and failed is not None and failed - held > max(1, RESOLUTION * held):
+        users = (held + failed) // 2
+        level = hold(users)
+        levels.append(level)
+        if level.held:
+            held = users
+        else:
+            failed = users
+    return levels
+
+
+@dataclass(frozen=True)
+class _Walk:
+    """What every level walks."""
+
+    key: str
+    site_id: str
+    hold_s: float
+    batch_steps: int
+    engine: str
+    seed: int
+
+
+def _hold(api: ApiProcesses, walk: _Walk, users: int, processes: int, p99_limit_ms: float) -> Level:
+    server_before, client_before = api.cpu_seconds(), time.process_time()
+    summary = asyncio.run(
+        run_walkers(
+            api.url,
+            walk.key,
+            walkers=users,
+            duration_s=walk.hold_s,
+            seed=walk.seed,
+            engine=walk.engine,
+            batch_steps=walk.batch_steps,
+            live_socket=False,
+            site_id=walk.site_id,
+            ramp_s=RAMP_S,
+        )
+    )
+    server_cpu = api.cpu_seconds() - server_before
+    p99 = summary.p99_ms
+    return Level(
+        processes=processes,
+        users=users,
+        held=summary.errors == 0 and p99 is not None and p99 <= p99_limit_ms,
+        p50_ms=summary.p50_ms,
+        p95_ms=summary.p95_ms,
+        p99_ms=p99,
+        errors=summary.errors,
+        batches=summary.batches,
+        steps=summary.steps,
+        duration_s=summary.duration_s,
+        steps_per_s=summary.steps / summary.duration_s if summary.duration_s > 0 else 0.0,
+        server_cpu_s=server_cpu,
+        server_cpu_us_per_step=1e6 * server_cpu / summary.steps if summary.steps else None,
+        client_cpu_s=time.process_time() - client_before,
+        mean_error_m=summary.mean_error_m,
+        first_error=summary.error_messages[0] if summary.error_messages else None,
+    )
+
+
+async def _provision(url: str, key: str, seed: int) -> str:
+    world = synthesize_world(seed)
+    async with httpx.AsyncClient(base_url=url, timeout=httpx.Timeout(300.0)) as http:
+        api = ApiClient(http, key)
+        site = await provision_site(
+            api, world.building, seed, world=world, name=f"bench load seed {seed}"
+        )
+    return site.site_id
+
+
+async def _ceiling(database_url: str, walk: _Walk) -> float:
+    """Engine steps per second of engine time, in this process (module docstring, step 5)."""
+    settings = Settings(database_url=database_url, redis_url=None)
+    async with open_runtime(settings) as rt, rt.transaction() as s:
+        maps = await site_maps(s, rt.maps, walk.site_id)
+    world = synthesize_world(walk.seed)
+    params = walker_params()
+    walks = []
+    for i in range(CEILING_WALKERS):
+        walker = simulated_walker(world, walk.seed, i, 0, params)
+        batches = step_batches(walker.events(), walk.batch_steps)
+        walks.append(
+            [
+                to_events(
+                    sc.BatchIn.model_validate(
+                        {"seq": 1, "events": [item.event for item in next(batches)[1]]}
+                    ).events
+                )
+                for _ in range(CEILING_BATCHES)
+            ]
+        )
+    spec = get_engine(walk.engine)
+    engine_params = spec.params_type()
+    states = [spec.initial_state(engine_params) for _ in walks]
+    elapsed = 0.0
+    steps = 0
+    for k in range(CEILING_BATCHES):  # round robin, as interleaved sessions are served
+        for i, events in enumerate(walks):
+            rng = np.random.default_rng(np.random.SeedSequence(i, spawn_key=(k + 1,)))
+            t0 = time.perf_counter()
+            states[i], _ = spec.run(states[i], events[k], maps, engine_params, rng)
+            elapsed += time.perf_counter() - t0
+            steps += sum(isinstance(e, StepEvent) for e in events[k])
+    return steps / elapsed
+
+
+def _best(levels: list[Level]) -> Level | None:
+    held = [level for level in levels if level.held]
+    return max(held, key=lambda level: level.users) if held else None
+
+
+def _best_users(levels: list[Level]) -> int | None:
+    best = _best(levels)
+    return best.users if best else None
+
+
+def _particles(engine: str) -> int | None:
+    params = get_engine(engine).params_type()
+    particles = getattr(params, "particles", None)
+    n = getattr(particles, "n", None)
+    return int(n) if n is not None else None
+
+
+def _machine() -> dict[str, Any]:
+    model = ""
+    with contextlib.suppress(OSError):
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    return {
+        "cpu": model or platform.processor(),
+        "cpus": os.cpu_count(),
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "system": f"{platform.system()} {platform.release()} {platform.machine()}",
+    }
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def _descendants(pid: int) -> list[int]:
+    """Every process below ``pid`` (from the parent links in ``/proc``)."""
+    children: dict[int, list[int]] = {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        stat = _stat_fields(int(entry.name))
+        if stat is not None:
+            children.setdefault(int(stat[1]), []).append(int(entry.name))
+    out: list[int] = []
+    todo = [pid]
+    while todo:
+        for child in children.get(todo.pop(), []):
+            out.append(child)
+            todo.append(child)
+    return out
+
+
+def _stat_fields(pid: int) -> list[str] | None:
+    """``/proc/<pid>/stat`` after the command name: state, ppid, ...; None once gone."""
+    try:
+        text = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    return text[text.rindex(")") + 2 :].split()
+
+
+def _cpu_seconds(pid: int) -> float:
+    stat = _stat_fields(pid)
+    if stat is None:
+        return 0.0
+    ticks = int(stat[11]) + int(stat[12])  # utime, stime (fields 14 and 15 of stat)
+    return ticks / os.sysconf("SC_CLK_TCK")
