@@ -621,14 +621,14 @@ def dtw_distance(observed: ArrayLike, candidates: ArrayLike) -> FloatArray:
 def _sequences(observed: ArrayLike, candidates: ArrayLike) -> tuple[FloatArray, FloatArray]:
     """Validate a window; return it and the candidates transposed to ``(m, n)``, C order."""
     obs = np.asarray(observed, dtype=np.float64)
-    cand = np.asarray(candidates, dtype=np.float64)
+    cand = np.asarray(candidates)
     if obs.ndim != 1:
         raise ValueError(f"observed must have shape (w,), got {obs.shape}")
     if not np.all(np.isfinite(obs)):
         raise ValueError("observed must be finite")
     if cand.ndim != 2:
         raise ValueError(f"candidates must have shape (n, m), got {cand.shape}")
-    return obs, np.ascontiguousarray(cand.T)
+    return obs, np.ascontiguousarray(cand.T, dtype=np.float64)  # one copy
 
 
 def _cell_moments(
@@ -687,18 +687,18 @@ def _bilinear(grid: MagneticGrid, pts: FloatArray, component: Component) -> Floa
     base = (j0 * nx + i0).astype(np.intp)
     di, dj = min(nx - 1, 1), nx * min(ny - 1, 1)
     filled, known = grid.sampling_arrays(component)
+    every = grid.__dict__.setdefault("_every_known", {})
+    if component not in every:
+        every[component] = bool(known.all())
+    gx, gy = 1.0 - fx, 1.0 - fy
     total = np.zeros(pts.shape[0])
     weight = np.zeros(pts.shape[0])
-    for offset, w in (
-        (0, (1.0 - fx) * (1.0 - fy)),
-        (di, fx * (1.0 - fy)),
-        (dj, (1.0 - fx) * fy),
-        (dj + di, fx * fy),
-    ):
+    for offset, w in ((0, gx * gy), (di, fx * gy), (dj, gx * fy), (dj + di, fx * fy)):
         index = base + offset
-        w *= known[index]
+        if not every[component]:  # (times 1.0 changes nothing)
+            w *= known.take(index)
         weight += w
-        w *= filled[index]
+        w *= filled.take(index)
         total += w
     out: FloatArray = np.full(pts.shape[0], np.nan)
     np.divide(total, weight, out=out, where=inside & (weight > MIN_CORNER_WEIGHT))

@@ -375,13 +375,20 @@ operation = st.one_of(
 
 
 def run_operations(
-    operations: Sequence[tuple[object, ...]], seed: int, n: int, round_trip: bool
+    operations: Sequence[tuple[object, ...]],
+    seed: int,
+    n: int,
+    round_trip: bool,
+    snapshots: list[Particles] | None = None,
 ) -> list[Particles]:
-    """Apply the operations to a cloud around the door; the clouds, the first included."""
+    """Apply the operations to a cloud around the door; the clouds, the first included
+    (and, in ``snapshots``, copies of them taken as they were made)."""
     params = ParticleParams(n=n, step_sd_m=0.3, heading_sd_rad=0.5)
     rng = np.random.default_rng(seed)
     p = initialise((20.0, 2.0), 0, rng, params, radius_m=4.0, valid_point=door_valid_point)
     clouds = [p]
+    if snapshots is not None:
+        snapshots.append(Particles.from_arrays(p.to_arrays()))
     for op in operations:
         if round_trip:
             p = Particles.from_arrays(p.to_arrays())
@@ -398,6 +405,8 @@ def run_operations(
         elif alive(p):
             p = systematic_resample(p, rng)
         clouds.append(p)
+        if snapshots is not None:
+            snapshots.append(Particles.from_arrays(p.to_arrays()))
     return clouds
 
 
@@ -410,8 +419,11 @@ def run_operations(
 def test_invariants_hold_after_every_operation(
     operations: list[tuple[object, ...]], seed: int, n: int
 ) -> None:
-    clouds = run_operations(operations, seed, n, round_trip=False)
-    for p in clouds:
+    snapshots: list[Particles] = []
+    clouds = run_operations(operations, seed, n, round_trip=False, snapshots=snapshots)
+    for p, snapshot in zip(clouds, snapshots, strict=True):
+        assert_same(p, snapshot)  # no operation changed an earlier cloud in place
+        replace(p)  # the steps build their results unchecked: they pass the checks
         assert_normalised(p)
         assert p.n == n
         # every particle stands in the corridor, off the wall

@@ -143,13 +143,29 @@ def initial_state(params: PfMagneticParams) -> PfMagneticState:
 # ---------------------------------------------------------------- the maps as callables
 
 
+def _one_floor(floors: NDArray[np.int16]) -> int | None:
+    """The floor of every particle when they share one (the usual case: a scan moves the
+    whole cloud), else None."""
+    if floors.shape[0] and bool((floors == floors[0]).all()):
+        return int(floors[0])
+    return None
+
+
 def _valid_move(maps: SiteMaps) -> particle.MoveCheck:
+    def plan_of(f: int) -> floorplan.FloorPlan | None:
+        return maps.plans[f] if 0 <= f < len(maps.plans) else None
+
     def check(floors: NDArray[np.int16], a: FloatArray, b: FloatArray) -> BoolArray:
-        ok: BoolArray = np.asarray(np.isfinite(b).all(axis=1), dtype=bool)
+        ok: BoolArray = np.isfinite(b[:, 0]) & np.isfinite(b[:, 1])
+        one = _one_floor(floors)
+        if one is not None:
+            plan = plan_of(one)
+            # valid_moves is False for a non-finite b
+            return ok if plan is None else floorplan.valid_moves(plan, a, b)
         for f in np.unique(floors):
-            plan = maps.plans[int(f)] if 0 <= f < len(maps.plans) else None
+            plan = plan_of(int(f))
             if plan is not None:
-                rows = floors == f
+                rows = np.flatnonzero(floors == f)
                 ok[rows] &= floorplan.valid_moves(plan, a[rows], b[rows])
         return ok
 
@@ -170,13 +186,21 @@ def _valid_point(maps: SiteMaps) -> particle.PointCheck:
 
 
 def _sample_map(maps: SiteMaps) -> particle.MapSampler:
+    grids = maps.magnetic.grids if maps.magnetic is not None else ()
+
+    def grid_of(f: int) -> magnetic.MagneticGrid | None:
+        return grids[f] if 0 <= f < len(grids) else None
+
     def sample(floors: NDArray[np.int16], xy: FloatArray) -> FloatArray:
         out = np.full(len(xy), np.nan)
-        grids = maps.magnetic.grids if maps.magnetic is not None else ()
+        one = _one_floor(floors)
+        if one is not None:
+            grid = grid_of(one)
+            return out if grid is None else magnetic.sample(grid, xy)
         for f in np.unique(floors):
-            grid = grids[int(f)] if 0 <= f < len(grids) else None
+            grid = grid_of(int(f))
             if grid is not None:
-                rows = floors == f
+                rows = np.flatnonzero(floors == f)
                 out[rows] = magnetic.sample(grid, xy[rows])
         return out
 
@@ -217,7 +241,9 @@ def _on_step(
     cloud = state.cloud
     if cloud is None or not math.isfinite(north_rad) or not math.isfinite(length_m):
         return state, None
-    floor = particle.estimate(cloud).floor
+    floor = _one_floor(cloud.floor)
+    if floor is None:
+        floor = particle.estimate(cloud).floor
     heading = rf.in_building_frame(maps, floor, north_rad)
     use_field = math.isfinite(magnitude_ut) and params.weighting != "none"
     observed = magnitude_ut if use_field else None
