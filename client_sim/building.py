@@ -158,12 +158,28 @@ class Floor:
         points: FloatArray = grid[keep]
         return points
 
+    def door_openings(self) -> FloatArray:
+        """Each door's gap as a segment along its wall line, shape (n_doors, 2, 2): the
+        walls end half a door width either side of the centre, along x or along y."""
+        ends = self.walls.reshape(-1, 2)
+        half = self.door_width_m / 2.0
+        out = np.empty((len(self.doors), 2, 2), dtype=np.float64)
+        for i, centre in enumerate(self.doors):
+            for axis in (np.array([half, 0.0]), np.array([0.0, half])):
+                if np.min(np.hypot(*(ends - (centre + axis)).T)) < 1e-6:
+                    out[i] = (centre - axis, centre + axis)
+                    break
+            else:
+                raise ValueError(f"door at {centre.tolist()} has no wall ending beside it")
+        return out
+
     def plan_geojson(self) -> dict[str, Any]:
         """The floor plan as a GeoJSON FeatureCollection in the local metric frame.
 
         Features carry ``properties.kind``: ``"walkable"`` Polygons (with ``use`` room or
         corridor), ``"wall"`` LineStrings (the outline as one closed ring) and ``"door"``
-        Points (with ``width_m``).
+        LineStrings: each door's opening, ``door_width_m`` long, lying on its wall line
+        across the gap the walls leave for it (with ``width_m``).
         """
         features: list[dict[str, Any]] = []
         for i, rect in enumerate(self.walkable):
@@ -189,11 +205,11 @@ class Floor:
                     "properties": {"kind": "wall"},
                 }
             )
-        for door in self.doors:
+        for opening in self.door_openings():
             features.append(
                 {
                     "type": "Feature",
-                    "geometry": {"type": "Point", "coordinates": _coords(door)},
+                    "geometry": {"type": "LineString", "coordinates": _coords(opening)},
                     "properties": {"kind": "door", "width_m": self.door_width_m},
                 }
             )

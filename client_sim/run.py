@@ -61,6 +61,9 @@ DRAIN_S = 2.0
 SOCKET_CLOSE_WAIT_S = 1.0
 MAX_ERROR_MESSAGES = 10
 MAX_CONNECTIONS = 256
+# an idle connection is dropped before the server's keep-alive timeout (uvicorn: 5 s) can
+# close it under a request already on its way
+KEEPALIVE_EXPIRY_S = 2.0
 RETRYABLE_STATUS = frozenset({408, 429, 500, 502, 503, 504})
 FATAL_STATUS = frozenset({401, 403, 404})
 
@@ -205,7 +208,11 @@ async def run_walkers(
     async with httpx.AsyncClient(
         base_url=base_url,
         timeout=httpx.Timeout(REQUEST_TIMEOUT_S),
-        limits=httpx.Limits(max_connections=pool, max_keepalive_connections=pool),
+        limits=httpx.Limits(
+            max_connections=pool,
+            max_keepalive_connections=pool,
+            keepalive_expiry=KEEPALIVE_EXPIRY_S,
+        ),
     ) as http:
         api = ApiClient(http, admin_key)
         if site_id is None:

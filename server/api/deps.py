@@ -16,12 +16,16 @@ from server.services.runtime import Runtime
 _bearer = HTTPBearer(auto_error=False, description="admin API key or session token")
 
 
-def get_runtime(request: Request) -> Runtime:
+# Every dependency is ``async def``: FastAPI runs a plain ``def`` one in a worker thread,
+# a thread hop per request for what is a field lookup.
+
+
+async def get_runtime(request: Request) -> Runtime:
     runtime: Runtime = request.app.state.runtime
     return runtime
 
 
-def get_ws_runtime(websocket: WebSocket) -> Runtime:
+async def get_ws_runtime(websocket: WebSocket) -> Runtime:
     runtime: Runtime = websocket.app.state.runtime
     return runtime
 
@@ -41,7 +45,7 @@ async def get_sql(rt: RuntimeDep) -> AsyncIterator[AsyncSession]:
 SqlDep = Annotated[AsyncSession, Depends(get_sql, scope="function")]
 
 
-def get_bearer(
+async def get_bearer(
     credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
 ) -> str:
     if credentials is None or not credentials.credentials:

@@ -10,6 +10,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from client_sim.building import Floor, SyntheticBuilding, count_crossings, synthesize_building
+from client_sim.seeding import sequence
+from client_sim.walker import Walker
+from client_sim.world import synthesize_world
+from server.positioning.floorplan import plan_from_geojson, valid_moves
 
 
 def build(seed: int = 0, width_m: float = 60.0, depth_m: float = 30.0) -> SyntheticBuilding:
@@ -111,7 +115,7 @@ def test_plan_is_geojson_with_the_three_kinds() -> None:
     floor = build().floor(1)
     plan = floor.plan_geojson()
     assert plan["type"] == "FeatureCollection"
-    geometry_of = {"walkable": "Polygon", "wall": "LineString", "door": "Point"}
+    geometry_of = {"walkable": "Polygon", "wall": "LineString", "door": "LineString"}
     kinds = set()
     for feature in plan["features"]:
         assert feature["type"] == "Feature"
@@ -127,6 +131,32 @@ def test_plan_is_geojson_with_the_three_kinds() -> None:
     walls = [f for f in plan["features"] if f["properties"]["kind"] == "wall"]
     assert len(walls) == len(floor.walls) - 3  # the outline's four sides are one ring
     assert walls[0]["geometry"]["coordinates"][0] == walls[0]["geometry"]["coordinates"][-1]
+
+
+def test_the_service_reads_the_plan_and_walkers_never_cross_its_walls() -> None:
+    world = synthesize_world(3)
+    for index, floor in enumerate(world.building.floors):
+        plan = plan_from_geojson(floor.plan_geojson())
+        assert len(plan.walls) >= len(floor.walls)
+        # each door opening lies on its gap: its ends are wall ends
+        openings = floor.door_openings()
+        assert np.allclose(np.hypot(*(openings[:, 1] - openings[:, 0]).T), floor.door_width_m)
+        walker = Walker(world, floor.level, sequence(3, "walker", index), t0_ms=0)
+        xy = np.array(
+            [
+                (e.truth.x_m, e.truth.y_m)
+                for e, _ in zip(walker.events(), range(3000), strict=False)
+                if e.event["type"] == "step"
+            ]
+        )
+        assert len(xy) > 500
+        assert valid_moves(plan, xy[:-1], xy[1:]).all()
+        # a short move across the middle of each inner wall is refused
+        a, b = floor.walls[4:, 0], floor.walls[4:, 1]
+        along = (b - a) / np.hypot(*(b - a).T)[:, None]
+        across = 0.3 * np.column_stack([-along[:, 1], along[:, 0]])
+        middle = (a + b) / 2
+        assert not valid_moves(plan, middle - across, middle + across).any()
 
 
 def test_walkable_grid_keeps_clear_of_walls() -> None:
