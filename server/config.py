@@ -32,6 +32,13 @@ class Settings(BaseSettings):
     replay_window: int = Field(
         16, ge=1, le=256, description="recent batch replies kept for retried seqs"
     )
+    batch_concurrency: int = Field(
+        1,
+        ge=1,
+        le=1024,
+        description="batches one api process works on at once; more interleave on the "
+        "event loop and stretch each other's latency (bench/performance.md)",
+    )
     map_cache_size: int = Field(32, ge=1, description="site map sets kept in memory")
     upload_max_bytes: int = Field(
         64 * 1024 * 1024, ge=1024, description="largest upload, after decompression"

@@ -5,7 +5,7 @@ from __future__ import annotations
 import contextlib
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import anyio
 from sqlalchemy.ext.asyncio import AsyncEngine, AsyncSession, async_sessionmaker
@@ -29,6 +29,8 @@ class Runtime:
 
     # SQLite allows one writer; an embedded process takes turns rather than failing
     sqlite_lock: anyio.Lock | None = None
+    # turns for applying batches (Settings.batch_concurrency; services.sessions)
+    batch_gate: anyio.Semaphore = field(default_factory=lambda: anyio.Semaphore(1))
 
     @asynccontextmanager
     async def transaction(self) -> AsyncIterator[AsyncSession]:
@@ -61,6 +63,7 @@ async def open_runtime(settings: Settings) -> AsyncIterator[Runtime]:
             maps=MapCache(settings.map_cache_size),
             uploads=uploads,
             sqlite_lock=anyio.Lock() if engine.dialect.name == "sqlite" else None,
+            batch_gate=anyio.Semaphore(settings.batch_concurrency),
         )
     finally:
         await uploads.close()

@@ -12,6 +12,7 @@ predecessor waits up to ``seq_wait_s`` for it, then is refused with 409.
 
 from __future__ import annotations
 
+import enum
 import hashlib
 import hmac
 import secrets
@@ -247,57 +248,83 @@ async def authorize(rt: Runtime, session_id: str, token: str) -> SessionMeta:
 async def apply_batch(
     rt: Runtime, session_id: str, token: str, seq: int, events: Sequence[Event]
 ) -> BatchResult:
+    """Apply batch ``seq`` once (module docstring). At most ``batch_concurrency`` batches
+    are worked on at a time in a process: interleaving many of them on the event loop
+    would stretch every one's latency by the others' work (each awaits the store twice);
+    a batch waiting for its predecessor does not hold a turn."""
     digest = events_digest(events)
     deadline = time.monotonic() + rt.settings.seq_wait_s
     while True:
-        stored, meta = await _load(rt, session_id, token)
-        spec = get_engine(meta.engine)
-        state = SessionState.from_bytes(stored.state, spec)
-        if seq <= state.last_seq:
-            return _replay(state, seq, digest)
-        if seq > state.last_seq + 1:
-            if time.monotonic() >= deadline:
-                raise Conflict(
-                    f"seq {seq} arrived before seq {state.last_seq + 1}; send that one first",
-                    field="seq",
-                )
+        async with rt.batch_gate:
+            outcome = await _attempt(rt, session_id, token, seq, events, digest, deadline)
+        if isinstance(outcome, BatchResult):
+            return outcome
+        if outcome is _Retry.WAIT:
             await anyio.sleep(SEQ_POLL_S)
-            continue
-        maps = rt.maps.fresh(meta.site_id)  # no SQL while the cached map set is fresh
-        if maps is None or meta.contribute:
-            if meta.contribute:  # CPU work (compression): off the event loop
-                walk = await anyio.to_thread.run_sync(
-                    lambda: traces.encode_trace(traces.trace_from_events(events))
-                )
-            async with rt.transaction() as s:
-                maps = await site_maps(s, rt.maps, meta.site_id)
-                if meta.contribute:  # kept before the batch is acknowledged
-                    await repo.keep_session_batch(s, session_id, seq, walk)
-        rng = np.random.default_rng(np.random.SeedSequence(meta.entropy, spawn_key=(seq,)))
-        params = spec.params_type()
-        scans_level = maps.device_offsets.get(meta.device_model)
-        run = telemetry.timed_engine(meta.engine, spec.run)
-        args = (state.engine_state, on_common_level(events, scans_level), maps, params, rng)
-        if _runs_inline(events):
-            new_engine_state, fixes = run(*args)
-        else:
-            new_engine_state, fixes = await anyio.to_thread.run_sync(run, *args)
-        wire = [fix_to_wire(f, maps, meta.engine) for f in fixes]
-        body = orjson.dumps(wire)
-        replies = (*state.replies, Reply(seq, digest, body))[-rt.settings.replay_window :]
-        new_state = SessionState(
-            last_seq=seq,
-            engine_state=new_engine_state,
-            replies=replies,
-            last_fix=orjson.dumps(wire[-1]) if wire else state.last_fix,
-        )
-        live = orjson.dumps({"seq": seq, "fixes": wire}) if wire else None
-        ok = await rt.store.compare_and_set(
-            session_id, stored.version, new_state.to_bytes(), rt.settings.session_idle_s, live
-        )
-        if ok:
-            return BatchResult(seq, False, wire)
-        # another writer got there first: read the new state and try again
+
+
+class _Retry(enum.Enum):
+    WAIT = "the predecessor seq is not applied yet"
+    LOST = "another writer changed the session first"
+
+
+async def _attempt(
+    rt: Runtime,
+    session_id: str,
+    token: str,
+    seq: int,
+    events: Sequence[Event],
+    digest: bytes,
+    deadline: float,
+) -> BatchResult | _Retry:
+    """One read-compute-write of the batch."""
+    stored, meta = await _load(rt, session_id, token)
+    spec = get_engine(meta.engine)
+    state = SessionState.from_bytes(stored.state, spec)
+    if seq <= state.last_seq:
+        return _replay(state, seq, digest)
+    if seq > state.last_seq + 1:
+        if time.monotonic() >= deadline:
+            raise Conflict(
+                f"seq {seq} arrived before seq {state.last_seq + 1}; send that one first",
+                field="seq",
+            )
+        return _Retry.WAIT
+    maps = rt.maps.fresh(meta.site_id)  # no SQL while the cached map set is fresh
+    if maps is None or meta.contribute:
+        if meta.contribute:  # CPU work (compression): off the event loop
+            walk = await anyio.to_thread.run_sync(
+                lambda: traces.encode_trace(traces.trace_from_events(events))
+            )
+        async with rt.transaction() as s:
+            maps = await site_maps(s, rt.maps, meta.site_id)
+            if meta.contribute:  # kept before the batch is acknowledged
+                await repo.keep_session_batch(s, session_id, seq, walk)
+    rng = np.random.default_rng(np.random.SeedSequence(meta.entropy, spawn_key=(seq,)))
+    params = spec.params_type()
+    scans_level = maps.device_offsets.get(meta.device_model)
+    run = telemetry.timed_engine(meta.engine, spec.run)
+    args = (state.engine_state, on_common_level(events, scans_level), maps, params, rng)
+    if _runs_inline(events):
+        new_engine_state, fixes = run(*args)
+    else:
+        new_engine_state, fixes = await anyio.to_thread.run_sync(run, *args)
+    wire = [fix_to_wire(f, maps, meta.engine) for f in fixes]
+    body = orjson.dumps(wire)
+    replies = (*state.replies, Reply(seq, digest, body))[-rt.settings.replay_window :]
+    new_state = SessionState(
+        last_seq=seq,
+        engine_state=new_engine_state,
+        replies=replies,
+        last_fix=orjson.dumps(wire[-1]) if wire else state.last_fix,
+    )
+    live = orjson.dumps({"seq": seq, "fixes": wire}) if wire else None
+    ok = await rt.store.compare_and_set(
+        session_id, stored.version, new_state.to_bytes(), rt.settings.session_idle_s, live
+    )
+    if ok:
+        return BatchResult(seq, False, wire)
+    return _Retry.LOST  # another writer got there first: read the new state and try again
 
 
 def _runs_inline(events: Sequence[Event]) -> bool:
