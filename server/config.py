@@ -39,6 +39,12 @@ class Settings(BaseSettings):
         description="batches one api process works on at once; more interleave on the "
         "event loop and stretch each other's latency (bench/performance.md)",
     )
+    session_cache_size: int = Field(
+        1024,
+        ge=0,
+        description="decoded session states kept per process (about 100 KB each for a "
+        "3,000-particle cloud); 0 turns the cache off",
+    )
     map_cache_size: int = Field(32, ge=1, description="site map sets kept in memory")
     upload_max_bytes: int = Field(
         64 * 1024 * 1024, ge=1024, description="largest upload, after decompression"

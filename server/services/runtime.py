@@ -13,6 +13,7 @@ from sqlalchemy.ext.asyncio import AsyncEngine, AsyncSession, async_sessionmaker
 from server.config import Settings
 from server.services.errors import Conflict
 from server.services.maps import MapCache
+from server.services.session_cache import AnySessionCache, SessionCache
 from server.storage import db
 from server.storage.session_store import SessionStore, make_session_store
 from server.storage.upload_queue import UploadQueue, make_upload_queue
@@ -31,6 +32,8 @@ class Runtime:
     sqlite_lock: anyio.Lock | None = None
     # turns for applying batches (Settings.batch_concurrency; services.sessions)
     batch_gate: anyio.Semaphore = field(default_factory=lambda: anyio.Semaphore(1))
+    # decoded session records this process last wrote or read (services.session_cache)
+    states: AnySessionCache = field(default_factory=lambda: SessionCache(0))
 
     @asynccontextmanager
     async def transaction(self) -> AsyncIterator[AsyncSession]:
@@ -64,6 +67,7 @@ async def open_runtime(settings: Settings) -> AsyncIterator[Runtime]:
             uploads=uploads,
             sqlite_lock=anyio.Lock() if engine.dialect.name == "sqlite" else None,
             batch_gate=anyio.Semaphore(settings.batch_concurrency),
+            states=SessionCache(settings.session_cache_size),
         )
     finally:
         await uploads.close()

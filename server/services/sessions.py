@@ -241,6 +241,32 @@ async def _load(rt: Runtime, session_id: str, token: str) -> tuple[StoredSession
     return stored, meta
 
 
+async def _load_decoded(
+    rt: Runtime, session_id: str, token: str
+) -> tuple[int, SessionMeta, SessionState]:
+    """The session's version, meta and decoded state; from this process's cache when the
+    store still holds the version it has (``services.session_cache``)."""
+    cached = rt.states.get(session_id)
+    if cached is None:
+        stored: StoredSession | int | None = await rt.store.get(session_id)
+    else:
+        stored = await rt.store.get_changed(session_id, cached[0])
+    if stored is None:
+        rt.states.drop(session_id)
+        raise NotFound(f"session {session_id} not found or expired", field="session_id")
+    if isinstance(stored, int):
+        assert cached is not None
+        version, meta, state = cached
+    else:
+        meta = SessionMeta.from_bytes(stored.meta)
+        version = stored.version
+        state = SessionState.from_bytes(stored.state, get_engine(meta.engine))
+        rt.states.put(session_id, version, meta, state)
+    if not hmac.compare_digest(meta.token_digest, _digest(token)):
+        raise Forbidden("this token does not belong to the session", field="authorization")
+    return version, meta, state
+
+
 async def authorize(rt: Runtime, session_id: str, token: str) -> SessionMeta:
     return (await _load(rt, session_id, token))[1]
 
@@ -278,9 +304,8 @@ async def _attempt(
     deadline: float,
 ) -> BatchResult | _Retry:
     """One read-compute-write of the batch."""
-    stored, meta = await _load(rt, session_id, token)
+    version, meta, state = await _load_decoded(rt, session_id, token)
     spec = get_engine(meta.engine)
-    state = SessionState.from_bytes(stored.state, spec)
     if seq <= state.last_seq:
         return _replay(state, seq, digest)
     if seq > state.last_seq + 1:
@@ -320,9 +345,10 @@ async def _attempt(
     )
     live = orjson.dumps({"seq": seq, "fixes": wire}) if wire else None
     ok = await rt.store.compare_and_set(
-        session_id, stored.version, new_state.to_bytes(), rt.settings.session_idle_s, live
+        session_id, version, new_state.to_bytes(), rt.settings.session_idle_s, live
     )
     if ok:
+        rt.states.put(session_id, version + 1, meta, new_state)
         return BatchResult(seq, False, wire)
     return _Retry.LOST  # another writer got there first: read the new state and try again
 
@@ -348,8 +374,7 @@ def _replay(state: SessionState, seq: int, digest: bytes) -> BatchResult:
 
 
 async def get_session(rt: Runtime, session_id: str, token: str) -> SessionInfo:
-    stored, meta = await _load(rt, session_id, token)
-    state = SessionState.from_bytes(stored.state, get_engine(meta.engine))
+    _, meta, state = await _load_decoded(rt, session_id, token)
     return SessionInfo(
         id=session_id,
         site_id=meta.site_id,
@@ -363,11 +388,11 @@ async def get_session(rt: Runtime, session_id: str, token: str) -> SessionInfo:
 async def end_session(rt: Runtime, session_id: str, token: str) -> str | None:
     """End a session; for a contributing one, its kept batches become one upload first
     (its id is returned; None when nothing was kept)."""
-    stored, meta = await _load(rt, session_id, token)
+    _, meta, state = await _load_decoded(rt, session_id, token)
     upload_id = None
     if meta.contribute:
-        state = SessionState.from_bytes(stored.state, get_engine(meta.engine))
         upload_id = await _offer_walk(rt, session_id, meta, state)
+    rt.states.drop(session_id)
     await rt.store.delete(session_id)
     await rt.store.publish(session_id, orjson.dumps({"closed": True}))
     return upload_id

@@ -58,6 +58,12 @@ class SessionStore(Protocol):
         """The record, or ``None`` if it never existed, expired or was deleted."""
         ...
 
+    async def get_changed(self, session_id: str, known_version: int) -> StoredSession | int | None:
+        """Like :meth:`get`, but when the record is still at ``known_version`` only that
+        version comes back (an ``int``): meta and state, which the caller holds, are not
+        sent again."""
+        ...
+
     async def compare_and_set(
         self,
         session_id: str,
@@ -180,6 +186,14 @@ class MemorySessionStore:
             return None
         return StoredSession(record.version, record.meta, record.state)
 
+    async def get_changed(self, session_id: str, known_version: int) -> StoredSession | int | None:
+        record = self._live(session_id)
+        if record is None:
+            return None
+        if record.version == known_version:
+            return known_version
+        return StoredSession(record.version, record.meta, record.state)
+
     async def compare_and_set(
         self,
         session_id: str,
@@ -266,6 +280,19 @@ return 1
 """
 
 
+# the version alone while it is still ARGV[1]; else version, meta and state
+_GET_CHANGED_LUA = """
+local ver = redis.call('HGET', KEYS[1], 'ver')
+if not ver then
+  return false
+end
+if tonumber(ver) == tonumber(ARGV[1]) then
+  return {ver}
+end
+return redis.call('HMGET', KEYS[1], 'ver', 'meta', 'state')
+"""
+
+
 class _PubSubMessages:
     """Iterator over the data of ``message`` pushes on one pub/sub connection."""
 
@@ -297,6 +324,7 @@ class RedisSessionStore:
         self._prefix = prefix
         self._create = client.register_script(_CREATE_LUA)
         self._cas = client.register_script(_CAS_LUA)
+        self._get_changed = client.register_script(_GET_CHANGED_LUA)
 
     def state_key(self, session_id: str) -> str:
         """The hash holding the session's ``ver``, ``meta`` and ``state``."""
@@ -316,6 +344,17 @@ class RedisSessionStore:
     async def get(self, session_id: str) -> StoredSession | None:
         fields = self._client.hmget(self.state_key(session_id), ["ver", "meta", "state"])
         ver, meta, state = await cast("Awaitable[list[bytes | None]]", fields)
+        if ver is None or meta is None or state is None:
+            return None
+        return StoredSession(int(ver), meta, state)
+
+    async def get_changed(self, session_id: str, known_version: int) -> StoredSession | int | None:
+        found = await self._get_changed(keys=[self.state_key(session_id)], args=[known_version])
+        if not found:
+            return None
+        if len(found) == 1:
+            return int(found[0])
+        ver, meta, state = found
         if ver is None or meta is None or state is None:
             return None
         return StoredSession(int(ver), meta, state)

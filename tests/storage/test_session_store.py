@@ -19,6 +19,7 @@ from server.storage.session_store import (
     RedisSessionStore,
     SessionExists,
     SessionStore,
+    StoredSession,
     make_session_store,
 )
 from tests.storage.conftest import REDIS_URL, redis_or_skip
@@ -115,6 +116,21 @@ async def test_compare_and_set(store: SessionStore, new_id: Callable[..., str]) 
     stored = await store.get(sid)
     assert stored is not None
     assert (stored.version, stored.meta, stored.state) == (3, b"m", b"")
+
+
+async def test_get_changed_sends_the_record_only_when_it_changed(
+    store: SessionStore, new_id: Callable[..., str]
+) -> None:
+    sid = new_id()
+    assert await store.get_changed(sid, 1) is None
+    await store.create(sid, b"m", b"s1", TTL_S)
+    assert await store.get_changed(sid, 1) == 1
+    assert await store.get_changed(sid, 7) == StoredSession(1, b"m", b"s1")
+    assert await store.compare_and_set(sid, 1, b"s2", TTL_S)
+    assert await store.get_changed(sid, 1) == StoredSession(2, b"m", b"s2")
+    assert await store.get_changed(sid, 2) == 2
+    await store.delete(sid)
+    assert await store.get_changed(sid, 2) is None
 
 
 async def test_compare_and_set_on_a_missing_session(
