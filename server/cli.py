@@ -726,6 +726,7 @@ def bench_load(
     two_processes: Annotated[
         bool, typer.Option(help="also measure two api processes (scale-out ratio)")
     ] = True,
+    ws: Annotated[bool, typer.Option("--ws", help="post batches over the live WebSocket")] = False,
     database_url: Annotated[
         str, typer.Option(help="PostgreSQL of the service under test")
     ] = "postgresql://postgres@127.0.0.1:5432/test",
@@ -759,6 +760,7 @@ def bench_load(
             engine=engine,
             p99_limit_ms=p99_limit_ms,
             two_processes=two_processes,
+            transport="ws" if ws else "http",
             database_url=database_url,
             redis_url=redis_url,
             seed=seed,
@@ -766,7 +768,7 @@ def bench_load(
             on_stage=lambda text: status.update(text),
         )
     _print_report(
-        f"bench load: {engine}, {batch_steps} step(s) per batch",
+        f"bench load: {engine}, {batch_steps} step(s) per batch over {'ws' if ws else 'http'}",
         {k: v for k, v in result.items() if not isinstance(v, list | dict)},
     )
     if json_path is not None:

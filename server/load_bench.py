@@ -11,8 +11,8 @@ with N = 3000 particles (``papers/001_*``, section IV-B). This measures our figu
 2. **Site.** One synthetic site is set up through the admin API (``client_sim``) and
    reused by every level.
 3. **Levels.** ``client_sim.run.run_walkers`` walks ``U`` users for ``hold_s`` seconds,
-   each stepping every 0.67 s and posting every ``batch_steps`` steps over HTTP; their
-   starts are spread over ``RAMP_S``. A level is **held** when no request failed and the
+   each stepping every 0.67 s and posting every ``batch_steps`` steps over HTTP (or the
+   session's WebSocket, ``transport="ws"``); their starts are spread over ``RAMP_S``. A level is **held** when no request failed and the
    99th percentile of the batch latency (sent to answered, as the phone sees it) is at
    most ``p99_limit_ms``. The count grows by half from ``users_start`` while levels are
    held (at most ``users_max``), falls by a third from the start while they are not, and
@@ -57,6 +57,7 @@ import numpy as np
 from client_sim.api import ApiClient
 from client_sim.run import (
     STEP_PERIOD_S,
+    Transport,
     run_walkers,
     simulated_walker,
     step_batches,
@@ -181,6 +182,7 @@ def run_load_bench(
     p99_limit_ms: float = 50.0,
     seed: int = 0,
     two_processes: bool = True,
+    transport: Transport = "http",
     on_level: Callable[[Level], None] | None = None,
     on_stage: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
@@ -214,7 +216,7 @@ def run_load_bench(
                 if walk is None:
                     stage("setting up the synthetic site")
                     site_id = asyncio.run(_provision(api.url, key, seed))
-                    walk = _Walk(key, site_id, hold_s, batch_steps, engine, seed)
+                    walk = _Walk(key, site_id, hold_s, batch_steps, engine, seed, transport)
                 this_walk = walk
 
                 def hold(
@@ -255,6 +257,7 @@ def run_load_bench(
         else None,
         "two_process_users": best_two.users if best_two else None,
         "engine": engine,
+        "transport": transport,
         "batch_steps": batch_steps,
         "step_period_s": STEP_PERIOD_S,
         "hold_s": hold_s,
@@ -306,6 +309,7 @@ class _Walk:
     batch_steps: int
     engine: str
     seed: int
+    transport: Transport
 
 
 def _hold(api: ApiProcesses, walk: _Walk, users: int, processes: int, p99_limit_ms: float) -> Level:
@@ -319,6 +323,7 @@ def _hold(api: ApiProcesses, walk: _Walk, users: int, processes: int, p99_limit_
             seed=walk.seed,
             engine=walk.engine,
             batch_steps=walk.batch_steps,
+            transport=walk.transport,
             live_socket=False,
             site_id=walk.site_id,
             ramp_s=RAMP_S,
