@@ -93,10 +93,13 @@ class Summary:
     engine: str
     site_id: str | None
     error_messages: tuple[str, ...]  # the first few
+    # p99 batch latency of the batches sent in each minute of the run (soak tests)
+    p99_ms_by_minute: tuple[float, ...] = ()
 
     def to_json_dict(self) -> dict[str, Any]:
         out = asdict(self)
         out["error_messages"] = list(self.error_messages)
+        out["p99_ms_by_minute"] = list(self.p99_ms_by_minute)
         return out
 
 
@@ -109,6 +112,7 @@ class WalkerStats:
     batches: int = 0
     steps: int = 0
     latencies_ms: list[float] = field(default_factory=list)
+    sent_s: list[float] = field(default_factory=list)  # when each batch was sent, in the run
     ws_messages: int = 0
     batches_missing_on_socket: int = 0
     sessions: int = 0
@@ -134,6 +138,7 @@ def summarize(
     """Pool the walkers' figures."""
     errors_m = np.array([e for s in stats for e in s.horizontal_errors_m], dtype=np.float64)
     latencies = np.array([v for s in stats for v in s.latencies_ms], dtype=np.float64)
+    sent = np.array([v for s in stats for v in s.sent_s], dtype=np.float64)
     messages = [m for s in stats for m in s.errors]
 
     def stat(values: np.ndarray, q: float | None = None) -> float | None:
@@ -165,6 +170,18 @@ def summarize(
         engine=engine,
         site_id=site_id,
         error_messages=tuple(messages[:MAX_ERROR_MESSAGES]),
+        p99_ms_by_minute=_p99_by_minute(sent, latencies),
+    )
+
+
+def _p99_by_minute(sent_s: np.ndarray, latencies_ms: np.ndarray) -> tuple[float, ...]:
+    """p99 latency of the batches sent in minute 0, 1, 2, ... of the run (skipping empty
+    minutes); empty without send times."""
+    if sent_s.size == 0 or sent_s.size != latencies_ms.size:
+        return ()
+    minute = np.floor(sent_s / 60.0).astype(np.int64)
+    return tuple(
+        float(np.percentile(latencies_ms[minute == m], 99)) for m in np.unique(minute).tolist()
     )
 
 
@@ -237,6 +254,7 @@ async def run_walkers(
                             index=i,
                             seed=seed,
                             engine=engine,
+                            run_start=start,
                             start=start + spread_s * i / max(walkers, 1),
                             end=start + duration_s,
                             batch_steps=batch_steps,
@@ -287,6 +305,7 @@ class _WalkPlan:
     index: int
     seed: int
     engine: str
+    run_start: float  # event-loop time the run started
     start: float  # event-loop time the walker starts
     end: float  # event-loop time every walker stops producing
     batch_steps: int
@@ -413,6 +432,7 @@ async def _post_batches(
             stats.batches += 1
             stats.steps += steps
             stats.latencies_ms.append(1000.0 * (loop.time() - sent))
+            stats.sent_s.append(sent - plan.run_start)
             stats.add_fixes(result, track)
             if result.fixes:
                 expected[seq] = len(result.fixes)

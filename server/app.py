@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from typing import Any
@@ -37,6 +38,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             await anyio.to_thread.run_sync(db.migrate, settings.resolved_database_url)
         async with open_runtime(settings) as runtime, anyio.create_task_group() as tasks:
             app.state.runtime = runtime
+            # what start-up made lives as long as the process: keep it out of the garbage
+            # collector's full passes, which otherwise walk ~170,000 objects (40-75 ms on
+            # the event loop, every few seconds under load; bench/performance.md)
+            gc.freeze()
             if settings.runs_worker_in_process:
                 tasks.start_soon(worker.run, runtime, worker.consumer_name())
             yield

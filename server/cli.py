@@ -704,6 +704,9 @@ def simulate(
         f"simulate: {users} users, {engine}, {batch_steps} step(s) per batch over {transport}",
         {k: v for k, v in result.items() if not isinstance(v, list | dict)},
     )
+    if len(result["p99_ms_by_minute"]) > 1:
+        by_minute = ", ".join(f"{v:.1f}" for v in result["p99_ms_by_minute"])
+        console.print(f"p99 ms by minute: {by_minute}")
     for message in result["error_messages"]:
         console.print(f"[red]error:[/] {message}")
     if json_path is not None:

@@ -46,6 +46,7 @@ def test_summary_json_starts_with_the_headline_figures() -> None:
     result = BatchResult(1, False, (fix(500, 5.0, 3.0), fix(1000, 10.0, 4.0, floor=1)))
     stats.add_fixes(result, track)
     stats.latencies_ms += [10.0, 30.0]
+    stats.sent_s += [5.0, 65.0]
     stats.batches, stats.steps, stats.ws_messages, stats.sessions = 2, 3, 2, 1
     stats.errors.append("walker 0: batch seq 3: 503 busy")
     other = WalkerStats(errors=[f"e{i}" for i in range(20)])
@@ -60,6 +61,7 @@ def test_summary_json_starts_with_the_headline_figures() -> None:
     assert out["floor_hit_rate"] == 0.5
     assert out["p50_ms"] == pytest.approx(20.0)
     assert out["p99_ms"] == pytest.approx(29.8)
+    assert out["p99_ms_by_minute"] == [10.0, 30.0]
     assert out["errors"] == 21
     assert out["error_messages"][0] == "walker 0: batch seq 3: 503 busy"
     assert len(out["error_messages"]) == 10
