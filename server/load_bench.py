@@ -12,12 +12,13 @@ with N = 3000 particles (``papers/001_*``, section IV-B). This measures our figu
    reused by every level.
 3. **Levels.** ``client_sim.run.run_walkers`` walks ``U`` users for ``hold_s`` seconds,
    each stepping every 0.67 s and posting every ``batch_steps`` steps over HTTP (or the
-   session's WebSocket, ``transport="ws"``); their starts are spread over ``RAMP_S``. A level is **held** when no request failed and the
-   99th percentile of the batch latency (sent to answered, as the phone sees it) is at
-   most ``p99_limit_ms``. The count grows by half from ``users_start`` while levels are
-   held (at most ``users_max``), falls by a third from the start while they are not, and
-   the bracket between the last held and the first failed count is then halved until it
-   is narrower than ``RESOLUTION`` of the held count.
+   session's WebSocket, ``transport="ws"``); their starts are spread over ``RAMP_S``. A
+   level is **held** when no request failed and the 99th percentile of the batch latency
+   (sent to answered, as the phone sees it) is at most ``p99_limit_ms``. The count grows
+   by half from ``users_start`` while levels are held (at most ``users_max``), falls by a
+   third from the start while they are not, and the bracket between the last held and the
+   first failed count is then halved until it is narrower than ``RESOLUTION`` of the held
+   count.
 4. **CPU.** The api processes' CPU time (user + system, the process and its children,
    from ``/proc``) over a level, divided by the steps the level applied:
    ``server_cpu_us_per_step``. The simulator's own CPU time is reported beside it, as the
