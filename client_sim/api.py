@@ -5,6 +5,8 @@ service) and turns every non-2xx answer into :class:`ApiError`. Admin calls send
 admin key as a bearer token, device calls the session's token. :class:`LiveFixes` holds
 a session's ``/v1/sessions/{id}/live`` socket open and counts the fixes pushed on it.
 
+:meth:`LiveFixes.post_batch` posts batches over that socket and waits for each answer.
+
 It speaks HTTP and WebSocket only, so it can drive any deployed stack.
 """
 
@@ -278,6 +280,7 @@ class LiveFixes:
         self._changed = asyncio.Event()
         self._closing = False
         self._pending: asyncio.Future[BatchResult] | None = None
+        self._pending_seq = 0
         self._task = asyncio.create_task(self._read())
 
     @classmethod
@@ -335,16 +338,24 @@ class LiveFixes:
         if self.closed.is_set():
             raise ConnectionError("live socket closed")
         self._pending = asyncio.get_running_loop().create_future()
+        self._pending_seq = seq
         try:
-            await self._ws.send(json.dumps({"type": "batch", "seq": seq, "events": list(events)}))
+            message = json.dumps({"type": "batch", "seq": seq, "events": list(events)})
+            try:
+                await self._ws.send(message)
+            except ConnectionClosed as exc:
+                raise ConnectionError(f"live socket closed: {exc}") from exc
             return await asyncio.wait_for(asyncio.shield(self._pending), timeout_s)
         finally:
             self._pending = None
 
-    def _answer(self, result: BatchResult | BaseException) -> bool:
-        """Settle the batch in flight; False when there is none."""
+    def _answer(self, result: BatchResult | BaseException, seq: int | None = None) -> bool:
+        """Settle the batch in flight with an answer about ``seq`` (None: any); False when
+        none is in flight or the answer is about another batch (a late one)."""
         pending = self._pending
         if pending is None or pending.done():
+            return False
+        if seq is not None and seq != self._pending_seq:
             return False
         if isinstance(result, BaseException):
             pending.set_exception(result)
@@ -382,9 +393,12 @@ class LiveFixes:
         elif kind == "batch_result":
             fixes = tuple(Fix.from_wire(f) for f in message.get("fixes", []))
             seq = int(message.get("seq", 0))
-            self._answer(BatchResult(seq, bool(message.get("replayed", False)), fixes))
+            if not self._answer(BatchResult(seq, bool(message.get("replayed", False)), fixes), seq):
+                self.errors.append(f"live socket: an answer to seq {seq} nobody waits for")
         elif kind == "error":
             text = message.get("message") or message.get("detail")
             status = int(message.get("status", 0))
-            if not self._answer(ApiError(status, message.get("detail", text), str(text))):
+            about = message.get("seq")
+            error = ApiError(status, message.get("detail", text), str(text))
+            if not self._answer(error, int(about) if about is not None else None):
                 self.errors.append(f"live socket: {status}: {text}")

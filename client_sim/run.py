@@ -18,9 +18,11 @@ to close the socket.
 Errors counted: non-2xx answers (error messages on the socket), transport failures and
 other exceptions, unexpected closes of the socket. A batch whose fixes never arrive on the
 socket is counted apart (``batches_missing_on_socket``), not as an error. A batch that
-failed because of the transport, a 5xx, 408 or 429 is sent again, with the same ``seq``
-and events, with the next batch (the server applies a ``seq`` once); one refused with any
-other 4xx is dropped and its ``seq`` reused; 401, 403 and 404 end the walker.
+failed with a 5xx, 408 or 429, or over HTTP because of the transport, is sent again, with
+the same ``seq`` and events, with the next batch (the server applies a ``seq`` once); one
+refused with any other 4xx is dropped and its ``seq`` reused; 401, 403 and 404 end the
+walker, and so does a live socket that failed or did not answer in time (``ws``).
+Latency is from sending a batch to its answer; failed attempts are not in it.
 
 Bounded: at most ``MAX_WALKERS`` walkers and ``MAX_DURATION_S`` seconds; walkers stop
 producing at ``duration_s``; every request has a timeout, and a walker still busy

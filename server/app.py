@@ -41,6 +41,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             # what start-up made lives as long as the process: keep it out of the garbage
             # collector's full passes, which otherwise walk ~170,000 objects (40-75 ms on
             # the event loop, every few seconds under load; bench/performance.md)
+            gc.collect()
             gc.freeze()
             if settings.runs_worker_in_process:
                 tasks.start_soon(worker.run, runtime, worker.consumer_name())

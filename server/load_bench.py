@@ -132,12 +132,13 @@ class ApiProcesses:
             "warning",
         ]
 
-        def pin() -> None:
-            if cpus is not None:
-                os.sched_setaffinity(0, cpus)
-
+        if cpus is not None:  # the api and every process it starts stay on these CPUs
+            command = ["taskset", "--cpu-list", ",".join(map(str, sorted(cpus))), *command]
         self.process = subprocess.Popen(
-            command, env={**os.environ, **env}, preexec_fn=pin, stdin=subprocess.DEVNULL
+            command,
+            env={**os.environ, **env},
+            stdin=subprocess.DEVNULL,
+            start_new_session=True,  # its own process group: stop() ends the workers too
         )
         self._wait_ready(workers)
 
@@ -163,11 +164,11 @@ class ApiProcesses:
 
     def stop(self) -> None:
         if self.process.poll() is None:
-            self.process.send_signal(signal.SIGTERM)
+            os.killpg(self.process.pid, signal.SIGTERM)
             try:
                 self.process.wait(timeout=20)
             except subprocess.TimeoutExpired:
-                self.process.kill()
+                os.killpg(self.process.pid, signal.SIGKILL)
                 self.process.wait()
 
 

@@ -4,7 +4,8 @@ The token comes as ``?token=`` (browsers cannot set headers on a socket) or as a
 header. Messages out: ``{"type": "ready"}`` once the socket follows the session (fixes
 of batches posted after it are never missed), ``{"type": "fix", "seq", "fix"}``,
 ``{"type": "batch_result", ...}`` for batches sent over the socket, and
-``{"type": "error", "status", "detail", "message"}``.
+``{"type": "error", "status", "detail", "message"}`` (with the ``seq`` of the batch it
+answers, when it answers one).
 Fan-out goes through the session store's pub/sub, so any replica can serve the socket.
 """
 
@@ -118,14 +119,14 @@ async def _read(sock: _Socket, rt: Runtime, session_id: str, secret: str) -> Non
             events = to_events(batch.events)
             result = await sessions.apply_batch(rt, session_id, secret, batch.seq, events)
         except ServiceError as exc:
-            await sock.send({"type": "error", "status": exc.status, **service_detail(exc)})
+            detail = service_detail(exc)
+            await sock.send({"type": "error", "status": exc.status, "seq": batch.seq, **detail})
             continue
-        except Exception as exc:  # one bad batch must not end the socket; its state is unchanged
+        except Exception as exc:  # one bad batch must not end the socket
             telemetry.count_store_error(exc)
             logger.exception("batch over the live socket failed")
-            await sock.send(
-                {"type": "error", "status": 500, "message": "internal error; batch not applied"}
-            )
+            text = "internal error; the batch may not have been applied: send the same seq"
+            await sock.send({"type": "error", "status": 500, "seq": batch.seq, "message": text})
             continue
         telemetry.count_batch(
             "ws", events, result, session_id=session_id, idle_s=rt.settings.session_idle_s

@@ -7,8 +7,10 @@ when the next batch of that session comes to the same process, the store only co
 the version (``SessionStore.get_changed``) and neither the state's bytes nor its decoding
 are needed. Another process's write changes the version, so a stale entry is never used.
 
-Entries are immutable: engines never change the state they are given, they return a new
-one. The least recently used entries go first once ``size`` are kept.
+Entries are stored on every full read and every write of this process. They are
+immutable: engines never change the state they are given, they return a new one (a state
+an engine failed on is dropped all the same). The least recently used entries go first
+once ``size`` are kept.
 """
 
 from __future__ import annotations

@@ -29,7 +29,7 @@ import orjson
 
 from server.positioning.engines import ENGINES, get_engine
 from server.positioning.engines.base import EngineSpec, SiteMaps
-from server.positioning.events import Event, Fix, ImuEvent
+from server.positioning.events import Event, Fix, ImuEvent, StepEvent
 from server.services import telemetry, traces, uploads
 from server.services.device_offsets import on_common_level
 from server.services.errors import Conflict, Forbidden, Invalid, NotFound
@@ -41,7 +41,8 @@ from server.storage.session_store import StoredSession
 
 ENGINE_PREFIX = "engine/"
 SEQ_POLL_S = 0.01
-INLINE_MAX_EVENTS = 32  # larger batches, and any with raw samples, run in a worker thread
+INLINE_MAX_STEPS = 2  # batches with more steps, or any raw samples, run in a worker thread
+INLINE_MAX_EVENTS = 32
 
 
 @dataclass(frozen=True)
@@ -277,16 +278,26 @@ async def apply_batch(
     """Apply batch ``seq`` once (module docstring). At most ``batch_concurrency`` batches
     are worked on at a time in a process: interleaving many of them on the event loop
     would stretch every one's latency by the others' work (each awaits the store twice);
-    a batch waiting for its predecessor does not hold a turn."""
+    a batch waiting for its predecessor, or for its site's maps to be read from SQL (a
+    new map version rebuilds the plans: up to seconds), does not hold a turn either."""
     digest = events_digest(events)
     deadline = time.monotonic() + rt.settings.seq_wait_s
+    maps: SiteMaps | None = None
     while True:
         async with rt.batch_gate:
-            outcome = await _attempt(rt, session_id, token, seq, events, digest, deadline)
+            outcome = await _attempt(rt, session_id, token, seq, events, digest, deadline, maps)
         if isinstance(outcome, BatchResult):
             return outcome
-        if outcome is _Retry.WAIT:
+        if isinstance(outcome, _NeedMaps):
+            async with rt.transaction() as s:
+                maps = await site_maps(s, rt.maps, outcome.site_id)
+        elif outcome is _Retry.WAIT:
             await anyio.sleep(SEQ_POLL_S)
+
+
+@dataclass(frozen=True)
+class _NeedMaps:
+    site_id: str
 
 
 class _Retry(enum.Enum):
@@ -302,8 +313,10 @@ async def _attempt(
     events: Sequence[Event],
     digest: bytes,
     deadline: float,
-) -> BatchResult | _Retry:
-    """One read-compute-write of the batch."""
+    known_maps: SiteMaps | None,
+) -> BatchResult | _Retry | _NeedMaps:
+    """One read-compute-write of the batch; ``known_maps``: the site's maps as the caller
+    read them since the last attempt."""
     version, meta, state = await _load_decoded(rt, session_id, token)
     spec = get_engine(meta.engine)
     if seq <= state.last_seq:
@@ -315,7 +328,9 @@ async def _attempt(
                 field="seq",
             )
         return _Retry.WAIT
-    maps = rt.maps.fresh(meta.site_id)  # no SQL while the cached map set is fresh
+    maps = rt.maps.fresh(meta.site_id) or known_maps  # no SQL while the cached set is fresh
+    if maps is None and not meta.contribute:
+        return _NeedMaps(meta.site_id)  # read outside the turn
     if maps is None or meta.contribute:
         if meta.contribute:  # CPU work (compression): off the event loop
             walk = await anyio.to_thread.run_sync(
@@ -330,10 +345,14 @@ async def _attempt(
     scans_level = maps.device_offsets.get(meta.device_model)
     run = telemetry.timed_engine(meta.engine, spec.run)
     args = (state.engine_state, on_common_level(events, scans_level), maps, params, rng)
-    if _runs_inline(events):
-        new_engine_state, fixes = run(*args)
-    else:
-        new_engine_state, fixes = await anyio.to_thread.run_sync(run, *args)
+    try:
+        if _runs_inline(events):
+            new_engine_state, fixes = run(*args)
+        else:
+            new_engine_state, fixes = await anyio.to_thread.run_sync(run, *args)
+    except BaseException:
+        rt.states.drop(session_id)  # never reuse a state an engine failed on
+        raise
     wire = [fix_to_wire(f, maps, meta.engine) for f in fixes]
     body = orjson.dumps(wire)
     replies = (*state.replies, Reply(seq, digest, body))[-rt.settings.replay_window :]
@@ -355,9 +374,11 @@ async def _attempt(
 
 def _runs_inline(events: Sequence[Event]) -> bool:
     """Whether the engine runs on the event loop rather than in a worker thread: for a
-    small batch without raw samples (a few steps and scans, about a millisecond per step
-    at N = 3000), the hop to a thread and back costs more than it spares the loop."""
-    return len(events) <= INLINE_MAX_EVENTS and not any(isinstance(e, ImuEvent) for e in events)
+    small batch without raw samples (a step or two and their scans, about a millisecond per
+    step at N = 3000), the hop to a thread and back costs more than it spares the loop."""
+    if len(events) > INLINE_MAX_EVENTS or any(isinstance(e, ImuEvent) for e in events):
+        return False
+    return sum(isinstance(e, StepEvent) for e in events) <= INLINE_MAX_STEPS
 
 
 def _replay(state: SessionState, seq: int, digest: bytes) -> BatchResult:

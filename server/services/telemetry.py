@@ -11,7 +11,7 @@ Every metric lives on prometheus_client's default registry:
 - ``indoorpos_steps_total``, ``indoorpos_fixes_total``: step events in, fixes out, of
   applied batches (steps the server finds in raw samples are not counted).
 - ``indoorpos_engine_step_seconds{engine}`` (histogram): one engine run over one batch,
-  timed in the worker thread that runs it.
+  timed where it runs (on the event loop for small batches, else in a worker thread).
 - ``indoorpos_active_sessions`` (gauge): sessions *this process* opened or served a
   batch for within ``session_idle_s``, less those ended with DELETE. Each process knows
   only its own sessions; a session served by two replicas counts in both.
