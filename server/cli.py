@@ -71,6 +71,21 @@ def _print_report(title: str, result: dict[str, object]) -> None:
     console.print(table)
 
 
+def _report_walk(title: str, result: dict[str, Any], json_path: Path | None) -> dict[str, Any]:
+    """Show a simulator run's summary (table, p99 by minute, errors), write it as JSON
+    when asked, and give it back."""
+    _print_report(title, {k: v for k, v in result.items() if not isinstance(v, list | dict)})
+    if len(result["p99_ms_by_minute"]) > 1:
+        by_minute = ", ".join(f"{v:.1f}" for v in result["p99_ms_by_minute"])
+        console.print(f"p99 ms by minute: {by_minute}")
+    for message in result["error_messages"]:
+        console.print(f"[red]error:[/] {message}")
+    if json_path is not None:
+        json_path.write_text(json.dumps(result, indent=2) + "\n")
+        console.print(f"summary written to {json_path}")
+    return result
+
+
 @app.command()
 def serve(
     host: Annotated[str, typer.Option(help="interface to listen on")] = "127.0.0.1",
@@ -216,15 +231,7 @@ def demo(
                 on_progress=lambda elapsed: progress.update(task, completed=min(elapsed, duration)),
             )
         )
-    result = summary.to_json_dict()
-    _print_report(
-        "demo summary", {k: v for k, v in result.items() if not isinstance(v, list | dict)}
-    )
-    for message in result.get("error_messages", []) or []:
-        console.print(f"[red]error:[/] {message}")
-    if json_path is not None:
-        json_path.write_text(json.dumps(result, indent=2) + "\n")
-        console.print(f"summary written to {json_path}")
+    result = _report_walk("demo summary", summary.to_json_dict(), json_path)
     if not exit_after:
         console.print(f"still serving on {base_url}; Ctrl-C to stop")
         with contextlib.suppress(KeyboardInterrupt):
@@ -699,19 +706,8 @@ def simulate(
                     on_progress=lambda elapsed: progress.update(task, completed=elapsed),
                 )
             )
-    result = summary.to_json_dict()
-    _print_report(
-        f"simulate: {users} users, {engine}, {batch_steps} step(s) per batch over {transport}",
-        {k: v for k, v in result.items() if not isinstance(v, list | dict)},
-    )
-    if len(result["p99_ms_by_minute"]) > 1:
-        by_minute = ", ".join(f"{v:.1f}" for v in result["p99_ms_by_minute"])
-        console.print(f"p99 ms by minute: {by_minute}")
-    for message in result["error_messages"]:
-        console.print(f"[red]error:[/] {message}")
-    if json_path is not None:
-        json_path.write_text(json.dumps(result, indent=2) + "\n")
-        console.print(f"summary written to {json_path}")
+    title = f"simulate: {users} users, {engine}, {batch_steps} step(s) per batch over {transport}"
+    result = _report_walk(title, summary.to_json_dict(), json_path)
     if result["errors"]:
         raise typer.Exit(code=1)
 
