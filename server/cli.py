@@ -380,6 +380,13 @@ def _summarise_crowd(summary: dict[str, Any], reports: list[dict[str, Any]]) -> 
         floor.pop("magnetic_at_waypoints", None)
 
 
+def _points_path(json_path: Path, engine: str, n_runs: int) -> Path:
+    """Where the per-point errors go beside the summary: ``out.points.csv`` (one engine)
+    or ``out.<engine>.points.csv``."""
+    middle = f".{engine}" if n_runs > 1 else ""
+    return json_path.with_name(f"{json_path.stem}{middle}.points.csv")
+
+
 @evaluate_app.command("ilc")
 def evaluate_ilc(
     site_dir: Annotated[
@@ -502,9 +509,86 @@ def evaluate_ilc(
         payload = runs[0].summary if len(runs) == 1 else {"runs": [r.summary for r in runs]}
         json_path.write_text(json.dumps(payload, indent=2) + "\n")
         console.print(f"metrics written to {json_path}")
+        for run in runs:
+            points = _points_path(json_path, run.summary["engine"], len(runs))
+            evaluation.write_points(run.paths, points)
+            console.print(f"per-point errors written to {points}")
     if plots is not None:
         written = evaluation.write_ilc_plots(runs, plots)
         console.print(f"{len(written)} figures written to {plots}")
+
+
+@evaluate_app.command("ipin")
+def evaluate_ipin(
+    venue_dir: Annotated[
+        Path,
+        typer.Argument(
+            exists=True,
+            file_okay=False,
+            help="venue folder: logs/, BLE_Locations.csv, references.csv",
+        ),
+    ],
+    engine: Annotated[list[str], typer.Option(help="engine to replay (repeat to compare)")],
+    json_path: Annotated[Path | None, typer.Option("--json", help="write the metrics here")] = None,
+    validation: Annotated[
+        bool,
+        typer.Option(
+            "--validation",
+            help="read only repetitions 01 and 02 of every trial (maps and scoring), "
+            "for choosing parameters",
+        ),
+    ] = False,
+    param: Annotated[
+        list[str] | None,
+        typer.Option(help="NAME=VALUE: an engine parameter other than its default (repeatable)"),
+    ] = None,
+) -> None:
+    """Replay IPIN 2023 Track 3 logs through engines, leaving one trial out of the maps."""
+    from server.services import evaluation, ipin_evaluation
+
+    overrides = dict(p.partition("=")[::2] for p in param or [])
+    for name in engine:
+        try:
+            evaluation.engine_params(name, overrides)
+        except (KeyError, ValueError) as e:
+            raise typer.BadParameter(str(e.args[0]), param_hint="--param") from None
+    runs = []
+    with _progress_bar() as bar:
+        progress = _StageProgress(bar)
+        for name in engine:
+            progress.tasks.clear()
+            runs.append(
+                ipin_evaluation.evaluate_ipin(
+                    venue_dir,
+                    name,
+                    validation=validation,
+                    progress=progress,
+                    params=overrides or None,
+                )
+            )
+    for run in runs:
+        summary = run.summary
+        title = f"IPIN {run.venue.name} · {summary['engine']}"
+        _print_report(title, {k: v for k, v in summary.items() if not isinstance(v, dict)})
+        table = Table(title=f"{title} · per log")
+        for column in ("trial", "rep", "phone", "n", "IPIN score (m)", "mean (m)", "floor hit"):
+            table.add_column(column, justify="left" if column == "phone" else "right")
+        for f in summary["per_log"].values():
+            score, mean = f["ipin_score_m"], f["mean_m"]
+            table.add_row(
+                str(f["trial"]),
+                str(f["repetition"]),
+                f["phone"],
+                str(f["n_points"]),
+                "–" if score is None else f"{score:.2f}",
+                "–" if mean is None else f"{mean:.2f}",
+                "–" if f["floor_hit_rate"] is None else f"{f['floor_hit_rate']:.1%}",
+            )
+        console.print(table)
+    if json_path is not None:
+        payload = runs[0].summary if len(runs) == 1 else {"runs": [r.summary for r in runs]}
+        json_path.write_text(json.dumps(payload, indent=2) + "\n")
+        console.print(f"metrics written to {json_path}")
 
 
 class StepDetector(StrEnum):

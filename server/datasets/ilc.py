@@ -64,7 +64,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from server.positioning.events import BleEvent, Event, ImuEvent, RadioReading, WifiEvent
+from server.positioning.events import (
+    BleEvent,
+    Event,
+    ImuEvent,
+    RadioReading,
+    WifiEvent,
+    window_ble,
+)
 
 WIFI_MAX_AGE_MS: int | None = None
 """Oldest ``last_seen`` kept in a WiFi scan, in ms before the scan time (None: keep all).
@@ -126,8 +133,10 @@ class IlcTrace:
     wifi : tuple of WifiEvent
         One event per scan, sorted by time; readings keyed by lower-case BSSID.
     ble : tuple of BleEvent
-        One event per beacon timestamp, sorted by time; readings keyed by
-        ``"<uuid>:<major>:<minor>"`` in lower case.
+        Beacon rows grouped into scans of ``events.BLE_WINDOW_MS`` (``window_ble``: one
+        event per window, each beacon at its mean RSS), sorted by time; readings keyed by
+        the beacon's MAC in lower case (``"<uuid>:<major>:<minor>"`` when a row has no
+        MAC).
     accel, gyro, magnetic, rotation : ndarray, shape (n, 4), float64
         ``[t_ms, x, y, z]`` rows sorted by time: m/s², rad/s, µT, rotation-vector
         quaternion (x, y, z). Calibrated records; a stream with no calibrated record
@@ -148,6 +157,14 @@ class IlcTrace:
         Records of types this reader does not read, per type.
     t_first_ms, t_last_ms : int
         First and last timestamp of the records read (0 and 0 when there are none).
+    gnss : ndarray, shape (n_fix, 5), float64
+        ``[t_ms, lat_deg, lon_deg, accuracy_m, hdop]`` satellite fixes (ILC files carry
+        none; walks made of our own events and IPIN logs may); hdop NaN where unknown.
+    pressure : ndarray, shape (n_p, 2), float64
+        ``[t_ms, hPa]`` barometer rows sorted by time (ILC files carry none).
+    waypoint_floor : ndarray, shape (n_wp,) or (0,), int64
+        Level of each waypoint (0 ground floor, negative below) where the file gives one
+        per waypoint (IPIN ``POSI`` lines); empty when the whole trace is on ``floor``.
     """
 
     path_id: str
@@ -168,9 +185,9 @@ class IlcTrace:
     skipped_types: Mapping[str, int]
     t_first_ms: int
     t_last_ms: int
-    # [t_ms, lat_deg, lon_deg, accuracy_m, hdop] satellite fixes (ILC files carry none;
-    # walks made of our own events may)
     gnss: NDArray[np.float64] = field(default_factory=lambda: np.empty((0, 5)))
+    pressure: NDArray[np.float64] = field(default_factory=lambda: np.empty((0, 2)))
+    waypoint_floor: NDArray[np.int64] = field(default_factory=lambda: np.empty(0, dtype=np.int64))
 
     @property
     def duration_ms(self) -> int:
@@ -428,7 +445,9 @@ class _TraceParser:
                 if not math.isfinite(rssi):
                     raise ValueError(f[6])
                 self.radio_t.append(t)
-                emitter = f"{f[2]}:{f[3]}:{f[4]}".lower()
+                # the MAC is the beacon: one iBeacon id is often shared by hundreds of
+                # beacons on every floor (site2: one id covers 318 MACs on all 9 floors)
+                emitter = (f[8] or f"{f[2]}:{f[3]}:{f[4]}").lower()
                 _keep_strongest(self.ble.setdefault(t, {}), emitter, rssi)
             elif kind == "TYPE_WAYPOINT":
                 if n != _N_FIELDS_WAYPOINT:
@@ -455,7 +474,7 @@ class _TraceParser:
                 streams[stream] = self._rows(rows, 4)
                 uncalibrated.add(stream)
         wifi = tuple(WifiEvent(t, _readings(self.wifi[t])) for t in sorted(self.wifi))
-        ble = tuple(BleEvent(t, _readings(self.ble[t])) for t in sorted(self.ble))
+        ble = tuple(window_ble([BleEvent(t, _readings(self.ble[t])) for t in sorted(self.ble)]))
         t_all = [waypoints[:, 0], *(a[:, 0] for a in streams.values())]
         t_all.append(np.asarray(self.radio_t, dtype=np.float64))
         t_concat = np.concatenate(t_all)

@@ -11,6 +11,7 @@ dataset importers and of the simulator, and engines can be tested without any se
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -138,6 +139,61 @@ class Fix:
     def uncertainty_m(self) -> float:
         """Root of the mean of the position variances: a 1-σ radius in metres."""
         return float(((self.cov[0] + self.cov[3]) / 2.0) ** 0.5)
+
+
+BLE_WINDOW_MS = 2000
+"""Span of one BLE scan when a recording lists every beacon advertisement on its own:
+about the period of a WiFi scan (ILC site2: 2.0 s), so that one BLE fingerprint holds
+what the phone heard of the beacons around it rather than one reading."""
+
+
+def window_ble(events: Sequence[BleEvent], window_ms: int = BLE_WINDOW_MS) -> list[BleEvent]:
+    """Beacon readings grouped into scans of ``window_ms`` phone time.
+
+    A window starts at the first reading not yet in one and holds every reading up to
+    ``window_ms`` later; it becomes one ``BleEvent`` stamped with its last reading's time
+    (when the phone knows the whole scan), each beacon keeping its mean RSS over the
+    window (advertisements of one beacon fluctuate by several dB; the mean is the
+    estimate of its level there), to a quarter dB (exact in the float32 of the codecs).
+
+    Parameters
+    ----------
+    events : sequence of BleEvent
+        In any order; each may hold several readings.
+    window_ms : int
+        Positive.
+
+    Returns
+    -------
+    list of BleEvent
+        Time-ordered, one per window that heard at least one beacon.
+    """
+    if window_ms <= 0:
+        raise ValueError(f"window_ms must be positive, not {window_ms}")
+    out: list[BleEvent] = []
+    start: int | None = None
+    last = 0
+    sums: dict[str, list[float]] = {}
+
+    def close() -> None:
+        if sums:
+            readings = tuple(
+                RadioReading(e, round(4.0 * s / n) / 4.0) for e, (s, n) in sorted(sums.items())
+            )
+            out.append(BleEvent(last, readings))
+        sums.clear()
+
+    for event in sorted(events, key=lambda e: e.t_ms):
+        if start is None or event.t_ms > start + window_ms:
+            close()
+            start = event.t_ms
+        last = event.t_ms
+        for r in event.readings:
+            acc = sums.setdefault(r.emitter, [0.0, 0])
+            acc[0] += r.rssi_dbm
+            acc[1] += 1
+    close()
+    return out
 
 
 def radio_key(kind: str, emitter: str) -> str:

@@ -38,10 +38,11 @@ engine's ``min_fix_var_m2``).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.special import logsumexp
 
 from server.positioning.events import RadioReading, radio_key
 
@@ -107,6 +108,14 @@ class WknnFix:
         Normalised 1/D weights of the neighbours (sum to 1).
     distances_db : ndarray, shape (k,), float64
         Signal distances D_i of the neighbours (``papers/002_*`` eq 1), unfloored.
+    floor_logp : ndarray, shape (n_floors,), float64
+        Log-probability of each floor after this scan (normalised; with the prior given
+        to ``wknn``, if any). ``floor`` is its most likely floor among those the scan
+        matched.
+    n_matched : int
+        Map columns the scan heard.
+
+    With ties at the K-th distance, ``neighbours`` holds every tied RP (more than K).
     """
 
     x_m: float
@@ -116,6 +125,13 @@ class WknnFix:
     neighbours: NDArray[np.int64]
     weights: NDArray[np.float64]
     distances_db: NDArray[np.float64]
+    floor_logp: NDArray[np.float64] = field(default_factory=lambda: np.zeros(1))
+    n_matched: int = 0
+
+    @property
+    def floor_prob(self) -> float:
+        """Probability of ``floor``."""
+        return float(np.exp(self.floor_logp[self.floor])) if self.floor_logp.size else 1.0
 
 
 def scan_vector(radio_map: RadioMap, readings: Sequence[RadioReading], kind: str) -> ScanVector:
@@ -190,16 +206,54 @@ def signal_distances(
 
 
 def _nearest(distances: NDArray[np.float64], k: int) -> NDArray[np.int64]:
-    """Positions of the ``k`` smallest distances, nearest first (ties: lower position first)."""
+    """Positions of the ``k`` smallest distances, nearest first, and every position tied
+    with the k-th: a tie in signal distance (common: RSS comes in whole dBm, and a scan of
+    one or two emitters matches hundreds of RPs equally) must not pick some RPs over
+    others by their order in the map, so all of them take part."""
     if k < distances.size:
         kth = distances[np.argpartition(distances, k - 1)[k - 1]]
-        # everything nearer than the k-th distance, then the lowest positions tied with it
-        nearer = np.flatnonzero(distances < kth)
-        part = np.concatenate([nearer, np.flatnonzero(distances == kth)[: k - nearer.size]])
+        part = np.flatnonzero(distances <= kth)
     else:
         part = np.arange(distances.size)
     order = np.lexsort((part, distances[part]))
     return part[order].astype(np.int64)
+
+
+def floor_log_likelihood(
+    distances_db: NDArray[np.float64],
+    floors: NDArray[np.int64],
+    n_floors: int,
+    empty_distance_db: float,
+    n_matched: int,
+    k: int,
+    sd_db: float,
+    max_emitters: int,
+) -> NDArray[np.float64]:
+    """Log-likelihood of each floor given a scan's signal distances to candidate RPs.
+
+    Per floor, the mean squared distance of its ``k`` nearest candidates per matched
+    emitter is taken as the mean squared RSS difference ``m_f`` (dB²) of the scan to the
+    floor; a floor with no candidate is as far as an RP that hears none of the scan's
+    emitters (``empty_distance_db``). With independent Gaussian RSS errors of ``sd_db``
+    (``papers/000_*`` eq 10-11 take each AP's RSS as Gaussian), the log-likelihood is
+    ``-n * m_f / (2 sd²)``, ``n`` being the matched emitters capped at ``max_emitters``:
+    readings of nearby emitters share their errors (body, orientation, the same walls), so
+    a 100-AP scan is not 100 independent votes.
+
+    Returns
+    -------
+    ndarray, shape (n_floors,)
+        Up to a constant (the best floor at 0).
+    """
+    msd = np.full(n_floors, empty_distance_db**2 / max(n_matched, 1))
+    for f in np.unique(floors).tolist():
+        if 0 <= f < n_floors:
+            on = np.flatnonzero(floors == f)
+            near = on[_nearest(distances_db[on], k)]
+            msd[f] = float(np.mean(distances_db[near] ** 2)) / max(n_matched, 1)
+    n = min(n_matched, max_emitters)
+    loglik: NDArray[np.float64] = -n * msd / (2.0 * sd_db**2)
+    return loglik - float(loglik.max())
 
 
 def wknn(
@@ -208,6 +262,10 @@ def wknn(
     k: int = 4,
     candidates: NDArray[np.integer] | NDArray[np.bool_] | None = None,
     penalty_db: NDArray[np.float64] | None = None,
+    floor_log_prior: NDArray[np.float64] | None = None,
+    floor_sd_db: float = 8.0,
+    floor_max_emitters: int = 10,
+    min_matched: int = 1,
 ) -> WknnFix | None:
     """Weighted K-nearest-neighbour position, floor and spread of a scan.
 
@@ -226,16 +284,24 @@ def wknn(
     penalty_db : ndarray, shape (n_rp,), optional
         Non-negative cost per RP added to its signal distance before neighbours are
         chosen and weighted, e.g. the motion-consistency terms of ``papers/003_*`` eq 13-14.
+    floor_log_prior : ndarray, shape (n_floors,), optional
+        Log-probabilities of the floors before this scan (a floor filter's prediction);
+        combined with the scan's ``floor_log_likelihood`` to choose the floor. None: a
+        flat prior, the floor is the scan's own most likely one.
+    floor_sd_db, floor_max_emitters : float, int
+        Parameters of ``floor_log_likelihood``.
+    min_matched : int
+        Scans that heard fewer map columns than this give no fix.
 
     Returns
     -------
     WknnFix or None
-        None when the scan heard no map column or no candidate RP hears any emitter of
-        the scan.
+        None when the scan heard fewer than ``min_matched`` (at least one) map columns or
+        no candidate RP hears any emitter of the scan.
     """
     if k < 1:
         raise ValueError(f"k must be at least 1, got {k}")
-    if scan.n_matched == 0:
+    if scan.n_matched < max(min_matched, 1):
         return None
     n_rp = radio_map.rp_xy.shape[0]
     if candidates is None:
@@ -257,10 +323,23 @@ def wknn(
     inv = 1.0 / np.maximum(dist, DISTANCE_EPS_DB)
     floors = radio_map.rp_floor[cand].astype(np.int64)
 
-    # floor vote among the k nearest candidates, weighted by 1/D
-    top = _nearest(dist, k)
-    voted, where = np.unique(floors[top], return_inverse=True)
-    floor = int(voted[np.argmax(np.bincount(where.ravel(), weights=inv[top]))])
+    # the floor: the scan's likelihood of each floor, times the prior when one is given
+    n_floors = int(radio_map.rp_floor.max()) + 1
+    if floor_log_prior is not None:
+        n_floors = max(n_floors, floor_log_prior.shape[0])
+    cols = np.flatnonzero(scan.mask & (scan.rssi_dbm > MISSING_DBM))
+    empty = float(np.linalg.norm(scan.rssi_dbm[cols].astype(np.float64) - MISSING_DBM))
+    loglik = floor_log_likelihood(
+        dist, floors, n_floors, empty, scan.n_matched, k, floor_sd_db, floor_max_emitters
+    )
+    logp = loglik.copy()
+    if floor_log_prior is not None:
+        logp[: floor_log_prior.shape[0]] += floor_log_prior
+    logp -= float(logsumexp(logp))
+    floor = int(np.argmax(logp))
+    if not np.any(floors == floor):
+        # the prior holds a floor the scan matched nowhere: position by the scan's best
+        floor = int(np.argmax(np.where(np.isin(np.arange(n_floors), floors), loglik, -np.inf)))
 
     # WKNN over the k nearest candidates of that floor
     on_floor = np.flatnonzero(floors == floor)
@@ -279,6 +358,8 @@ def wknn(
         neighbours=rp,
         weights=weights,
         distances_db=dist[sel],
+        floor_logp=logp,
+        n_matched=scan.n_matched,
     )
 
 

@@ -31,6 +31,15 @@ with 4 m and 50 m as defaults. A wrong floor costs one penalty however many floo
 is off. It is reported only when buildings are given (the score is defined for
 multi-building data).
 
+IPIN score. The IPIN competition's smartphone tracks (Track 3 of IPIN 2023) score a trial
+by the 75th percentile of the horizontal error plus a fixed penalty per floor of
+difference (15 m by default), over the evaluation points::
+
+    ipin_score_m = P75( e_i + floor_penalty_m * |level_i est - level_i true| )
+
+with the same percentile rule as above; floors are levels here (0 ground, negative
+below), so two floors off cost two penalties. Missing estimates take no part, as above.
+
 Calibration of the reported uncertainty. When each fix carries a 1-σ radius ``sigma_i``
 (per-axis standard deviation, ``Fix.uncertainty_m``), ``within_1sigma`` and
 ``within_2sigma`` are the shares of rows with ``e_i <= sigma_i`` and ``e_i <= 2 sigma_i``.
@@ -225,6 +234,57 @@ def error_report(
         within_1sigma=within_1sigma,
         within_2sigma=within_2sigma,
     )
+
+
+def ipin_score(
+    est_xy_m: ArrayLike,
+    true_xy_m: ArrayLike,
+    est_level: ArrayLike,
+    true_level: ArrayLike,
+    *,
+    floor_penalty_m: float = 15.0,
+    q: float = 75.0,
+) -> float | None:
+    """The IPIN smartphone-track score (see the module docstring).
+
+    Parameters
+    ----------
+    est_xy_m : array_like, shape (n, 2)
+        Estimated positions in metres; a row with NaN is a missing estimate.
+    true_xy_m : array_like, shape (n, 2)
+        True positions in metres; must be finite.
+    est_level, true_level : array_like, shape (n,), int
+        Estimated and true floor levels.
+    floor_penalty_m : float
+        Metres added per floor of difference.
+    q : float
+        Percentile, in [0, 100].
+
+    Returns
+    -------
+    float or None
+        None when no row has an estimate.
+
+    Raises
+    ------
+    ValueError
+        On mismatched shapes or non-finite truth.
+    """
+    est = _xy("est_xy_m", est_xy_m)
+    truth = _xy("true_xy_m", true_xy_m)
+    n = est.shape[0]
+    if truth.shape != est.shape:
+        raise ValueError(f"true_xy_m must have shape {est.shape}, got {truth.shape}")
+    if not np.all(np.isfinite(truth)):
+        raise ValueError("true_xy_m must be finite")
+    est_l = np.asarray(_rows("est_level", est_level, n, np.int64), dtype=np.int64)
+    true_l = np.asarray(_rows("true_level", true_level, n, np.int64), dtype=np.int64)
+    floors_off = np.abs(est_l - true_l)
+    found = ~np.isnan(est).any(axis=1)
+    if not found.any():
+        return None
+    e = np.hypot(*(est[found] - truth[found]).T) + floor_penalty_m * floors_off[found]
+    return float(np.percentile(e, q))
 
 
 def error_cdf(errors_m: ArrayLike) -> tuple[FloatArray, FloatArray]:

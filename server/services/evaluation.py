@@ -18,6 +18,7 @@ point (no gridding: the published baselines match against raw fingerprints), flo
 
 from __future__ import annotations
 
+import csv
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -28,6 +29,7 @@ from numpy.typing import NDArray
 
 from server.datasets.ilc import IlcSite, IlcTrace, read_site, read_trace
 from server.datasets.uji import Fingerprints
+from server.positioning import fix_error
 from server.positioning.engines import get_engine
 from server.positioning.engines.base import FloorRef, SiteMaps
 from server.positioning.engines.step_ekf import StepEkfParams
@@ -39,6 +41,7 @@ from server.positioning.fingerprint import (
     scan_vector,
     wknn,
 )
+from server.positioning.fix_error import FixErrorModel
 from server.positioning.floorplan import FloorPlan, plan_from_geojson
 from server.positioning.magnetic import (
     MagneticGrid,
@@ -54,6 +57,7 @@ from server.positioning.mapping.device_offsets import (
     row_offsets,
     scan_readings,
 )
+from server.positioning.mapping.fix_calibration import learn_fix_error
 from server.positioning.mapping.gridding import build_radio_map
 from server.positioning.mapping.labelled import interpolate_track
 from server.positioning.mapping.matrices import readings_matrix
@@ -123,9 +127,12 @@ class LabelledScans:
     xy_m: list[tuple[float, float]] = field(default_factory=list)
     floor: list[int] = field(default_factory=list)
     events: list[WifiEvent | BleEvent] = field(default_factory=list)
+    path: list[int] = field(default_factory=list)  # which trace each scan came from
+    n_traces: int = 0
 
     def add_trace(self, trace: IlcTrace, floor_index: int) -> None:
         events = trace.radio_events()
+        self.n_traces += 1
         if not events or trace.waypoint_t_ms.size == 0:
             return
         t = np.array([e.t_ms for e in events], dtype=np.int64)
@@ -135,12 +142,16 @@ class LabelledScans:
                 self.xy_m.append((point[0], point[1]))
                 self.floor.append(floor_index)
                 self.events.append(event)
+                self.path.append(self.n_traces)
 
-    def radio_map(self, cell_m: float = TRACE_CELL_M) -> RadioMap:
-        scans = [
+    def keyed_scans(self) -> list[list[tuple[str, float]]]:
+        """Each scan's readings keyed as map columns."""
+        return [
             [(radio_key(_kind(e), r.emitter), r.rssi_dbm) for r in e.readings] for e in self.events
         ]
-        emitters, rssi = readings_matrix(scans)
+
+    def radio_map(self, cell_m: float = TRACE_CELL_M) -> RadioMap:
+        emitters, rssi = readings_matrix(self.keyed_scans())
         xy = np.asarray(self.xy_m, dtype=np.float64).reshape(-1, 2)
         return build_radio_map(
             xy, np.asarray(self.floor, dtype=np.int64), rssi, emitters, cell_m=cell_m
@@ -149,6 +160,20 @@ class LabelledScans:
 
 def _kind(event: WifiEvent | BleEvent) -> str:
     return "wifi" if isinstance(event, WifiEvent) else "ble"
+
+
+def learned_fix_error(scans: LabelledScans, seed: int = 0) -> FixErrorModel:
+    """How far radio fixes fall from the truth by their evidence, learned from the
+    labelled scans by path-wise cross-validation (``mapping.fix_calibration``)."""
+    if not scans.events:
+        return fix_error.DEFAULT
+    return learn_fix_error(
+        np.asarray(scans.xy_m, dtype=np.float64).reshape(-1, 2),
+        np.asarray(scans.floor, dtype=np.int64),
+        np.asarray(scans.path, dtype=np.int64),
+        scans.keyed_scans(),
+        np.random.default_rng(seed),
+    )
 
 
 @dataclass
@@ -227,7 +252,9 @@ def build_site_maps(
         if progress:
             progress("maps", done, len(train))
     radio = in_place_order(labelled.radio_map()) if labelled.events else None
-    maps = SiteMaps(site_floors(site), radio, version="train")
+    maps = SiteMaps(
+        site_floors(site), radio, version="train", fix_error=learned_fix_error(labelled)
+    )
     if not magnetic:
         return maps, TrainingSurvey(labelled, traces=tuple(train)), bad_lines
     maps = replace(maps, plans=site_plans(site), magnetic=field_samples.magnetic_map(site))
@@ -307,6 +334,7 @@ class WaypointEstimates:
     est_xy_m: NDArray[np.float64]
     est_floor: NDArray[np.int64]
     sigma_m: NDArray[np.float64]
+    t_ms: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
 
 def estimates_at_waypoints(
@@ -335,6 +363,7 @@ def estimates_at_waypoints(
         est_xy_m=est,
         est_floor=est_floor,
         sigma_m=sigma,
+        t_ms=trace.waypoint_t_ms.astype(np.int64),
     )
 
 
@@ -610,6 +639,52 @@ def evaluate_uji(
         **extra,
         **report.to_dict(),
     }
+
+
+POINT_COLUMNS = (
+    "path",
+    "t_ms",
+    "true_x_m",
+    "true_y_m",
+    "true_floor",
+    "est_x_m",
+    "est_y_m",
+    "est_floor",
+    "sigma_m",
+    "error_m",
+)
+
+
+def write_points(paths: Sequence[PathResult], out: Path) -> int:
+    """Every scored point as a CSV row (``POINT_COLUMNS``; floors as indices, empty
+    estimate fields where no fix came before the point), so that anyone can re-plot or
+    re-score; returns the number of rows."""
+    rows = 0
+    with out.open("w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(POINT_COLUMNS)
+        for p in paths:
+            e = p.estimates
+            times = e.t_ms if e.t_ms.size == e.true_floor.size else np.full(e.true_floor.size, -1)
+            for i in range(e.true_floor.size):
+                known = bool(np.isfinite(e.est_xy_m[i]).all())
+                error = float(np.hypot(*(e.est_xy_m[i] - e.true_xy_m[i]))) if known else None
+                writer.writerow(
+                    [
+                        p.path_id,
+                        int(times[i]),
+                        f"{e.true_xy_m[i, 0]:.3f}",
+                        f"{e.true_xy_m[i, 1]:.3f}",
+                        int(e.true_floor[i]),
+                        f"{e.est_xy_m[i, 0]:.3f}" if known else "",
+                        f"{e.est_xy_m[i, 1]:.3f}" if known else "",
+                        int(e.est_floor[i]) if known else "",
+                        f"{e.sigma_m[i]:.3f}" if known else "",
+                        f"{error:.3f}" if error is not None else "",
+                    ]
+                )
+                rows += 1
+    return rows
 
 
 def errors_m(evaluation: IlcEvaluation) -> list[float]:

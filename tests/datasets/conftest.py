@@ -34,3 +34,8 @@ def uji_dir() -> Path:
 @pytest.fixture(scope="session")
 def longterm_dir() -> Path:
     return dataset_dir("uji-longterm-wifi")
+
+
+@pytest.fixture(scope="session")
+def ipin_dir() -> Path:
+    return dataset_dir("ipin2023-track3-dev")

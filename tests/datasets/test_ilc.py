@@ -115,7 +115,8 @@ def test_beacons_and_merged_radio_events(raw_trace: IlcTrace) -> None:
     assert len(raw_trace.ble) == 1
     (beacon,) = raw_trace.ble
     assert beacon.t_ms == 1574248436014
-    assert beacon.readings[0].emitter == "6b76e28a-6fa2-48c9-8502-c1daa388ab2c:51495:40606"
+    # keyed by the MAC: the iBeacon id is shared by many beacons
+    assert beacon.readings[0].emitter == "7c:58:5a:21:c9:65"
     assert beacon.readings[0].rssi_dbm == -96.0
     events = raw_trace.radio_events()
     assert len(events) == len(raw_trace.wifi) + len(raw_trace.ble)

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from numpy.typing import ArrayLike
 
-from server.positioning.events import RadioReading
+from server.positioning.events import BleEvent, RadioReading, window_ble
 from server.positioning.fingerprint import (
     MISSING_DBM,
     RadioMap,
@@ -144,8 +144,9 @@ def test_floor_vote_is_weighted_not_nearest() -> None:
     assert (fix.x_m, fix.y_m) == pytest.approx((2.0, 1.0))
 
 
-def test_floor_vote_is_weighted_not_counted() -> None:
-    # three floor-1 RPs at D = 4 (vote 0.75) lose to one floor-0 RP at D = 0.5 (vote 2)
+def test_floor_is_the_one_whose_k_nearest_match_best() -> None:
+    # floor 0 holds the single nearest RP (D = 0.5) but its other RPs are far (D = 40);
+    # floor 1's three RPs are all at D = 4: the floor whose K nearest match best wins
     m = make_map(
         [(0.0, 0.0), (10.0, 0.0), (1.0, 1.0), (2.0, 1.0), (3.0, 1.0)],
         [0, 0, 1, 1, 1],
@@ -154,8 +155,36 @@ def test_floor_vote_is_weighted_not_counted() -> None:
     )
     fix = wknn(m, scan_vector(m, [RadioReading("a", -50.0)], "wifi"), k=4)
     assert fix is not None
-    assert fix.floor == 0
-    assert fix.neighbours.tolist() == [0, 1]
+    assert fix.floor == 1
+    assert fix.floor_prob > 0.5
+    assert np.exp(fix.floor_logp).sum() == pytest.approx(1.0)
+
+
+def test_a_floor_prior_outweighs_a_weak_scan() -> None:
+    m = make_map(
+        [(0.0, 0.0), (1.0, 0.0), (0.0, 0.0), (1.0, 0.0)],
+        [0, 0, 1, 1],
+        [[-50.0], [-52.0], [-53.0], [-55.0]],
+        ("wifi:a",),
+    )
+    scan = scan_vector(m, [RadioReading("a", -51.0)], "wifi")
+    alone = wknn(m, scan, k=2)
+    assert alone is not None
+    assert alone.floor == 0
+    prior = np.log(np.array([0.01, 0.99]))
+    held = wknn(m, scan, k=2, floor_log_prior=prior)
+    assert held is not None
+    assert held.floor == 1
+    assert held.floor_prob < 0.99  # the scan still pulled towards floor 0
+
+
+def test_too_few_emitters_give_no_fix() -> None:
+    m = grid_map()
+    scan = scan_vector(
+        m, [RadioReading(WIFI[0][5:], -50.0), RadioReading(WIFI[1][5:], -60.0)], "wifi"
+    )
+    assert wknn(m, scan, min_matched=3) is None
+    assert wknn(m, scan, min_matched=2) is not None
 
 
 def test_floor_choice_on_a_two_floor_building() -> None:
@@ -218,7 +247,7 @@ def test_fix_is_a_convex_combination_of_its_neighbours(rssi: list[float], k: int
     readings = [RadioReading(key[5:], v) for key, v in zip(WIFI, rssi, strict=True)]
     fix = wknn(m, scan_vector(m, readings, "wifi"), k=k)
     assert fix is not None
-    assert len(fix.neighbours) == min(k, 9)
+    assert len(fix.neighbours) >= min(k, 9)  # ties at the K-th distance all take part
     assert np.all(fix.weights > 0)
     assert fix.weights.sum() == pytest.approx(1.0)
     assert np.all(np.diff(fix.distances_db) >= 0)  # nearest first
@@ -228,8 +257,27 @@ def test_fix_is_a_convex_combination_of_its_neighbours(rssi: list[float], k: int
     assert fix.var_m2 >= 0.0
 
 
-def test_ties_at_the_kth_distance_go_to_the_lower_rp_index() -> None:
-    m = make_map(np.zeros((6, 2)), np.zeros(6), np.full((6, 1), -60.0), ("wifi:a",))
+def test_rps_tied_at_the_kth_distance_all_take_part() -> None:
+    xy = [(float(i), 2.0 * i) for i in range(6)]
+    m = make_map(xy, np.zeros(6), np.full((6, 1), -60.0), ("wifi:a",))
     fix = wknn(m, scan_vector(m, [RadioReading("a", -50.0)], "wifi"), k=3)
     assert fix is not None
-    assert fix.neighbours.tolist() == [0, 1, 2]
+    assert fix.neighbours.tolist() == [0, 1, 2, 3, 4, 5]
+    assert (fix.x_m, fix.y_m) == pytest.approx((2.5, 5.0))  # not the first three
+
+
+def test_window_ble_groups_rows_into_scans_with_mean_rssi() -> None:
+    rows = [
+        BleEvent(1000, (RadioReading("a", -70.0),)),
+        BleEvent(1500, (RadioReading("b", -80.0),)),
+        BleEvent(2900, (RadioReading("a", -60.0),)),
+        BleEvent(3100, (RadioReading("c", -90.0),)),  # more than 2 s after the first
+        BleEvent(9000, (RadioReading("a", -75.0),)),
+    ]
+    scans = window_ble(rows[::-1], window_ms=2000)
+    assert [s.t_ms for s in scans] == [2900, 3100, 9000]
+    assert {(r.emitter, r.rssi_dbm) for r in scans[0].readings} == {("a", -65.0), ("b", -80.0)}
+    assert [r.emitter for r in scans[1].readings] == ["c"]
+    assert window_ble([]) == []
+    with pytest.raises(ValueError, match="window_ms"):
+        window_ble(rows, window_ms=0)

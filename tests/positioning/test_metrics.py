@@ -14,6 +14,7 @@ from server.positioning.metrics import (
     ErrorReport,
     error_cdf,
     error_report,
+    ipin_score,
 )
 
 NAN = math.nan
@@ -200,3 +201,17 @@ def test_error_cdf() -> None:
     np.testing.assert_allclose(share, [1 / 3, 2 / 3, 1.0])
     errors, share = error_cdf([])
     assert errors.shape == share.shape == (0,)
+
+
+def test_ipin_score_by_hand() -> None:
+    # errors 0, 5, 1, (missing), 10; row 1 one floor off, row 4 two floors off
+    est_level = np.array([0, -1, 0, 0, 0])
+    true_level = np.array([0, 0, 0, 0, -2])
+    # 0, 20, 1, 40 sorted 0, 1, 20, 40: P75 at position 2.25
+    assert ipin_score(EST, TRUTH, est_level, true_level) == pytest.approx(20 + 0.25 * 20)
+    assert ipin_score(EST, TRUTH, est_level, true_level, floor_penalty_m=0.0) == pytest.approx(
+        full_report().p75_m
+    )
+    assert ipin_score(np.full((2, 2), NAN), np.zeros((2, 2)), [0, 0], [0, 0]) is None
+    with pytest.raises(ValueError, match="est_level"):
+        ipin_score(EST, TRUTH, est_level[:3], true_level)

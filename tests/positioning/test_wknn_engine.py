@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from server.positioning import fix_error
 from server.positioning.engines import ENGINES, get_engine
 from server.positioning.engines.base import FloorRef, SiteMaps
 from server.positioning.engines.step_ekf import StepEkfParams
@@ -92,17 +93,23 @@ def test_a_scan_equal_to_a_fingerprint_gives_that_rp_and_floor(rp: int) -> None:
     assert fix.t_ms == 100
     assert fix.source == "wifi"
     assert fix.heading_rad is None
-    # the exact match gets nearly all the weight: eq 17 spread ~0, so the floor of 4 m²
-    assert fix.cov == (4.0, 0.0, 0.0, 4.0)
+    # the variance is what a fix of six matched emitters is worth, not the eq 17 spread
+    var = fix_error.DEFAULT.variance("wifi", 6)
+    assert fix.cov == (var, 0.0, 0.0, var)
     assert fix.diagnostics["n_matched"] == 6.0
     assert fix.diagnostics["wknn_var_m2"] == pytest.approx(0.0, abs=1e-4)
-    assert state == WknnState(floor=fix.floor, n_fixes=1, last_t_ms=100)
+    assert (state.floor, state.n_fixes, state.last_t_ms) == (fix.floor, 1, 100)
+    assert state.floor_logp.shape == (2,)
+    assert np.exp(state.floor_logp[fix.floor]) == pytest.approx(fix.diagnostics["floor_prob"])
 
 
 @pytest.mark.parametrize(("rp", "floor"), [(0, 0), (17, 1)])
 def test_ble_scans_give_ble_fixes(rp: int, floor: int) -> None:
     assert MAPS.radio is not None
-    _, fixes = run_all([BleEvent(5, readings_of(MAPS.radio, rp, "ble"))])
+    scan = BleEvent(5, readings_of(MAPS.radio, rp, "ble"))
+    # two beacons are below the default evidence a fix needs
+    assert run_all([scan])[1] == []
+    _, fixes = run_all([scan], params=WknnParams(min_matched=1))
     assert len(fixes) == 1
     assert fixes[0].source == "ble"
     assert fixes[0].floor == floor
@@ -127,7 +134,7 @@ def test_fix_is_the_wknn_of_the_scan_with_the_variance_floor() -> None:
     _, fixes = run_all([WifiEvent(0, scan)], params=params)
     expected = wknn(MAPS.radio, scan_vector(MAPS.radio, scan, "wifi"), k=3)
     assert expected is not None
-    var = max(expected.var_m2, 0.01)
+    var = max(fix_error.DEFAULT.variance("wifi", 6), 0.01)
     assert (fixes[0].x_m, fixes[0].y_m, fixes[0].floor) == (
         expected.x_m,
         expected.y_m,
@@ -148,7 +155,7 @@ def test_one_fix_per_scan_in_time_order_other_events_ignored() -> None:
     state, fixes = run_all(events)
     assert [f.t_ms for f in fixes] == [100, 300]
     assert [f.floor for f in fixes] == [0, 1]
-    assert state == WknnState(floor=1, n_fixes=2, last_t_ms=300)
+    assert (state.floor, state.n_fixes, state.last_t_ms) == (1, 2, 300)
 
 
 def test_no_map_no_fixes() -> None:
@@ -168,12 +175,15 @@ def test_state_round_trips_through_arrays_and_batches_compose() -> None:
     params = WknnParams()
     state, first = run(initial_state(params), events[:2], MAPS, params, np.random.default_rng(1))
     arrays = state.to_arrays()
-    assert all(a.dtype == np.int64 and a.shape == () for a in arrays.values())
+    assert all(np.issubdtype(a.dtype, np.number) for a in arrays.values())
     restored = SPEC.from_arrays(arrays)
-    assert restored == state
+    assert restored.to_arrays().keys() == arrays.keys()
+    for key, value in restored.to_arrays().items():
+        np.testing.assert_array_equal(value, arrays[key])
     state, second = run(restored, events[2:], MAPS, params, np.random.default_rng(2))
     whole_state, whole = run_all(events)
-    assert state == whole_state == WknnState(floor=1, n_fixes=4, last_t_ms=400)
+    assert (state.floor, state.n_fixes, state.last_t_ms) == (1, 4, 400)
+    np.testing.assert_array_equal(state.floor_logp, whole_state.floor_logp)
     assert first + second == whole
 
 
@@ -181,7 +191,7 @@ def test_registered_in_engines() -> None:
     assert ENGINES["wknn"] is SPEC
     assert get_engine("wknn").name == "wknn"
     assert SPEC.params_type is WknnParams
-    assert SPEC.initial_state(WknnParams()) == WknnState()
+    assert SPEC.initial_state(WknnParams()).to_arrays().keys() == WknnState().to_arrays().keys()
     assert SPEC.uses == frozenset({"wifi", "ble"})
 
 
@@ -197,3 +207,36 @@ def test_defaults_match_step_ekf() -> None:
 def test_bad_params_are_refused(change: dict[str, Any]) -> None:
     with pytest.raises(ValueError, match=next(iter(change))):
         dataclasses.replace(WknnParams(), **change)
+
+
+def test_two_beacons_are_worth_far_less_than_a_hundred_access_points() -> None:
+    # a corridor 100 m long: 100 WiFi APs and 2 BLE beacons, RSS falling with distance
+    xy = np.column_stack([np.arange(100.0), np.zeros(100)])
+    aps = np.column_stack([np.arange(100.0), np.full(100, 3.0)])
+    beacons = np.array([[20.0, 0.0], [80.0, 0.0]])
+    spots = np.concatenate([aps, beacons])
+    d = np.hypot(xy[:, None, 0] - spots[None, :, 0], xy[:, None, 1] - spots[None, :, 1])
+    mean = -40.0 - 20.0 * np.log10(1.0 + d)
+    keys = (*tuple(f"wifi:ap{j}" for j in range(100)), "ble:b0", "ble:b1")
+    radio = RadioMap(
+        rp_xy=xy.astype(np.float32),
+        rp_floor=np.zeros(100, dtype=np.int32),
+        mean_dbm=mean.astype(np.float32),
+        var_db2=np.full(mean.shape, 4.0, dtype=np.float32),
+        count=np.ones(mean.shape, dtype=np.int32),
+        emitters=keys,
+    )
+    maps = SiteMaps(floors=(FloorRef("b", "f0", 0),), radio=radio, version="corridor")
+    rp = 50
+    wifi = WifiEvent(1, tuple(RadioReading(f"ap{j}", float(mean[rp, j])) for j in range(100)))
+    ble = BleEvent(
+        2, (RadioReading("b0", float(mean[rp, 100])), RadioReading("b1", float(mean[rp, 101])))
+    )
+    _, wifi_fixes = run_all([wifi], maps=maps)
+    assert len(wifi_fixes) == 1
+    # the default wants more than two emitters for a fix at all
+    assert run_all([ble], maps=maps)[1] == []
+    # allowed one anyway, the BLE fix claims a far larger uncertainty
+    _, ble_fixes = run_all([ble], maps=maps, params=WknnParams(min_matched=1))
+    assert len(ble_fixes) == 1
+    assert ble_fixes[0].uncertainty_m > 2.0 * wifi_fixes[0].uncertainty_m

@@ -14,8 +14,10 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from server.positioning import fix_error
 from server.positioning.events import Event, Fix
 from server.positioning.fingerprint import RadioMap
+from server.positioning.fix_error import FixErrorModel
 from server.positioning.floorplan import FloorPlan
 from server.positioning.magnetic import MagneticMap
 
@@ -56,6 +58,9 @@ class SiteMaps:
     # dB a device model reads above the map's common level (subtracted from its scans
     # before they reach an engine; services.device_offsets)
     device_offsets: Mapping[str, float] = field(default_factory=dict)
+    # how far a radio fix is from the truth by its evidence (learned from the map's
+    # training data where it was; fix_error.DEFAULT otherwise)
+    fix_error: FixErrorModel = fix_error.DEFAULT
 
 
 class EngineState(Protocol):

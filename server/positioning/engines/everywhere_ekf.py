@@ -78,9 +78,8 @@ _H_HEADING = np.array([[0.0, 0.0, 0.0, 1.0]])
 
 
 @dataclass(frozen=True)
-class EverywhereParams:
+class EverywhereParams(rf.RadioParams):
     tracker: TrackerParams = field(default_factory=TrackerParams)
-    k: int = 4  # neighbours of eq 11
     aid_distance_db_per_m: float = 1.0  # weight of ξ_Δd (eq 13) against the signal distance
     aid_heading_db_per_rad: float = 1.0  # weight of ξ_ΔH (eq 14)
     q_x_m2: float = 0.01  # the paper gives no values: papers/002_* eq 22
@@ -93,15 +92,14 @@ class EverywhereParams:
     r_anchor_heading_rad2: float = 0.001  # eq 21
     anchor_var_m2: float = 1.0
     anchor_min_steps: int = 5  # shorter walks between anchors calibrate nothing
-    min_fix_var_m2: float = 4.0  # as in step_ekf
     gate_chi2: float = 13.82  # chi2(2 dof), 99.9 %
     max_rejects: int = 6  # as in two_stage_ekf
 
     def __post_init__(self) -> None:
-        if self.k < 1 or self.max_rejects < 1 or self.anchor_min_steps < 1:
-            raise ValueError("k, max_rejects and anchor_min_steps must be at least 1")
+        self.check_radio()
+        if self.max_rejects < 1 or self.anchor_min_steps < 1:
+            raise ValueError("max_rejects and anchor_min_steps must be at least 1")
         rf.check_positive(
-            min_fix_var_m2=self.min_fix_var_m2,
             gate_chi2=self.gate_chi2,
             r_step_scale=self.r_step_scale,
             r_anchor_heading_rad2=self.r_anchor_heading_rad2,
@@ -133,6 +131,9 @@ class EverywhereState:
     anchor_steps: int  # steps since it
     anchor_walked_m: float  # uncorrected PDR distance since it
     anchor_straight: bool  # every step since it was straight walking
+    # the floor filter after its last scan (empty: none yet)
+    floor_logp: FloatArray = field(default_factory=lambda: rf.EMPTY)
+    floor_t_ms: int = 0  # time of that scan
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         out = {"trk." + k: v for k, v in self.tracker.to_arrays().items()}
@@ -151,6 +152,8 @@ class EverywhereState:
             anchor_steps=np.array(self.anchor_steps),
             anchor_walked_m=np.array(self.anchor_walked_m),
             anchor_straight=np.array(self.anchor_straight, dtype=np.int8),
+            floor_logp=self.floor_logp,
+            floor_t_ms=np.array(self.floor_t_ms),
         )
         return out
 
@@ -178,6 +181,8 @@ class EverywhereState:
             anchor_steps=int(arrays["anchor_steps"]),
             anchor_walked_m=float(arrays["anchor_walked_m"]),
             anchor_straight=bool(arrays["anchor_straight"]),
+            floor_logp=np.array(arrays.get("floor_logp", rf.EMPTY), dtype=np.float64),
+            floor_t_ms=int(arrays.get("floor_t_ms", 0)),
         )
 
 
@@ -202,7 +207,16 @@ def initial_state(params: EverywhereParams) -> EverywhereState:
 
 
 def _fix(state: EverywhereState, t_ms: int, source: str, diagnostics: dict[str, float]) -> Fix:
-    return rf.to_fix(state.x, state.P, state.floor, state.heading_known, t_ms, source, diagnostics)
+    return rf.to_fix(
+        state.x,
+        state.P,
+        state.floor,
+        state.heading_known,
+        t_ms,
+        source,
+        diagnostics,
+        state.floor_logp,
+    )
 
 
 def step_motion(x: FloatArray, length_m: float, turn_rad: float) -> tuple[FloatArray, FloatArray]:
@@ -287,27 +301,29 @@ def _on_scan(
         state, anchor_fix = _on_anchor(state, event, maps, params)
         if anchor_fix is not None:
             return state, anchor_fix
-    if maps.radio is None:
-        return state, None
-    start = rf.begin_scan(maps.radio, event, state, params)
-    if start is None:
+    start = rf.begin_scan(maps, event, state, params)
+    if start is None or maps.radio is None:
         return state, None
     m, diagnostics, rejects = start.matched, start.diagnostics, start.rejects
     whole = m.whole
-    state = replace(state, floor=whole.floor)
+    state = replace(state, floor=whole.floor, floor_logp=m.floor_logp, floor_t_ms=m.t_ms)
     if start.restart:
-        x, P = rf.place(state.x, state.P, whole, params.min_fix_var_m2)
+        x, P = rf.place(state.x, state.P, m)
         new = _remember_fp(replace(state, x=x, P=P, initialized=True, rejects=0), *_xy(whole))
         return new, _fix(new, m.t_ms, m.kind, diagnostics)
 
-    found = whole
+    used = m
     aided = state.straight and state.walked_m > 0.0 and not np.isnan(state.fp).any()
     if aided:
         penalty = aiding_penalty(maps.radio, state.fp, state.walked_m, params)
-        found = wknn(maps.radio, m.scan, k=params.k, penalty_db=penalty) or whole
+        used = rf.refined(m, wknn(maps.radio, m.scan, k=params.k, penalty_db=penalty))
         diagnostics["aided"] = 1.0
-    u = rf.position_update(state.x, state.P, found, params.min_fix_var_m2)
+    found = used.whole
+    u = rf.position_update(state.x, state.P, used)
     diagnostics["mahalanobis2"] = u.mahalanobis2
+    if u.mahalanobis2 > params.gate_chi2:
+        # outside the innovation gate: the fix is not used (begin_scan counts it)
+        return replace(state, rejects=rejects), None
     state = _remember_fp(replace(state, x=u.x, P=u.P, rejects=rejects), *_xy(found))
     return state, _fix(state, m.t_ms, m.kind, diagnostics)
 

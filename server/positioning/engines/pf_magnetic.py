@@ -45,7 +45,6 @@ from server.positioning import floorplan, magnetic, particle
 from server.positioning.engines import radio_fusion as rf
 from server.positioning.engines.base import EngineSpec, SiteMaps
 from server.positioning.events import BleEvent, Event, Fix, MagEvent, StepEvent, WifiEvent
-from server.positioning.fingerprint import scan_vector, wknn
 from server.positioning.step_tracker import (
     Scan,
     Step,
@@ -62,20 +61,21 @@ MAG_MAX_AGE_MS = 1000  # a mag event this much older than a step does not belong
 
 
 @dataclass(frozen=True)
-class PfMagneticParams:
+class PfMagneticParams(rf.RadioParams):
     particles: particle.ParticleParams = field(default_factory=particle.ParticleParams)
     tracker: TrackerParams = field(default_factory=TrackerParams)
     # or "dtw", the baseline of papers/001_* IV-B; "none" (an ablation) leaves the
     # magnetic field out: particles are weighted only by the walls
     weighting: str = "mass_centered"
-    k: int = 4  # WKNN neighbours of the starting fix
     reinit_distance_m: float = 20.0
     reinit_scans: int = 3
-    # not in Shao et al. (WiFi/BLE only starts the cloud there): with a positive value
-    # every later scan also weighs the particles by a Gaussian of this spread around its
-    # WKNN fix, and particles on another floor than the fix's by ``wifi_other_floor``
-    wifi_sd_m: float = 0.0
-    wifi_other_floor: float = 0.1
+    # not in Shao et al. (WiFi/BLE only starts the cloud there): every later scan also
+    # weighs the particles by a Gaussian around its WKNN fix whose variance is the fix's
+    # learned variance (fix_error) times ``radio_var_scale`` (0: no radio weighting), with
+    # a share ``radio_outlier`` of the likelihood flat, so that one fix on the wrong side
+    # of the building cannot empty the cloud
+    radio_var_scale: float = 1.0
+    radio_outlier: float = 0.05
     # move the cloud to the floor each scan votes for, keeping the particles' positions
     # (as the EKF engines do), rather than waiting for reinit_scans disagreeing scans: on
     # the inner validation split of ILC site2 the mean error fell from 51.1 m to 33.3 m
@@ -87,8 +87,13 @@ class PfMagneticParams:
             raise ValueError(
                 f"weighting must be mass_centered, dtw or none, got {self.weighting!r}"
             )
-        if self.k < 1 or self.reinit_scans < 1:
-            raise ValueError("k and reinit_scans must be at least 1")
+        self.check_radio()
+        if self.reinit_scans < 1:
+            raise ValueError("reinit_scans must be at least 1")
+        if not (math.isfinite(self.radio_var_scale) and self.radio_var_scale >= 0):
+            raise ValueError(f"radio_var_scale must be non-negative, got {self.radio_var_scale}")
+        if not 0 < self.radio_outlier < 1:
+            raise ValueError(f"radio_outlier must be between 0 and 1, got {self.radio_outlier}")
         if not (math.isfinite(self.reinit_distance_m) and self.reinit_distance_m > 0):
             raise ValueError(f"reinit_distance_m must be positive, got {self.reinit_distance_m}")
 
@@ -101,6 +106,9 @@ class PfMagneticState:
     mag_t_ms: float  # time of the last mag event (NaN: none)
     mag_ut: float  # its field strength
     heading_rad: float  # map-frame heading of the last step (NaN: none)
+    # the floor filter after its last scan (empty: none yet)
+    floor_logp: FloatArray = field(default_factory=lambda: rf.EMPTY)
+    floor_t_ms: int = 0  # time of that scan
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         out = {"trk." + k: v for k, v in self.tracker.to_arrays().items()}
@@ -109,6 +117,8 @@ class PfMagneticState:
         out.update(
             disagree=np.array(self.disagree),
             mag=np.array([self.mag_t_ms, self.mag_ut, self.heading_rad]),
+            floor_logp=self.floor_logp,
+            floor_t_ms=np.array(self.floor_t_ms),
         )
         return out
 
@@ -126,6 +136,8 @@ class PfMagneticState:
             mag_t_ms=float(mag[0]),
             mag_ut=float(mag[1]),
             heading_rad=float(mag[2]),
+            floor_logp=np.array(arrays.get("floor_logp", rf.EMPTY), dtype=np.float64),
+            floor_t_ms=int(arrays.get("floor_t_ms", 0)),
         )
 
 
@@ -271,14 +283,16 @@ def _on_scan(
     params: PfMagneticParams,
     rng: np.random.Generator,
 ) -> tuple[PfMagneticState, Fix | None]:
-    if maps.radio is None:
+    m = rf.match(maps, event, params, state.floor_logp, state.floor_t_ms)
+    if m is None:
         return state, None
-    kind = "wifi" if isinstance(event, WifiEvent) else "ble"
-    scan = scan_vector(maps.radio, event.readings, kind)
-    found = wknn(maps.radio, scan, k=params.k)
-    if found is None:
-        return state, None
-    diag = {"n_matched": float(scan.n_matched)}
+    kind, found = m.kind, m.whole
+    state = replace(state, floor_logp=m.floor_logp, floor_t_ms=m.t_ms)
+    diag = {
+        "n_matched": float(m.scan.n_matched),
+        "fix_var_m2": m.var_m2,
+        "floor_prob": found.floor_prob,
+    }
     if state.cloud is not None and params.follow_scan_floor:
         moved = _to_floor(state.cloud, found.floor, maps)
         state = replace(state, cloud=moved if particle.alive(moved) else None)
@@ -288,8 +302,8 @@ def _on_scan(
         disagree = state.disagree + 1 if far or est.floor != found.floor else 0
         if disagree < params.reinit_scans:
             cloud = state.cloud
-            if params.wifi_sd_m > 0:
-                cloud = _wifi_weights(cloud, found.x_m, found.y_m, found.floor, params, rng)
+            if params.radio_var_scale > 0:
+                cloud = _radio_weights(cloud, m, params, rng)
             new = replace(state, disagree=disagree, cloud=cloud)
             return new, _fix(cloud, event.t_ms, state.heading_rad, kind, diag)
         diag["reinitialised"] = 1.0
@@ -314,17 +328,16 @@ def _to_floor(cloud: particle.Particles, floor: int, maps: SiteMaps) -> particle
     return particle.reweight(moved, np.where(ok, 0.0, -np.inf))
 
 
-def _wifi_weights(
-    cloud: particle.Particles,
-    x_m: float,
-    y_m: float,
-    floor: int,
-    params: PfMagneticParams,
-    rng: np.random.Generator,
+def _radio_weights(
+    cloud: particle.Particles, m: rf.Matched, params: PfMagneticParams, rng: np.random.Generator
 ) -> particle.Particles:
-    d2 = np.sum((cloud.xy.astype(np.float64) - [x_m, y_m]) ** 2, axis=1)
-    ll = -0.5 * d2 / params.wifi_sd_m**2 + np.where(
-        cloud.floor == floor, 0.0, math.log(params.wifi_other_floor)
+    """Particles weighed by the scan's fix: a Gaussian of the fix's variance (scaled by
+    ``radio_var_scale``) mixed with a flat share ``radio_outlier``. The cloud is on the
+    floor filter's floor already (``_to_floor``)."""
+    var = m.var_m2 * params.radio_var_scale
+    d2 = np.sum((cloud.xy.astype(np.float64) - [m.whole.x_m, m.whole.y_m]) ** 2, axis=1)
+    ll = np.logaddexp(
+        -0.5 * d2 / var + math.log1p(-params.radio_outlier), math.log(params.radio_outlier)
     )
     cloud = particle.reweight(cloud, ll)
     if not particle.alive(cloud):

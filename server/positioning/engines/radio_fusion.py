@@ -22,15 +22,16 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Protocol, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 
+from server.positioning import floor_filter
 from server.positioning.engines.base import SiteMaps
 from server.positioning.events import Fix, WifiEvent
-from server.positioning.fingerprint import RadioMap, ScanVector, WknnFix, scan_vector, wknn
+from server.positioning.fingerprint import ScanVector, WknnFix, scan_vector, wknn
 from server.positioning.kalman import Update, update, wrap_angle
 from server.positioning.step_tracker import Scan, Step
 
@@ -41,58 +42,121 @@ S = TypeVar("S")
 H_POSITION = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]])
 
 
+EMPTY = np.zeros(0)
+
+
+@dataclass(frozen=True)
+class RadioParams:
+    """What every engine that matches scans shares: WKNN, the evidence a fix needs, the
+    floor filter (``floor_filter``) and the floor under the fix variance."""
+
+    k: int = 4  # WKNN neighbours K, papers/002_* eq 3
+    # scans that match fewer map emitters give no fix: one or two beacons tie with
+    # hundreds of reference points all over the building
+    min_matched: int = 3
+    floor_sd_db: float = 8.0  # RSS error per emitter in the floor likelihood (fingerprint)
+    floor_max_emitters: int = 10  # matched emitters counted as independent votes, at most
+    floor_change_per_s: float = 0.01  # floor filter: floor changes per second
+    # floor under the learned fix variance (fix_error): a fix is never trusted to 2 m
+    min_fix_var_m2: float = 4.0
+
+    def check_radio(self) -> None:
+        """Raise ValueError naming the first radio parameter out of range."""
+        if self.k < 1:
+            raise ValueError(f"k must be at least 1, got {self.k}")
+        if self.min_matched < 1:
+            raise ValueError(f"min_matched must be at least 1, got {self.min_matched}")
+        if self.floor_max_emitters < 1:
+            raise ValueError(
+                f"floor_max_emitters must be at least 1, got {self.floor_max_emitters}"
+            )
+        if not (math.isfinite(self.floor_change_per_s) and self.floor_change_per_s >= 0):
+            raise ValueError(
+                f"floor_change_per_s must be non-negative and finite, got {self.floor_change_per_s}"
+            )
+        check_positive(floor_sd_db=self.floor_sd_db, min_fix_var_m2=self.min_fix_var_m2)
+
+
 @dataclass(frozen=True)
 class Matched:
-    """A scan laid over the map and its whole-map WKNN fix."""
+    """A scan laid over the map, its whole-map WKNN fix (floor chosen with the floor
+    filter's prediction) and the fix's variance from its evidence."""
 
     t_ms: int
     kind: str
     scan: ScanVector
     whole: WknnFix
+    var_m2: float
+
+    @property
+    def floor_logp(self) -> FloatArray:
+        """The floor filter after this scan."""
+        return self.whole.floor_logp
 
 
-def match(radio: RadioMap, event: Scan, k: int) -> Matched | None:
-    """None when no map column was heard or no reference point shares an emitter."""
-    kind = "wifi" if isinstance(event, WifiEvent) else "ble"
-    scan = scan_vector(radio, event.readings, kind)
-    whole = wknn(radio, scan, k=k)
-    return None if whole is None else Matched(event.t_ms, kind, scan, whole)
+def scan_kind(event: Scan) -> str:
+    return "wifi" if isinstance(event, WifiEvent) else "ble"
 
 
-def fix_variance(found: WknnFix, min_fix_var_m2: float) -> float:
-    """``papers/003_*`` eq 17 with a floor (see ``step_ekf`` for why a floor)."""
-    return max(found.var_m2, min_fix_var_m2)
+def match(
+    maps: SiteMaps,
+    event: Scan,
+    params: EvidenceParams,
+    floor_logp: FloatArray = EMPTY,
+    floor_t_ms: int = 0,
+) -> Matched | None:
+    """Match a scan on the whole map, the floor filtered from ``floor_logp`` (the floor
+    filter after its last scan at ``floor_t_ms``; empty: nothing known). None when there
+    is no map, the scan matched fewer than ``min_matched`` map columns or no reference
+    point shares an emitter with it."""
+    if maps.radio is None:
+        return None
+    kind = scan_kind(event)
+    scan = scan_vector(maps.radio, event.readings, kind)
+    whole = wknn(
+        maps.radio,
+        scan,
+        k=params.k,
+        floor_log_prior=floor_filter.prior(
+            floor_logp, floor_t_ms, event.t_ms, params.floor_change_per_s
+        ),
+        floor_sd_db=params.floor_sd_db,
+        floor_max_emitters=params.floor_max_emitters,
+        min_matched=params.min_matched,
+    )
+    if whole is None:
+        return None
+    var = max(maps.fix_error.variance(kind, scan.n_matched), params.min_fix_var_m2)
+    return Matched(event.t_ms, kind, scan, whole, var)
 
 
-def position_update(x: FloatArray, P: FloatArray, found: WknnFix, min_fix_var_m2: float) -> Update:
-    var = fix_variance(found, min_fix_var_m2)
-    return update(x, P, z=[found.x_m, found.y_m], H=H_POSITION, R=var * np.eye(2))
+def refined(m: Matched, found: WknnFix | None) -> Matched:
+    """The match with another fix of the same scan (a partition's, an aided one's), on
+    the floor the whole-map match chose; the whole-map fix when there is none."""
+    if found is None:
+        return m
+    return replace(m, whole=replace(found, floor=m.whole.floor, floor_logp=m.whole.floor_logp))
 
 
-def rejects_after(
-    x: FloatArray,
-    P: FloatArray,
-    whole: WknnFix,
-    rejects: int,
-    min_fix_var_m2: float,
-    gate_chi2: float,
-) -> int:
+def position_update(x: FloatArray, P: FloatArray, m: Matched) -> Update:
+    return update(x, P, z=[m.whole.x_m, m.whole.y_m], H=H_POSITION, R=m.var_m2 * np.eye(2))
+
+
+def rejects_after(x: FloatArray, P: FloatArray, m: Matched, rejects: int, gate_chi2: float) -> int:
     """Consecutive whole-map fixes outside the gate, counting this one."""
-    check = position_update(x, P, whole, min_fix_var_m2)
+    check = position_update(x, P, m)
     return rejects + 1 if check.mahalanobis2 > gate_chi2 else 0
 
 
-def place(
-    x: FloatArray, P: FloatArray, found: WknnFix, min_fix_var_m2: float
-) -> tuple[FloatArray, FloatArray]:
+def place(x: FloatArray, P: FloatArray, m: Matched) -> tuple[FloatArray, FloatArray]:
     """The state moved onto a fix: position and its variance replaced, its correlation
     with the other states dropped, the other states kept."""
     x = x.copy()
     P = P.copy()
-    x[:2] = found.x_m, found.y_m
+    x[:2] = m.whole.x_m, m.whole.y_m
     P[:2, :] = 0.0
     P[:, :2] = 0.0
-    P[0, 0] = P[1, 1] = fix_variance(found, min_fix_var_m2)
+    P[0, 0] = P[1, 1] = m.var_m2
     return x, P
 
 
@@ -125,8 +189,11 @@ def to_fix(
     t_ms: int,
     source: str,
     diagnostics: dict[str, float],
+    floor_logp: FloatArray = EMPTY,
 ) -> Fix:
     c = P[:2, :2]
+    if 0 <= floor < floor_logp.shape[0]:
+        diagnostics = {**diagnostics, "floor_prob": float(np.exp(floor_logp[floor]))}
     return Fix(
         t_ms=t_ms,
         x_m=float(x[0]),
@@ -205,15 +272,32 @@ class FilterState(Protocol):
     def initialized(self) -> bool: ...
     @property
     def rejects(self) -> int: ...
+    @property
+    def floor_logp(self) -> FloatArray: ...
+    @property
+    def floor_t_ms(self) -> int: ...
 
 
-class ScanParams(Protocol):
-    """The parameters of a PDR fusion engine that the scan start reads."""
+class EvidenceParams(Protocol):
+    """The parameters ``match`` reads (``RadioParams`` has them)."""
 
     @property
     def k(self) -> int: ...
     @property
+    def min_matched(self) -> int: ...
+    @property
+    def floor_sd_db(self) -> float: ...
+    @property
+    def floor_max_emitters(self) -> int: ...
+    @property
+    def floor_change_per_s(self) -> float: ...
+    @property
     def min_fix_var_m2(self) -> float: ...
+
+
+class ScanParams(EvidenceParams, Protocol):
+    """The parameters of a PDR fusion engine that the scan start reads."""
+
     @property
     def gate_chi2(self) -> float: ...
     @property
@@ -221,21 +305,20 @@ class ScanParams(Protocol):
 
 
 def begin_scan(
-    radio: RadioMap, event: Scan, state: FilterState, params: ScanParams
+    maps: SiteMaps, event: Scan, state: FilterState, params: ScanParams
 ) -> ScanStart | None:
     """Match the scan on the whole map and decide floor and restart; None when it
-    matches nothing. The new floor is ``matched.whole.floor``."""
-    m = match(radio, event, params.k)
+    matches nothing. The new floor is ``matched.whole.floor``, the floor filter after
+    the scan ``matched.floor_logp``."""
+    m = match(maps, event, params, state.floor_logp, state.floor_t_ms)
     if m is None:
         return None
-    diagnostics = {"n_matched": float(m.scan.n_matched)}
+    diagnostics = {"n_matched": float(m.scan.n_matched), "fix_var_m2": m.var_m2}
     if state.initialized and m.whole.floor != state.floor:
         diagnostics["floor_change"] = 1.0
     if not state.initialized:
         return ScanStart(m, diagnostics, 0, True)
-    rejects = rejects_after(
-        state.x, state.P, m.whole, state.rejects, params.min_fix_var_m2, params.gate_chi2
-    )
+    rejects = rejects_after(state.x, state.P, m, state.rejects, params.gate_chi2)
     if rejects >= params.max_rejects:
         diagnostics["reinitialised"] = 1.0
         return ScanStart(m, diagnostics, 0, True)

@@ -53,14 +53,15 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
+from server.positioning.engines import radio_fusion as rf
 from server.positioning.engines.base import EngineSpec, SiteMaps
 from server.positioning.events import BleEvent, Event, Fix, StepEvent, WifiEvent
-from server.positioning.fingerprint import WknnFix, scan_vector, wknn
+from server.positioning.fingerprint import WknnFix
 from server.positioning.kalman import predict_ekf, update, wrap_angle
 
 FloatArray = NDArray[np.float64]
@@ -70,10 +71,9 @@ _H_STEP = np.array([[0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
 
 
 @dataclass(frozen=True)
-class StepEkfParams:
+class StepEkfParams(rf.RadioParams):
     """Parameters of the ``step_ekf`` engine (paper defaults where the paper gives one)."""
 
-    k: int = 4  # WKNN neighbours K, papers/002_* eq 3
     q_x_m2: float = 0.01  # process noise on x per step, papers/002_* eq 22
     q_y_m2: float = 0.01  # process noise on y per step, papers/002_* eq 22
     q_step_m2: float = 0.0001  # process noise on S per step, papers/002_* eq 22
@@ -84,16 +84,11 @@ class StepEkfParams:
     initial_step_m: float = 0.7  # initial S (papers/002_* eq 19 starts at 0.6 m)
     r_step_m2: float = 0.01  # variance of the phone's step length (replaces eq 25 R2)
     r_heading_rad2: float = math.radians(10.0) ** 2  # phone heading variance (replaces eq 25)
-    # floor under the WKNN spread of papers/003_* eq 17, whose value is in metres rather
-    # than m² and runs small: with 1.0 the 1-σ circle held 17 % of errors on the synthetic
-    # test building (ideal 39 %), with 4.0 it held 43 %; choose per venue when evaluated
-    min_fix_var_m2: float = 4.0
     gate_chi2: float = 13.82  # innovation gate on WiFi/BLE positions: chi2(2 dof), 99.9 %
     max_rejects: int = 3  # consecutive gated fixes before re-initialising at the fix
 
     def __post_init__(self) -> None:
-        if self.k < 1:
-            raise ValueError(f"k must be at least 1, got {self.k}")
+        self.check_radio()
         if self.max_rejects < 1:
             raise ValueError(f"max_rejects must be at least 1, got {self.max_rejects}")
         variances = {
@@ -106,7 +101,6 @@ class StepEkfParams:
             "p0_heading_unknown_rad2": self.p0_heading_unknown_rad2,
             "r_step_m2": self.r_step_m2,
             "r_heading_rad2": self.r_heading_rad2,
-            "min_fix_var_m2": self.min_fix_var_m2,
             "gate_chi2": self.gate_chi2,
         }
         for name, value in variances.items():
@@ -149,6 +143,9 @@ class StepEkfState:
     last_t_ms: int
     last_step_heading_rad: float
     rejects: int
+    # the floor filter after its last scan (empty: none yet)
+    floor_logp: FloatArray = field(default_factory=lambda: rf.EMPTY)
+    floor_t_ms: int = 0  # time of that scan
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         """Flat numeric arrays (scalars as 0-d arrays); ``from_arrays`` inverts exactly."""
@@ -160,6 +157,8 @@ class StepEkfState:
             "last_t_ms": np.array(self.last_t_ms, dtype=np.int64),
             "last_step_heading_rad": np.array(self.last_step_heading_rad, dtype=np.float64),
             "rejects": np.array(self.rejects, dtype=np.int64),
+            "floor_logp": np.array(self.floor_logp, dtype=np.float64),
+            "floor_t_ms": np.array(self.floor_t_ms, dtype=np.int64),
         }
 
     @classmethod
@@ -185,6 +184,8 @@ class StepEkfState:
             last_t_ms=int(arrays["last_t_ms"]),
             last_step_heading_rad=float(arrays["last_step_heading_rad"]),
             rejects=int(arrays["rejects"]),
+            floor_logp=np.array(arrays.get("floor_logp", rf.EMPTY), dtype=np.float64),
+            floor_t_ms=int(arrays.get("floor_t_ms", 0)),
         )
 
 
@@ -216,16 +217,8 @@ def _step_residual(z: FloatArray, z_pred: FloatArray) -> FloatArray:
 
 def _fix(state: StepEkfState, t_ms: int, source: str, diagnostics: dict[str, float]) -> Fix:
     heading_known = not math.isnan(state.last_step_heading_rad)
-    c = state.P[:2, :2]
-    return Fix(
-        t_ms=t_ms,
-        x_m=float(state.x[0]),
-        y_m=float(state.x[1]),
-        floor=state.floor,
-        heading_rad=float(state.x[3]) if heading_known else None,
-        cov=(float(c[0, 0]), float(c[0, 1]), float(c[1, 0]), float(c[1, 1])),
-        source=source,
-        diagnostics=diagnostics,
+    return rf.to_fix(
+        state.x, state.P, state.floor, heading_known, t_ms, source, diagnostics, state.floor_logp
     )
 
 
@@ -310,14 +303,12 @@ def _on_scan(
     maps: SiteMaps,
     params: StepEkfParams,
 ) -> tuple[StepEkfState, Fix | None]:
-    if maps.radio is None:
+    m = rf.match(maps, event, params, state.floor_logp, state.floor_t_ms)
+    if m is None:
         return replace(state, last_t_ms=event.t_ms), None
-    scan = scan_vector(maps.radio, event.readings, kind)
-    found = wknn(maps.radio, scan, k=params.k)
-    if found is None:
-        return replace(state, last_t_ms=event.t_ms), None
-    var_m2 = max(found.var_m2, params.min_fix_var_m2)
-    diagnostics = {"wknn_var_m2": found.var_m2, "n_matched": float(scan.n_matched)}
+    found, var_m2 = m.whole, m.var_m2
+    state = replace(state, floor_logp=m.floor_logp, floor_t_ms=m.t_ms)
+    diagnostics = {"fix_var_m2": var_m2, "n_matched": float(m.scan.n_matched)}
 
     if not state.initialized or found.floor != state.floor:
         if state.initialized:

@@ -74,9 +74,8 @@ def _cui_tracker() -> TrackerParams:
 
 
 @dataclass(frozen=True)
-class TwoStageParams:
+class TwoStageParams(rf.RadioParams):
     tracker: TrackerParams = field(default_factory=_cui_tracker)
-    k: int = 4  # WKNN neighbours, papers/002_* eq 3
     partition_radius_m: float = 2.5  # papers/002_* section 4.1
     q_x_m2: float = 0.01  # papers/002_* eq 22
     q_y_m2: float = 0.01
@@ -89,18 +88,17 @@ class TwoStageParams:
     p0_north_heading_rad2: float = math.radians(20.0) ** 2  # psi from the phone's compass
     heading_fixes: int = 4  # papers/002_* section 4.2
     min_heading_span_m: float = 3.0
-    min_fix_var_m2: float = 4.0  # as in step_ekf
     gate_chi2: float = 13.82  # chi2(2 dof), 99.9 %
     # whole-map fixes outside the gate in a row before restarting there; 6 rather than
     # 3 on the inner validation split of ILC site2 (mean error 38.5 m against 39.6 m)
     max_rejects: int = 6
 
     def __post_init__(self) -> None:
-        if self.k < 1 or self.max_rejects < 1 or self.heading_fixes < 2:
-            raise ValueError("k and max_rejects must be >= 1 and heading_fixes >= 2")
+        self.check_radio()
+        if self.max_rejects < 1 or self.heading_fixes < 2:
+            raise ValueError("max_rejects must be >= 1 and heading_fixes >= 2")
         rf.check_positive(
             partition_radius_m=self.partition_radius_m,
-            min_fix_var_m2=self.min_fix_var_m2,
             gate_chi2=self.gate_chi2,
             r_step_m2=self.r_step_m2,
             r_wifi_heading_rad2=self.r_wifi_heading_rad2,
@@ -124,6 +122,9 @@ class TwoStageState:
     rejects: int
     fixes: FloatArray  # (heading_fixes, 3) [t_ms, x, y] of recent WKNN positions, NaN-padded
     turn_t_ms: float  # time of the last step that was not straight walking
+    # the floor filter after its last scan (empty: none yet)
+    floor_logp: FloatArray = field(default_factory=lambda: rf.EMPTY)
+    floor_t_ms: int = 0  # time of that scan
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         out = {"trk." + k: v for k, v in self.tracker.to_arrays().items()}
@@ -137,6 +138,8 @@ class TwoStageState:
             rejects=np.array(self.rejects),
             fixes=self.fixes,
             turn_t_ms=np.array(self.turn_t_ms),
+            floor_logp=self.floor_logp,
+            floor_t_ms=np.array(self.floor_t_ms),
         )
         return out
 
@@ -158,6 +161,8 @@ class TwoStageState:
             rejects=int(arrays["rejects"]),
             fixes=np.array(arrays["fixes"], dtype=np.float64),
             turn_t_ms=float(arrays["turn_t_ms"]),
+            floor_logp=np.array(arrays.get("floor_logp", rf.EMPTY), dtype=np.float64),
+            floor_t_ms=int(arrays.get("floor_t_ms", 0)),
         )
 
 
@@ -177,7 +182,16 @@ def initial_state(params: TwoStageParams) -> TwoStageState:
 
 
 def _fix(state: TwoStageState, t_ms: int, source: str, diagnostics: dict[str, float]) -> Fix:
-    return rf.to_fix(state.x, state.P, state.floor, state.heading_known, t_ms, source, diagnostics)
+    return rf.to_fix(
+        state.x,
+        state.P,
+        state.floor,
+        state.heading_known,
+        t_ms,
+        source,
+        diagnostics,
+        state.floor_logp,
+    )
 
 
 def step_motion(x: FloatArray, turn_rad: float) -> tuple[FloatArray, FloatArray]:
@@ -259,26 +273,26 @@ def _remember(state: TwoStageState, t_ms: int, x_m: float, y_m: float) -> TwoSta
 def _on_scan(
     state: TwoStageState, event: Scan, maps: SiteMaps, params: TwoStageParams
 ) -> tuple[TwoStageState, Fix | None]:
-    if maps.radio is None:
-        return state, None
-    start = rf.begin_scan(maps.radio, event, state, params)
-    if start is None:
+    start = rf.begin_scan(maps, event, state, params)
+    if start is None or maps.radio is None:
         return state, None
     m, diagnostics, rejects = start.matched, start.diagnostics, start.rejects
     whole = m.whole
-    state = replace(state, floor=whole.floor)
+    state = replace(state, floor=whole.floor, floor_logp=m.floor_logp, floor_t_ms=m.t_ms)
     if start.restart:
-        x, P = rf.place(state.x, state.P, whole, params.min_fix_var_m2)
+        x, P = rf.place(state.x, state.P, m)
         new = replace(state, x=x, P=P, initialized=True, rejects=0)
         new = _remember(new, m.t_ms, whole.x_m, whole.y_m)
         return new, _fix(new, m.t_ms, m.kind, diagnostics)
 
     near = _partition(maps, state.x, params.partition_radius_m)
-    found = wknn(maps.radio, m.scan, k=params.k, candidates=near)
-    diagnostics["partition"] = 1.0 if found is not None else 0.0
-    found = found or whole
-    u = rf.position_update(state.x, state.P, found, params.min_fix_var_m2)
+    in_partition = wknn(maps.radio, m.scan, k=params.k, candidates=near)
+    diagnostics["partition"] = 1.0 if in_partition is not None else 0.0
+    u = rf.position_update(state.x, state.P, rf.refined(m, in_partition))
     diagnostics["mahalanobis2"] = u.mahalanobis2
+    if u.mahalanobis2 > params.gate_chi2:
+        # outside the innovation gate: the fix is not used (begin_scan counts it)
+        return replace(state, rejects=rejects), None
     state = replace(state, x=u.x, P=u.P, rejects=rejects)
     state = _remember(state, m.t_ms, whole.x_m, whole.y_m)
 

@@ -18,33 +18,23 @@ magnetometer events are ignored, so fixes carry no heading. A scan that matches 
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
+from numpy.typing import NDArray
 
+from server.positioning.engines import radio_fusion as rf
 from server.positioning.engines.base import EngineSpec, SiteMaps
 from server.positioning.events import BleEvent, Event, Fix, WifiEvent
-from server.positioning.fingerprint import scan_vector, wknn
 
 
 @dataclass(frozen=True)
-class WknnParams:
-    """Parameters of the ``wknn`` engine."""
-
-    k: int = 4  # WKNN neighbours K, papers/002_* eq 3 (as step_ekf)
-    # floor under the papers/003_* eq 17 spread, the same value as step_ekf's
-    # min_fix_var_m2 so that both engines' fixes claim the same uncertainty for a scan
-    min_fix_var_m2: float = 4.0
+class WknnParams(rf.RadioParams):
+    """Parameters of the ``wknn`` engine: those every scan-matching engine shares."""
 
     def __post_init__(self) -> None:
-        if self.k < 1:
-            raise ValueError(f"k must be at least 1, got {self.k}")
-        if not (math.isfinite(self.min_fix_var_m2) and self.min_fix_var_m2 > 0):
-            raise ValueError(
-                f"min_fix_var_m2 must be positive and finite, got {self.min_fix_var_m2}"
-            )
+        self.check_radio()
 
 
 @dataclass(frozen=True)
@@ -64,6 +54,8 @@ class WknnState:
     floor: int = -1
     n_fixes: int = 0
     last_t_ms: int = 0
+    floor_logp: NDArray[np.float64] = field(default_factory=lambda: rf.EMPTY)  # floor filter
+    floor_t_ms: int = 0  # time of that scan
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         """Flat numeric arrays (0-d int64); ``from_arrays`` inverts exactly."""
@@ -71,6 +63,8 @@ class WknnState:
             "floor": np.array(self.floor, dtype=np.int64),
             "n_fixes": np.array(self.n_fixes, dtype=np.int64),
             "last_t_ms": np.array(self.last_t_ms, dtype=np.int64),
+            "floor_logp": np.array(self.floor_logp, dtype=np.float64),
+            "floor_t_ms": np.array(self.floor_t_ms, dtype=np.int64),
         }
 
     @classmethod
@@ -86,6 +80,8 @@ class WknnState:
             floor=int(arrays["floor"]),
             n_fixes=int(arrays["n_fixes"]),
             last_t_ms=int(arrays["last_t_ms"]),
+            floor_logp=np.array(arrays.get("floor_logp", rf.EMPTY), dtype=np.float64),
+            floor_t_ms=int(arrays.get("floor_t_ms", 0)),
         )
 
 
@@ -96,25 +92,35 @@ def initial_state(params: WknnParams) -> WknnState:
 
 
 def _locate(
-    event: WifiEvent | BleEvent, kind: str, maps: SiteMaps, params: WknnParams
-) -> Fix | None:
-    if maps.radio is None:
-        return None
-    scan = scan_vector(maps.radio, event.readings, kind)
-    found = wknn(maps.radio, scan, k=params.k)
-    if found is None:
-        return None
-    var_m2 = max(found.var_m2, params.min_fix_var_m2)
-    return Fix(
+    event: WifiEvent | BleEvent, state: WknnState, maps: SiteMaps, params: WknnParams
+) -> tuple[WknnState, Fix | None]:
+    m = rf.match(maps, event, params, state.floor_logp, state.floor_t_ms)
+    if m is None:
+        return replace(state, last_t_ms=event.t_ms), None
+    found = m.whole
+    fix = Fix(
         t_ms=event.t_ms,
         x_m=found.x_m,
         y_m=found.y_m,
         floor=found.floor,
         heading_rad=None,
-        cov=(var_m2, 0.0, 0.0, var_m2),
-        source=kind,
-        diagnostics={"n_matched": float(scan.n_matched), "wknn_var_m2": found.var_m2},
+        cov=(m.var_m2, 0.0, 0.0, m.var_m2),
+        source=m.kind,
+        diagnostics={
+            "n_matched": float(m.scan.n_matched),
+            "wknn_var_m2": found.var_m2,
+            "floor_prob": found.floor_prob,
+        },
     )
+    new = replace(
+        state,
+        floor=found.floor,
+        n_fixes=state.n_fixes + 1,
+        last_t_ms=event.t_ms,
+        floor_logp=m.floor_logp,
+        floor_t_ms=event.t_ms,
+    )
+    return new, fix
 
 
 def run(
@@ -146,19 +152,12 @@ def run(
     """
     del rng  # engines share one signature; this one draws no random numbers
     fixes: list[Fix] = []
-    floor, last_t_ms = state.floor, state.last_t_ms
     for event in sorted(events, key=lambda e: e.t_ms):
-        if isinstance(event, WifiEvent):
-            fix = _locate(event, "wifi", maps, params)
-        elif isinstance(event, BleEvent):
-            fix = _locate(event, "ble", maps, params)
-        else:
-            continue
-        last_t_ms = event.t_ms
-        if fix is not None:
-            fixes.append(fix)
-            floor = fix.floor
-    new = WknnState(floor=floor, n_fixes=state.n_fixes + len(fixes), last_t_ms=last_t_ms)
+        if isinstance(event, WifiEvent | BleEvent):
+            state, fix = _locate(event, state, maps, params)
+            if fix is not None:
+                fixes.append(fix)
+    new = state
     return new, fixes
 
 

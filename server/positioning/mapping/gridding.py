@@ -68,7 +68,9 @@ def build_radio_map(
     """
     xy = np.asarray(xy_m, dtype=np.float64)
     fl = np.asarray(floor)
-    rssi = np.asarray(rssi_dbm, dtype=np.float64)
+    rssi = np.asarray(rssi_dbm)
+    if not np.issubdtype(rssi.dtype, np.floating):
+        rssi = rssi.astype(np.float64)
     n_em = len(emitters)
     if xy.ndim != 2 or xy.shape[1] != 2:
         raise ValueError(f"xy_m must have shape (n, 2), got {xy.shape}")
@@ -97,29 +99,35 @@ def build_radio_map(
         [np.bincount(inverse, weights=xy[:, d], minlength=n_rp) / n_points for d in (0, 1)]
     ).reshape(n_rp, 2)
 
-    heard = np.isfinite(rssi)
-    value = np.where(heard, rssi, 0.0)
-    count = np.zeros((n_rp, n_em), dtype=np.int64)
-    total = np.zeros((n_rp, n_em), dtype=np.float64)
-    np.add.at(count, inverse, heard.astype(np.int64))
-    np.add.at(total, inverse, value)
-    mean = np.divide(total, count, out=np.full_like(total, MISSING_DBM), where=count > 0)
-
+    # statistics over the heard entries only (a scan hears a few dozen of thousands of
+    # columns): no dense float64 temporaries of the whole (n, n_em) matrix
+    point, column = np.nonzero(np.isfinite(rssi))
+    value = rssi[point, column].astype(np.float64)
+    entry, at = np.unique(inverse[point] * n_em + column, return_inverse=True)
+    at = at.ravel()
+    n_heard = np.bincount(at, minlength=entry.size).astype(np.float64)
+    entry_mean = np.bincount(at, weights=value, minlength=entry.size).astype(np.float64) / n_heard
     # two-pass variance: squared deviations from the cell mean
-    deviation = np.where(heard, rssi - mean[inverse], 0.0)
-    squares = np.zeros((n_rp, n_em), dtype=np.float64)
-    np.add.at(squares, inverse, deviation**2)
-    var = np.divide(
-        squares, count - 1, out=np.full_like(squares, default_var_db2), where=count >= 2
+    squares = np.bincount(at, weights=(value - entry_mean[at]) ** 2, minlength=entry.size)
+    squares = squares.astype(np.float64)
+    entry_var = np.divide(
+        squares, n_heard - 1, out=np.full_like(squares, default_var_db2), where=n_heard >= 2
     )
-    var = np.where(count > 0, np.maximum(var, min_var_db2), 0.0)
+    entry_var = np.maximum(entry_var, min_var_db2)
+
+    count = np.zeros(n_rp * n_em, dtype=np.int32)
+    mean = np.full(n_rp * n_em, MISSING_DBM, dtype=np.float32)
+    var = np.zeros(n_rp * n_em, dtype=np.float32)
+    count[entry] = n_heard
+    mean[entry] = entry_mean
+    var[entry] = entry_var
 
     return RadioMap(
         rp_xy=_inside_cells(rp_xy, keys, cell_m),
         rp_floor=keys[:, 0].astype(np.int32),
-        mean_dbm=mean.astype(np.float32),
-        var_db2=var.astype(np.float32),
-        count=count.astype(np.int32),
+        mean_dbm=mean.reshape(n_rp, n_em),
+        var_db2=var.reshape(n_rp, n_em),
+        count=count.reshape(n_rp, n_em),
         emitters=tuple(emitters),
         rp_points=n_points.astype(np.int32),
     )
@@ -220,9 +228,9 @@ def fold_radio_maps(
     return RadioMap(
         rp_xy=_inside_cells(rp_xy, keys, cell_m),
         rp_floor=keys[:, 0].astype(np.int32),
-        mean_dbm=mean.astype(np.float32),
-        var_db2=var.astype(np.float32),
-        count=count.astype(np.int32),
+        mean_dbm=mean.reshape(n_rp, n_em),
+        var_db2=var.reshape(n_rp, n_em),
+        count=count.reshape(n_rp, n_em),
         emitters=emitters,
         rp_points=points.astype(np.int32),
     )

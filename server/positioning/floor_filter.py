@@ -1,0 +1,66 @@
+"""The floor as an estimate of its own: a hidden Markov model over the site's floors.
+
+A single scan's floor vote is often wrong (on ILC site2 the upper floors' scans voted
+for another floor in long runs: every engine then had per-scan WKNN's floor hit rate).
+The floor is therefore filtered over time, as a discrete Bayes filter over the floor
+indices ``f = 0 .. n-1``:
+
+* prediction over ``dt`` seconds: a person changes floor rarely, and to any floor
+  alike (the map does not say where stairs and lifts are); after a long gap nothing is
+  known any more::
+
+      p'(f) = (1 - eps) p(f) + eps / n,   eps = 1 - exp(-rate * dt)
+
+* update by a scan: ``p(f | scan) ∝ p'(f) L(scan | f)``, ``L`` from the scan's signal
+  distances to each floor's reference points (``fingerprint.floor_log_likelihood``, the
+  Gaussian RSS likelihood of ``papers/000_*`` eq 10-11 per floor); done inside
+  ``fingerprint.wknn`` given the prediction as ``floor_log_prior``.
+
+Log-probabilities are kept, normalised; an empty array means "nothing known yet" (a flat
+prior).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.special import logsumexp
+
+FloatArray = NDArray[np.float64]
+
+
+def predict(logp: FloatArray, dt_s: float, rate_per_s: float) -> FloatArray:
+    """The floor distribution ``dt_s`` seconds later (see the module docstring).
+
+    Parameters
+    ----------
+    logp : ndarray, shape (n_floors,)
+        Normalised log-probabilities; an empty array is returned as it is.
+    dt_s : float
+        Elapsed time; negative values count as 0.
+    rate_per_s : float
+        Floor changes per second (non-negative).
+
+    Returns
+    -------
+    ndarray, shape (n_floors,)
+        Normalised log-probabilities.
+    """
+    n = logp.shape[0]
+    if n <= 1:
+        return logp
+    eps = 1.0 - math.exp(-rate_per_s * max(dt_s, 0.0))
+    p = np.exp(logp - logsumexp(logp))
+    p = (1.0 - eps) * p + eps / n
+    out: FloatArray = np.log(np.maximum(p, 1e-300))
+    return out - float(logsumexp(out))
+
+
+def prior(logp: FloatArray, last_t_ms: int, t_ms: int, rate_per_s: float) -> FloatArray | None:
+    """The prediction for a scan at ``t_ms`` after the last update at ``last_t_ms``; None
+    when nothing is known yet (``logp`` empty)."""
+    if logp.shape[0] == 0:
+        return None
+    return predict(logp, (t_ms - last_t_ms) / 1000.0, rate_per_s)

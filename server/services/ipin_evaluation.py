@@ -1,0 +1,256 @@
+"""Evaluation on the IPIN 2023 Track 3 logs (``server.datasets.ipin``): leave one trial out.
+
+For each trial, the maps come from every repetition of the other trials: each scan and,
+for engines that read the magnetometer (``"mag"`` in their ``uses``), each magnetometer
+sample is placed by linear interpolation in time between the POSI lines of its log (the
+walkers walked straight between landmarks), only between consecutive POSI lines on one
+floor, and gridded per floor as the ILC evaluation does (``evaluation.LabelledScans``,
+``evaluation.LabelledField``; there are no floor plans). Each repetition of the left-out
+trial is then replayed causally through the engine in the ILC evaluation's batches
+(``evaluation.trace_events``, ``evaluation.replay``); the engine never sees POSI lines or
+the true floor and searches every floor of the venue. The estimate at a POSI line is the
+last fix at or before its time (none yet: counted as missing), its true floor the POSI
+floor's index in the venue's floor list.
+
+The summary holds the usual error report (``positioning.metrics.error_report``) over all
+POSI lines, ``ipin_score_m`` (``positioning.metrics.ipin_score``: P75 of the horizontal
+error plus 15 m per floor off), ``per_floor`` and ``per_log`` breakdowns and, per left-out
+trial, what its maps were built from (``folds``). With ``validation`` only repetitions 01
+and 02 of every trial are read at all, for the maps and for scoring: for choosing
+parameters without looking at repetitions 03 and 04.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Collection, Iterator, Mapping, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from server.datasets.ilc import IlcTrace
+from server.datasets.ipin import IpinLog, IpinVenue, read_log, read_venue
+from server.positioning.engines import get_engine
+from server.positioning.engines.base import SiteMaps
+from server.positioning.events import Fix
+from server.positioning.fingerprint import in_place_order
+from server.positioning.metrics import ipin_score
+from server.services.evaluation import (
+    LabelledField,
+    LabelledScans,
+    PathResult,
+    Progress,
+    engine_params,
+    estimates_at_waypoints,
+    replay,
+    site_floors,
+    summarize,
+    trace_events,
+)
+
+VALIDATION_REPETITIONS = frozenset({1, 2})
+"""Repetitions read with ``validation``."""
+
+IPIN_FLOOR_PENALTY_M = 15.0
+"""Metres the IPIN score adds per floor of difference."""
+
+
+@dataclass(frozen=True)
+class IpinEvaluation:
+    """What ``evaluate_ipin`` read and found: one result per scored log (in log order)."""
+
+    venue: IpinVenue
+    paths: tuple[PathResult, ...]
+    summary: dict[str, Any]
+
+
+def floor_parts(trace: IlcTrace, venue: IpinVenue) -> Iterator[tuple[int, IlcTrace]]:
+    """The trace cut at its floor changes: per maximal run of consecutive waypoints on one
+    floor of the venue, that floor's index and the trace with only those waypoints (what
+    lies between two waypoints on different floors, the stairs, is then in no part).
+    Waypoints on a floor the venue does not have are in no part."""
+    levels = trace.waypoint_floor
+    if levels.size != trace.waypoint_t_ms.size:  # no per-waypoint floors: all on trace.floor
+        index = venue.floor_index(int(trace.floor)) if trace.floor.lstrip("-").isdigit() else -1
+        if index >= 0:
+            yield index, trace
+        return
+    indices = np.array([venue.floor_index(int(v)) for v in levels.tolist()], dtype=np.int64)
+    starts = np.flatnonzero(np.r_[True, indices[1:] != indices[:-1]])
+    ends = np.r_[starts[1:], indices.size]
+    for start, end in zip(starts.tolist(), ends.tolist(), strict=True):
+        if indices[start] >= 0:
+            yield (
+                int(indices[start]),
+                replace(
+                    trace,
+                    waypoint_t_ms=trace.waypoint_t_ms[start:end],
+                    waypoint_xy_m=trace.waypoint_xy_m[start:end],
+                    waypoint_floor=levels[start:end],
+                ),
+            )
+
+
+def fold_maps(
+    venue: IpinVenue, logs: Sequence[IpinLog], *, magnetic: bool, version: str
+) -> SiteMaps:
+    """Radio map (and with ``magnetic`` the magnetic map) of the venue from these logs."""
+    scans = LabelledScans()
+    field = LabelledField()
+    for log in logs:
+        for floor_index, part in floor_parts(log.trace, venue):
+            scans.add_trace(part, floor_index)
+            if magnetic:
+                field.add_trace(part, floor_index)
+    radio = in_place_order(scans.radio_map()) if scans.events else None
+    maps = SiteMaps(site_floors(venue.site), radio, version=version)
+    if magnetic:
+        maps = replace(maps, magnetic=field.magnetic_map(venue.site))
+    return maps
+
+
+def score_log(log: IpinLog, venue: IpinVenue, fixes: Sequence[Fix]) -> PathResult:
+    """The estimates of a replayed log at its POSI lines, with per-line true floors; the
+    result's ``floor_index`` is the floor of most of its POSI lines."""
+    trace = log.trace
+    true_floor = np.array(
+        [venue.floor_index(int(level)) for level in trace.waypoint_floor.tolist()],
+        dtype=np.int64,
+    )
+    estimates = replace(estimates_at_waypoints(trace, 0, fixes), true_floor=true_floor)
+    values, counts = np.unique(true_floor, return_counts=True)
+    floor_index = int(values[np.argmax(counts)]) if values.size else -1
+    return PathResult(trace.path_id, floor_index, estimates, tuple(fixes))
+
+
+def _ipin_score(
+    paths: Sequence[PathResult], venue: IpinVenue, levels: Sequence[NDArray[np.int64]]
+) -> float | None:
+    """``metrics.ipin_score`` over the POSI lines of ``paths`` (``levels``: per path, the
+    true level of each of its lines). A missing estimate (floor index -1) is left out by
+    ``ipin_score`` whatever level it is given here."""
+    if not paths:
+        return None
+    floor_levels = np.array([f.level for f in venue.floors], dtype=np.int64)
+    est_floor = np.concatenate([p.estimates.est_floor for p in paths])
+    return ipin_score(
+        np.concatenate([p.estimates.est_xy_m for p in paths]),
+        np.concatenate([p.estimates.true_xy_m for p in paths]),
+        np.where(est_floor >= 0, floor_levels[np.clip(est_floor, 0, None)], 0),
+        np.concatenate(levels),
+        floor_penalty_m=IPIN_FLOOR_PENALTY_M,
+    )
+
+
+def evaluate_ipin(
+    venue_dir: Path,
+    engine: str,
+    *,
+    validation: bool = False,
+    progress: Progress | None = None,
+    params: Mapping[str, str] | None = None,
+    seed: int = 0,
+    trials: Collection[int] | None = None,
+    repetitions: Collection[int] | None = None,
+) -> IpinEvaluation:
+    """Leave-one-trial-out evaluation of an engine on a venue's logs (module docstring).
+
+    Parameters
+    ----------
+    venue_dir : Path
+        The venue folder (``logs/``, ``BLE_Locations.csv``, ``references.csv``).
+    engine : str
+        Engine name.
+    validation : bool
+        Read only repetitions 01 and 02 (``VALIDATION_REPETITIONS``).
+    progress : callable, optional
+        ``progress(stage, done, total)``.
+    params : mapping of str to str, optional
+        Engine parameters other than their defaults, as text (``evaluation.engine_params``).
+    seed : int
+        Seed of every replay.
+    trials, repetitions : collection of int, optional
+        Only these trials and repetitions are read (for a quick run); all by default.
+
+    Returns
+    -------
+    IpinEvaluation
+
+    Raises
+    ------
+    KeyError
+        Unknown engine. ``ValueError`` for a parameter it refuses (before any log is read).
+    """
+    spec = get_engine(engine)  # fail early on an unknown engine name
+    engine_settings = engine_params(engine, params)
+    venue = read_venue(venue_dir)
+    chosen = [
+        f
+        for f in venue.logs
+        if (trials is None or f.trial in trials)
+        and (repetitions is None or f.repetition in repetitions)
+        and (not validation or f.repetition in VALIDATION_REPETITIONS)
+    ]
+    logs: list[IpinLog] = []
+    for done, file in enumerate(chosen, start=1):
+        logs.append(read_log(file.path, venue.frame))
+        if progress:
+            progress("read logs", done, len(chosen))
+
+    magnetic = "mag" in spec.uses
+    results: list[PathResult] = []
+    folds: dict[str, dict[str, int]] = {}
+    fold_trials = sorted({log.trial for log in logs if log.trial is not None})
+    for trial in fold_trials:
+        train = [log for log in logs if log.trial != trial]
+        maps = fold_maps(venue, train, magnetic=magnetic, version=f"not-trial-{trial}")
+        test = [log for log in logs if log.trial == trial]
+        for log in test:
+            fixes = replay(
+                engine, trace_events(log.trace, engine), maps, seed=seed, params=engine_settings
+            )
+            results.append(score_log(log, venue, fixes))
+            if progress:
+                progress("replay", len(results), len(logs))
+        folds[f"{trial:02d}"] = {
+            "map_logs": len(train),
+            "test_logs": len(test),
+            "reference_points": int(maps.radio.rp_xy.shape[0]) if maps.radio else 0,
+        }
+
+    by_id = {log.trace.path_id: log for log in logs}
+    per_log: dict[str, dict[str, Any]] = {}
+    for result in results:
+        log = by_id[result.path_id]
+        report = summarize([result])
+        per_log[result.path_id] = {
+            "trial": log.trial,
+            "repetition": log.repetition,
+            "phone": log.phone,
+            "n_points": report["n_points"],
+            "ipin_score_m": _ipin_score([result], venue, [log.trace.waypoint_floor]),
+            "mean_m": report["mean_m"],
+            "floor_hit_rate": report["floor_hit_rate"],
+        }
+    levels = [by_id[r.path_id].trace.waypoint_floor for r in results]
+    summary = summarize(
+        results,
+        floor_names=[f.name for f in venue.floors],
+        engine=engine,
+        dataset=f"ipin:{venue.name}" + (":validation" if validation else ""),
+        protocol="leave one trial out",
+        seed=seed,
+        logs=len(logs),
+        trials=fold_trials,
+        repetitions=sorted({log.repetition for log in logs if log.repetition is not None}),
+        floors=len(venue.floors),
+        bad_lines=sum(log.bad_lines for log in logs),
+        ipin_score_m=_ipin_score(results, venue, levels),
+    )
+    summary["per_log"] = per_log
+    summary["folds"] = folds
+    if params:
+        summary["params"] = dict(params)
+    return IpinEvaluation(venue, tuple(results), summary)
