@@ -267,7 +267,7 @@ def _http_replayer(
     builds the maps from them; the uploads' final states are appended to the list."""
     from client_sim.replay import keep_end_anchors, replay_over_http
     from server.api.convert import fix_from_wire, to_wire
-    from server.services.evaluation import LabelledScans, TrainingSurvey, batches
+    from server.lab.evaluation import LabelledScans, TrainingSurvey, batches
 
     def run(
         engine: str, maps: SiteMaps, training: TrainingSurvey, traces: list[list[Event]]
@@ -428,7 +428,7 @@ def evaluate_ilc(
     ] = None,
 ) -> None:
     """Replay ILC 2.0 test traces through engines, with maps built from training traces."""
-    from server.services import evaluation
+    from server.lab import evaluation
 
     if via_http and not admin_key:
         raise typer.BadParameter("--via-http needs --admin-key (or INDOORPOS_ADMIN_KEY)")
@@ -544,7 +544,7 @@ def evaluate_ipin(
     ] = None,
 ) -> None:
     """Replay IPIN 2023 Track 3 logs through engines, leaving one trial out of the maps."""
-    from server.services import evaluation, ipin_evaluation
+    from server.lab import evaluation, ipin_evaluation
 
     overrides = dict(p.partition("=")[::2] for p in param or [])
     for name in engine:
@@ -589,6 +589,10 @@ def evaluate_ipin(
         payload = runs[0].summary if len(runs) == 1 else {"runs": [r.summary for r in runs]}
         json_path.write_text(json.dumps(payload, indent=2) + "\n")
         console.print(f"metrics written to {json_path}")
+        for run in runs:
+            points = _points_path(json_path, run.summary["engine"], len(runs))
+            evaluation.write_points(run.paths, points)
+            console.print(f"per-point errors written to {points}")
 
 
 class StepDetector(StrEnum):
@@ -625,8 +629,8 @@ def evaluate_pdr(
 ) -> None:
     """PDR alone on ILC 2.0 traces: walked-distance error of step detection against the
     waypoints, and dead-reckoning drift from the first waypoint."""
+    from server.lab import pdr_evaluation
     from server.positioning.step_tracker import TrackerParams
-    from server.services import pdr_evaluation
 
     params = pdr_evaluation.with_detector(
         TrackerParams(heading=heading.value), detector.value, length_model.value
@@ -673,7 +677,7 @@ def evaluate_uji(
 ) -> None:
     """Fingerprint methods on UJIIndoorLoc-style CSV files (EvAAL score included)."""
     from server.datasets.uji import read_ujiindoorloc
-    from server.services import evaluation
+    from server.lab import evaluation
 
     with console.status("reading fingerprints"):
         train = read_ujiindoorloc(train_csv)
@@ -720,7 +724,7 @@ def bench_particle(
     json_path: Annotated[Path | None, typer.Option("--json", help="write the figures here")] = None,
 ) -> None:
     """Mass-centered against DTW weight update on the same inputs, and the state codec."""
-    from server.services.bench import particle_bench
+    from server.lab.bench import particle_bench
 
     # no spinner: its refresh thread would take the GIL in the middle of the timings
     console.print(f"timing {particles} particles, {repeat} runs per measure ...")

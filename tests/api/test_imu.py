@@ -21,8 +21,8 @@ from client_sim.imu import Gait, blocks, synthesize_walk
 from server.api import convert
 from server.api import schemas as sc
 from server.datasets.ilc import read_trace
+from server.lab.evaluation import batches
 from server.positioning.events import ImuEvent
-from server.services.evaluation import batches
 from tests.api.toy_site import WIDTH_M, ToySite, build_toy_site, rssi_at
 from tests.conftest import ADMIN_KEY
 from tests.datasets.conftest import dataset_dir

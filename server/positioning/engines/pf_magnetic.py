@@ -18,10 +18,13 @@ mass-centered magnetic weight update (``papers/001_*`` sections II-IV).
   effective sample size falls below half of ``N``
   (``server.positioning.particle.step``). Without a magnetic map the weights only come
   from the walls.
-* **Floors**: each scan's WKNN floor vote moves the cloud to that floor with the
-  particles' positions kept (floors stack; particles on no walkable ground there die),
-  as the EKF engines carry their position across a floor change. The paper does not
-  change floors.
+* **Floors**: the floor filter's floor after each scan (``radio_fusion.match``) takes
+  the cloud there with the particles' positions kept (floors stack; particles on no
+  walkable ground there die), as the EKF engines carry their position across a floor
+  change. The paper does not change floors.
+* **Radio weighting** (not in the paper, where WiFi/BLE only starts the cloud): each
+  scan's fix weighs the particles by a Gaussian of the fix's learned variance mixed with
+  a flat share (``radio_var_scale``, ``radio_outlier``).
 * **Re-initialisation**: when the cloud dies (every particle killed), at the next scan;
   and when ``reinit_scans`` scans in a row place the phone farther than
   ``reinit_distance_m`` from the estimate (or on another floor, without
@@ -76,6 +79,10 @@ class PfMagneticParams(rf.RadioParams):
     # of the building cannot empty the cloud
     radio_var_scale: float = 1.0
     radio_outlier: float = 0.05
+    # a cloud that went astray recovers: at each scan whose floor the filter is sure of
+    # (floor_prob >= 0.9), this share of the particles is drawn again around the fix (a
+    # Gaussian of its variance, on walkable ground), each at the cloud's mean weight
+    recover_share: float = 0.0
     # move the cloud to the floor each scan votes for, keeping the particles' positions
     # (as the EKF engines do), rather than waiting for reinit_scans disagreeing scans: on
     # the inner validation split of ILC site2 the mean error fell from 51.1 m to 33.3 m
@@ -92,6 +99,8 @@ class PfMagneticParams(rf.RadioParams):
             raise ValueError("reinit_scans must be at least 1")
         if not (math.isfinite(self.radio_var_scale) and self.radio_var_scale >= 0):
             raise ValueError(f"radio_var_scale must be non-negative, got {self.radio_var_scale}")
+        if not 0 <= self.recover_share < 1:
+            raise ValueError(f"recover_share must be in [0, 1), got {self.recover_share}")
         if not 0 < self.radio_outlier < 1:
             raise ValueError(f"radio_outlier must be between 0 and 1, got {self.radio_outlier}")
         if not (math.isfinite(self.reinit_distance_m) and self.reinit_distance_m > 0):
@@ -304,6 +313,8 @@ def _on_scan(
             cloud = state.cloud
             if params.radio_var_scale > 0:
                 cloud = _radio_weights(cloud, m, params, rng)
+            if params.recover_share > 0 and found.floor_prob >= 0.9 and particle.alive(cloud):
+                cloud = _recover(cloud, m, params.recover_share, maps, rng)
             new = replace(state, disagree=disagree, cloud=cloud)
             return new, _fix(cloud, event.t_ms, state.heading_rad, kind, diag)
         diag["reinitialised"] = 1.0
@@ -345,6 +356,38 @@ def _radio_weights(
     if particle.effective_sample_size(cloud) < params.particles.resample_ess_fraction * cloud.n:
         cloud = particle.systematic_resample(cloud, rng)
     return cloud
+
+
+def _recover(
+    cloud: particle.Particles,
+    m: rf.Matched,
+    share: float,
+    maps: SiteMaps,
+    rng: np.random.Generator,
+) -> particle.Particles:
+    """A share of the particles, picked at random, drawn again around the fix (see
+    ``PfMagneticParams.recover_share``); draws off walkable ground keep their particle."""
+    n_new = round(share * cloud.n)
+    if n_new == 0:
+        return cloud
+    pick = rng.choice(cloud.n, n_new, replace=False)
+    xy = np.array([m.whole.x_m, m.whole.y_m]) + rng.normal(0.0, math.sqrt(m.var_m2), (n_new, 2))
+    floors = np.full(n_new, m.whole.floor, dtype=np.int16)
+    ok = _valid_point(maps)(floors, xy)
+    pick, xy = pick[ok], xy[ok]
+    if pick.size == 0:
+        return cloud
+    new_xy = cloud.xy.copy()
+    new_xy[pick] = xy.astype(np.float32)
+    new_floor = cloud.floor.copy()
+    new_floor[pick] = m.whole.floor
+    mags = cloud.mags.copy()
+    mags[pick] = np.nan  # no field history at the new places
+    log_w = cloud.log_w.astype(np.float64)
+    finite = np.isfinite(log_w)
+    log_w[pick] = float(np.log(np.mean(np.exp(log_w[finite])))) if finite.any() else 0.0
+    moved = replace(cloud, xy=new_xy, floor=new_floor, mags=mags)
+    return particle.reweight(replace(moved, log_w=np.zeros(cloud.n, np.float32)), log_w)
 
 
 def _phone_step(state: PfMagneticState, event: StepEvent) -> Step:

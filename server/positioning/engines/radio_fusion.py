@@ -1,18 +1,23 @@
-"""The WiFi/BLE side shared by the engines that fuse raw-IMU PDR with fingerprint fixes.
+"""The WiFi/BLE side shared by every engine that matches scans.
 
-Both ``two_stage_ekf`` and ``everywhere_ekf`` keep ``[x, y, ., heading]`` in an EKF whose
-first two states are the position, and per scan they:
+Per scan (``match``):
 
-1. match the scan against the whole map (WKNN, ``papers/002_*`` eq 1-3), which also
-   votes the floor. The floor follows each scan's vote; the position is carried across
-   a floor change (people change floors on the spot, and a fix on a wrongly voted floor
-   is usually still right horizontally, since floors stack). On an inner validation split
-   of ILC site2 a decayed vote with hysteresis held the wrong floor longer and lowered the
-   floor hit rate at waypoints from 80 % to 70 %;
-2. decide whether the filter is lost: ``max_rejects`` whole-map fixes in a row outside
-   the innovation gate restart the position at the whole-map fix;
-3. update the position with their own engine-specific fix, with the variance of
-   ``papers/003_*`` eq 17 floored at ``min_fix_var_m2``.
+1. the scan is matched against the whole map (WKNN, ``papers/002_*`` eq 1-3) if it heard
+   at least ``min_matched`` map emitters (one or two beacons tie with hundreds of
+   reference points); its floor is chosen by the floor filter (``floor_filter``: the
+   filter's prediction times the scan's likelihood of each floor), not by the scan's
+   vote alone: on ILC site2 the per-scan vote had an 85 % floor hit rate and every
+   engine inherited it;
+2. the fix's variance is what the map's training data say a fix of this kind with this
+   many matched emitters is worth (``SiteMaps.fix_error``, learned by
+   ``mapping.fix_calibration``), times ``fix_var_scale``, at least ``min_fix_var_m2``.
+
+The PDR fusion engines (``two_stage_ekf``, ``everywhere_ekf``) keep ``[x, y, ., heading]``
+in an EKF whose first two states are the position, and then (``begin_scan``) decide
+whether the filter is lost: ``max_rejects`` whole-map fixes in a row outside the
+innovation gate (chi-square on the squared Mahalanobis distance) restart the position at
+the whole-map fix; a fix outside the gate is otherwise not used. The position is carried
+across a floor change (people change floors on the spot, and floors stack).
 
 Before the map-frame heading is known, a step cannot move the estimate; it only widens
 the position variance by the square of its length (``widen``).
@@ -59,6 +64,10 @@ class RadioParams:
     floor_change_per_s: float = 0.01  # floor filter: floor changes per second
     # floor under the learned fix variance (fix_error): a fix is never trusted to 2 m
     min_fix_var_m2: float = 4.0
+    # the learned variance is that of one fix on its own; a filter that takes fix after
+    # fix along a walk meets errors shared by neighbouring scans (the same wrong
+    # reference points), so it uses the variance times this factor
+    fix_var_scale: float = 1.0
 
     def check_radio(self) -> None:
         """Raise ValueError naming the first radio parameter out of range."""
@@ -74,7 +83,11 @@ class RadioParams:
             raise ValueError(
                 f"floor_change_per_s must be non-negative and finite, got {self.floor_change_per_s}"
             )
-        check_positive(floor_sd_db=self.floor_sd_db, min_fix_var_m2=self.min_fix_var_m2)
+        check_positive(
+            floor_sd_db=self.floor_sd_db,
+            min_fix_var_m2=self.min_fix_var_m2,
+            fix_var_scale=self.fix_var_scale,
+        )
 
 
 @dataclass(frozen=True)
@@ -126,7 +139,8 @@ def match(
     )
     if whole is None:
         return None
-    var = max(maps.fix_error.variance(kind, scan.n_matched), params.min_fix_var_m2)
+    learned = maps.fix_error.variance(kind, scan.n_matched)
+    var = max(learned * params.fix_var_scale, params.min_fix_var_m2)
     return Matched(event.t_ms, kind, scan, whole, var)
 
 
@@ -293,6 +307,8 @@ class EvidenceParams(Protocol):
     def floor_change_per_s(self) -> float: ...
     @property
     def min_fix_var_m2(self) -> float: ...
+    @property
+    def fix_var_scale(self) -> float: ...
 
 
 class ScanParams(EvidenceParams, Protocol):

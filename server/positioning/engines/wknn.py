@@ -1,19 +1,20 @@
 """``wknn``: one fix per radio scan by weighted K-nearest neighbours, no motion model.
 
 The baseline every fusion engine has to beat. Each WiFi scan (and each BLE scan, when the
-map has BLE columns and the scan hears one of them) is matched on its own against the
-radio map (``server.positioning.fingerprint.wknn``, ``papers/002_*`` section 4.1):
+map has BLE columns) that heard at least ``min_matched`` map emitters is matched on its
+own against the radio map (``server.positioning.fingerprint.wknn``, ``papers/002_*``
+section 4.1):
 
 * signal distance to each reference point, ``papers/002_*`` eq 1;
-* floor by the 1/D-weighted vote of the K nearest reference points over all floors;
-* position as the 1/D-weighted mean of the K nearest reference points of that floor,
-  ``papers/002_*`` eq 3.
+* floor by the floor filter (``floor_filter``): the scan's likelihood of each floor
+  times the filter's prediction, so the floor has a memory even without motion;
+* position as the 1/D-weighted mean of the K nearest reference points of that floor
+  (every RP tied with the K-th taking part), ``papers/002_*`` eq 3.
 
-The fix's covariance is ``var * I`` with ``var = max(var_FP, min_fix_var_m2)``, where
-``var_FP`` is the WKNN spread of ``papers/003_*`` eq 17; that spread is not a calibrated
-variance (see ``fingerprint``), hence the same floor under it as in ``step_ekf``. Steps and
-magnetometer events are ignored, so fixes carry no heading. A scan that matches nothing
-(no map, or no map column heard) gives no fix.
+The fix's covariance is ``var * I`` with ``var`` what a fix of its kind and matched
+emitters is worth on this map (``SiteMaps.fix_error``; ``radio_fusion.match``). The
+WKNN spread of ``papers/003_*`` eq 17 is reported as ``wknn_var_m2`` only. Steps and
+magnetometer events are ignored, so fixes carry no heading.
 """
 
 from __future__ import annotations

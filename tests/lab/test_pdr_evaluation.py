@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 from server.datasets.ilc import read_trace
+from server.lab.pdr_evaluation import TraceSteps, dead_reckon, trace_steps, with_detector
 from server.positioning.step_tracker import TrackerParams
-from server.services.pdr_evaluation import TraceSteps, dead_reckon, trace_steps, with_detector
 from tests.datasets.conftest import dataset_dir
 
 T0 = 1_700_000_000_000

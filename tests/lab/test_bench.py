@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
+from server.lab.bench import particle_bench
 from server.positioning.particle import from_points
-from server.services.bench import particle_bench
 from server.storage.codec import encode_arrays
 
 RATES = (

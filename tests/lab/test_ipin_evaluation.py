@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 
 from server.cli import app
 from server.datasets.ipin import read_log, read_venue
-from server.services import ipin_evaluation
+from server.lab import ipin_evaluation
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
 VENUE = DATA / "ipin2023-track3-dev"

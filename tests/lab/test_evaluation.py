@@ -14,12 +14,12 @@ from typer.testing import CliRunner
 from server.cli import app
 from server.datasets.ilc import IlcFloor, IlcSite, IlcTrace, read_site
 from server.datasets.uji import Fingerprints
+from server.lab import evaluation
 from server.positioning.engines import ENGINES, get_engine
 from server.positioning.engines.base import FloorRef, SiteMaps
 from server.positioning.events import Event, Fix, ImuEvent, RadioReading, StepEvent, WifiEvent
 from server.positioning.floorplan import plan_from_geojson
 from server.positioning.magnetic import MagneticMap, grid_from_samples, known_share
-from server.services import evaluation
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
 SITE2 = DATA / "ilc20-sample" / "site2"
@@ -236,7 +236,7 @@ def test_evaluate_a_small_site_with_plain_and_xz_traces(tmp_path: Path) -> None:
 
 
 def test_engine_params_replace_scalars_by_name() -> None:
-    from server.services.evaluation import engine_params
+    from server.lab.evaluation import engine_params
 
     params = engine_params("two_stage_ekf", {"k": "8", "partition_radius_m": "5"})
     assert (params.k, params.partition_radius_m) == (8, 5.0)

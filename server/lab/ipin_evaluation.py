@@ -32,12 +32,7 @@ from numpy.typing import NDArray
 
 from server.datasets.ilc import IlcTrace
 from server.datasets.ipin import IpinLog, IpinVenue, read_log, read_venue
-from server.positioning.engines import get_engine
-from server.positioning.engines.base import SiteMaps
-from server.positioning.events import Fix
-from server.positioning.fingerprint import in_place_order
-from server.positioning.metrics import ipin_score
-from server.services.evaluation import (
+from server.lab.evaluation import (
     LabelledField,
     LabelledScans,
     PathResult,
@@ -49,6 +44,11 @@ from server.services.evaluation import (
     summarize,
     trace_events,
 )
+from server.positioning.engines import get_engine
+from server.positioning.engines.base import SiteMaps
+from server.positioning.events import Fix
+from server.positioning.fingerprint import in_place_order
+from server.positioning.metrics import ipin_score
 
 VALIDATION_REPETITIONS = frozenset({1, 2})
 """Repetitions read with ``validation``."""

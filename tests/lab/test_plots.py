@@ -13,8 +13,8 @@ pytest.importorskip("matplotlib")
 
 from matplotlib.image import imread
 
+from server.lab.plots import DPI, plot_error_cdf, plot_magnetic_grid, plot_track
 from server.positioning.magnetic import grid_from_samples
-from server.services.plots import DPI, plot_error_cdf, plot_magnetic_grid, plot_track
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 

@@ -19,6 +19,7 @@ point (no gridding: the published baselines match against raw fingerprints), flo
 from __future__ import annotations
 
 import csv
+import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -33,7 +34,15 @@ from server.positioning import fix_error
 from server.positioning.engines import get_engine
 from server.positioning.engines.base import FloorRef, SiteMaps
 from server.positioning.engines.step_ekf import StepEkfParams
-from server.positioning.events import BleEvent, Event, Fix, RadioReading, WifiEvent, radio_key
+from server.positioning.events import (
+    BleEvent,
+    Event,
+    Fix,
+    RadioReading,
+    StepEvent,
+    WifiEvent,
+    radio_key,
+)
 from server.positioning.fingerprint import (
     MISSING_DBM,
     RadioMap,
@@ -62,6 +71,8 @@ from server.positioning.mapping.gridding import build_radio_map
 from server.positioning.mapping.labelled import interpolate_track
 from server.positioning.mapping.matrices import readings_matrix
 from server.positioning.metrics import error_report
+from server.positioning.step_tracker import TrackerParams
+from server.services.traces import walk_steps
 
 # Traces sample the walk every few metres; 1 m cells keep that resolution and merge only
 # scans taken at nearly the same spot (the same cell size as surveys).
@@ -262,11 +273,31 @@ def build_site_maps(
     return maps, TrainingSurvey(labelled, field_samples, plans, tuple(train)), bad_lines
 
 
+PHONE_STEPS = TrackerParams(heading="rotation")
+"""How a phone that detects its own steps finds them in a recording (for engines that
+read ``step`` events and not raw samples): the project's step tracker with the phone's
+rotation-vector heading, as a phone SDK would run it."""
+
+
 def trace_events(trace: IlcTrace, engine: str) -> list[Event]:
     """What a phone running ``engine`` posts of a trace: its scans and, when the engine
-    reads raw motion samples (``"imu"`` in its ``uses``), the IMU blocks too; other
-    engines would ignore them, so they are left out and replay stays fast."""
-    return trace.events(imu="imu" in get_engine(engine).uses, block_ms=BATCH_MS)
+    reads raw motion samples (``"imu"`` in its ``uses``), the IMU blocks too; an engine
+    that reads steps but not raw samples gets the steps a phone would detect
+    (``PHONE_STEPS``; those with a north-referenced heading). What an engine would
+    ignore is left out, so replay stays fast."""
+    uses = get_engine(engine).uses
+    events = trace.events(imu="imu" in uses, block_ms=BATCH_MS)
+    if "step" in uses and "imu" not in uses:
+        steps = walk_steps(trace, PHONE_STEPS)
+        events += [
+            StepEvent(t, length, heading)
+            for t, length, heading in zip(
+                steps.t_ms.tolist(), steps.length_m.tolist(), steps.north_rad.tolist(), strict=True
+            )
+            if math.isfinite(heading)
+        ]
+        events.sort(key=lambda e: e.t_ms)
+    return events
 
 
 def batches(events: Sequence[Event], batch_ms: int = BATCH_MS) -> list[list[Event]]:
@@ -699,7 +730,7 @@ def write_ilc_plots(evaluations: Sequence[IlcEvaluation], out_dir: Path) -> list
     plan with the truth and the estimated track, and, when an engine read a magnetic map,
     per floor the map on the floor plan (``magnetic_<floor>.png``; the maps come from the
     same training traces for every engine, so once)."""
-    from server.services.plots import plot_error_cdf, plot_magnetic_grid, plot_track
+    from server.lab.plots import plot_error_cdf, plot_magnetic_grid, plot_track
 
     out_dir.mkdir(parents=True, exist_ok=True)
     site = evaluations[0].site.name
