@@ -81,8 +81,9 @@ class PfMagneticParams(rf.RadioParams):
     radio_outlier: float = 0.05
     # a cloud that went astray recovers: at each scan whose floor the filter is sure of
     # (floor_prob >= 0.9), this share of the particles is drawn again around the fix (a
-    # Gaussian of its variance, on walkable ground), each at the cloud's mean weight
-    recover_share: float = 0.0
+    # Gaussian of its variance, on walkable ground), each at the cloud's mean weight;
+    # inner validation, P75 with / without: ILC site2 18.6 / 19.5 m, IPIN 18.1 / 18.5 m
+    recover_share: float = 0.02
     # move the cloud to the floor each scan votes for, keeping the particles' positions
     # (as the EKF engines do), rather than waiting for reinit_scans disagreeing scans: on
     # the inner validation split of ILC site2 the mean error fell from 51.1 m to 33.3 m
