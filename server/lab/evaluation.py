@@ -141,7 +141,11 @@ class LabelledScans:
     path: list[int] = field(default_factory=list)  # which trace each scan came from
     n_traces: int = 0
 
-    def add_trace(self, trace: IlcTrace, floor_index: int) -> None:
+    def add_trace(self, trace: IlcTrace, floor_index: int, group: int | None = None) -> None:
+        """Place the trace's scans; ``group`` says which walk they belong to for the
+        cross-validation of fix errors (scans of one group are never located on a map
+        holding any of them): by default each trace is its own, and walks repeated along
+        one route should share one."""
         events = trace.radio_events()
         self.n_traces += 1
         if not events or trace.waypoint_t_ms.size == 0:
@@ -153,7 +157,7 @@ class LabelledScans:
                 self.xy_m.append((point[0], point[1]))
                 self.floor.append(floor_index)
                 self.events.append(event)
-                self.path.append(self.n_traces)
+                self.path.append(self.n_traces if group is None else -1 - group)
 
     def keyed_scans(self) -> list[list[tuple[str, float]]]:
         """Each scan's readings keyed as map columns."""

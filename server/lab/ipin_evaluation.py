@@ -39,6 +39,7 @@ from server.lab.evaluation import (
     Progress,
     engine_params,
     estimates_at_waypoints,
+    learned_fix_error,
     replay,
     site_floors,
     summarize,
@@ -101,11 +102,14 @@ def fold_maps(
     field = LabelledField()
     for log in logs:
         for floor_index, part in floor_parts(log.trace, venue):
-            scans.add_trace(part, floor_index)
+            # repetitions of a trial walk one route: one group in the fix-error folds
+            scans.add_trace(part, floor_index, group=log.trial)
             if magnetic:
                 field.add_trace(part, floor_index)
     radio = in_place_order(scans.radio_map()) if scans.events else None
-    maps = SiteMaps(site_floors(venue.site), radio, version=version)
+    maps = SiteMaps(
+        site_floors(venue.site), radio, version=version, fix_error=learned_fix_error(scans)
+    )
     if magnetic:
         maps = replace(maps, magnetic=field.magnetic_map(venue.site))
     return maps

@@ -45,7 +45,10 @@ def default_sigma_m(n_matched: int) -> float:
     return DEFAULT_SIGMA_FLOOR_M + DEFAULT_SIGMA_SCALE_M / math.sqrt(max(n_matched, 1))
 
 
-# chosen from the tables learned on both development venues (bench/accuracy.md)
+# for maps built without walks to learn from (surveys through the API): falls with the
+# evidence as the learned tables do. ILC site2's table (its 334 training paths) has 8 m
+# for WiFi scans of 24 or more emitters and 11.6-13.6 m for BLE scans, this model
+# 5.5-6.4 m and 10.9-16 m; learning a table from a survey is still to do
 DEFAULT_SIGMA_FLOOR_M = 4.0
 DEFAULT_SIGMA_SCALE_M = 12.0
 

@@ -472,3 +472,18 @@ def test_evaluate_uji_with_device_offsets_from_the_command_line(tmp_path: Path) 
     assert report["device_offsets_applied"] is True
     assert set(report["device_offsets"]) == {"1", "2"}
     assert report["test_rows_corrected"] == 50
+
+
+def test_walks_along_one_route_share_a_cross_validation_group() -> None:
+    from server.services.traces import trace_from_events
+
+    wifi = WifiEvent(1_000, (RadioReading("aa:bb", -60.0),))
+    walk = trace_from_events([wifi], [(900, 1.0, 2.0), (1_100, 2.0, 2.0)])
+    scans = evaluation.LabelledScans()
+    scans.add_trace(walk, 0, group=3)
+    scans.add_trace(walk, 0, group=3)
+    scans.add_trace(walk, 0)
+    scans.add_trace(walk, 0)
+    assert len(scans.path) == 4
+    assert scans.path[0] == scans.path[1]
+    assert len({scans.path[1], scans.path[2], scans.path[3]}) == 3
