@@ -11,6 +11,7 @@ dataset importers and of the simulator, and engines can be tested without any se
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -189,6 +190,8 @@ def window_ble(events: Sequence[BleEvent], window_ms: int = BLE_WINDOW_MS) -> li
             start = event.t_ms
         last = event.t_ms
         for r in event.readings:
+            if not math.isfinite(r.rssi_dbm):
+                continue
             acc = sums.setdefault(r.emitter, [0.0, 0])
             acc[0] += r.rssi_dbm
             acc[1] += 1

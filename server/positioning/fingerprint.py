@@ -168,8 +168,10 @@ def scan_vector(radio_map: RadioMap, readings: Sequence[RadioReading], kind: str
         heard[idx] = True
     prefix = f"{kind}:"
     mask = np.fromiter((key.startswith(prefix) for key in radio_map.emitters), bool, n_em)
+    # a reading at or below MISSING_DBM says no more than "not heard"
+    evidence = heard & (rssi > MISSING_DBM)
     return ScanVector(
-        rssi_dbm=rssi.astype(np.float32), mask=mask, n_matched=int(np.count_nonzero(heard))
+        rssi_dbm=rssi.astype(np.float32), mask=mask, n_matched=int(np.count_nonzero(evidence))
     )
 
 
@@ -228,6 +230,7 @@ def floor_log_likelihood(
     k: int,
     sd_db: float,
     max_emitters: int,
+    floors_in_map: NDArray[np.integer],
 ) -> NDArray[np.float64]:
     """Log-likelihood of each floor given a scan's signal distances to candidate RPs.
 
@@ -240,19 +243,25 @@ def floor_log_likelihood(
     readings of nearby emitters share their errors (body, orientation, the same walls), so
     a 100-AP scan is not 100 independent votes.
 
+    ``floors_in_map`` (the floor of every RP of the map) tells which floors have any
+    reference point: a floor with none gets ``-inf`` (nothing says the phone is there, and
+    an unsurveyed floor would otherwise look as good as a surveyed one for a weak scan).
+
     Returns
     -------
     ndarray, shape (n_floors,)
         Up to a constant (the best floor at 0).
     """
     msd = np.full(n_floors, empty_distance_db**2 / max(n_matched, 1))
+    # floors the map has no reference point on at all cannot be told from the scan
+    mapped = np.bincount(floors_in_map, minlength=n_floors)[:n_floors] > 0
     for f in np.unique(floors).tolist():
         if 0 <= f < n_floors:
             on = np.flatnonzero(floors == f)
             near = on[_nearest(distances_db[on], k)]
             msd[f] = float(np.mean(distances_db[near] ** 2)) / max(n_matched, 1)
     n = min(n_matched, max_emitters)
-    loglik: NDArray[np.float64] = -n * msd / (2.0 * sd_db**2)
+    loglik: NDArray[np.float64] = np.where(mapped, -n * msd / (2.0 * sd_db**2), -np.inf)
     return loglik - float(loglik.max())
 
 
@@ -325,21 +334,31 @@ def wknn(
 
     # the floor: the scan's likelihood of each floor, times the prior when one is given
     n_floors = int(radio_map.rp_floor.max()) + 1
-    if floor_log_prior is not None:
-        n_floors = max(n_floors, floor_log_prior.shape[0])
+    if floor_log_prior is not None and floor_log_prior.shape[0] > n_floors:
+        n_floors = floor_log_prior.shape[0]
     cols = np.flatnonzero(scan.mask & (scan.rssi_dbm > MISSING_DBM))
     empty = float(np.linalg.norm(scan.rssi_dbm[cols].astype(np.float64) - MISSING_DBM))
     loglik = floor_log_likelihood(
-        dist, floors, n_floors, empty, scan.n_matched, k, floor_sd_db, floor_max_emitters
+        dist,
+        floors,
+        n_floors,
+        empty,
+        scan.n_matched,
+        k,
+        floor_sd_db,
+        floor_max_emitters,
+        radio_map.rp_floor.astype(np.int64),
     )
     logp = loglik.copy()
-    if floor_log_prior is not None:
-        logp[: floor_log_prior.shape[0]] += floor_log_prior
+    # a prior over another number of floors (the site gained or lost one) is dropped
+    if floor_log_prior is not None and floor_log_prior.shape[0] == n_floors:
+        logp = logp + floor_log_prior
+        if not np.isfinite(logp).any():  # the prior sat where the scan rules out
+            logp = loglik.copy()
     logp -= float(logsumexp(logp))
-    floor = int(np.argmax(logp))
-    if not np.any(floors == floor):
-        # the prior holds a floor the scan matched nowhere: position by the scan's best
-        floor = int(np.argmax(np.where(np.isin(np.arange(n_floors), floors), loglik, -np.inf)))
+    # the most probable floor among those the scan matched reference points on
+    matched = np.isin(np.arange(n_floors), floors)
+    floor = int(np.argmax(np.where(matched, logp, -np.inf)))
 
     # WKNN over the k nearest candidates of that floor
     on_floor = np.flatnonzero(floors == floor)

@@ -281,3 +281,41 @@ def test_window_ble_groups_rows_into_scans_with_mean_rssi() -> None:
     assert window_ble([]) == []
     with pytest.raises(ValueError, match="window_ms"):
         window_ble(rows, window_ms=0)
+
+
+def test_a_floor_without_reference_points_is_never_chosen() -> None:
+    # RPs on floors 0 and 2 only; a weak scan, repeated, must not drift onto floor 1
+    m = make_map(
+        [(0.0, 0.0), (1.0, 0.0), (0.0, 0.0), (1.0, 0.0)],
+        [0, 0, 2, 2],
+        [[-60.0, -62.0], [-61.0, -63.0], [-75.0, -70.0], [-76.0, -71.0]],
+        ("wifi:a", "wifi:b"),
+    )
+    scan = scan_vector(m, [RadioReading("a", -90.0), RadioReading("b", -92.0)], "wifi")
+    logp = None
+    for _ in range(10):
+        fix = wknn(m, scan, k=2, floor_log_prior=logp)
+        assert fix is not None
+        assert fix.floor in (0, 2)
+        assert np.exp(fix.floor_logp[1]) == 0.0
+        logp = fix.floor_logp
+
+
+def test_a_prior_over_another_number_of_floors_is_dropped() -> None:
+    m = make_map([(0.0, 0.0), (0.0, 0.0)], [0, 1], [[-50.0], [-80.0]], ("wifi:a",))
+    scan = scan_vector(m, [RadioReading("a", -50.0)], "wifi")
+    alone = wknn(m, scan, k=1)
+    stale = wknn(m, scan, k=1, floor_log_prior=np.log([0.01, 0.01, 0.98]))
+    assert alone is not None
+    assert stale is not None
+    np.testing.assert_allclose(stale.floor_logp[:2], alone.floor_logp[:2])
+
+
+def test_readings_at_the_missing_level_are_not_evidence() -> None:
+    m = grid_map()
+    readings = [
+        RadioReading(WIFI[0][5:], -70.0),
+        RadioReading(WIFI[1][5:], -70.0),
+        RadioReading(WIFI[2][5:], MISSING_DBM),
+    ]
+    assert scan_vector(m, readings, "wifi").n_matched == 2

@@ -323,7 +323,9 @@ def _on_scan(
     aided = state.straight and state.walked_m > 0.0 and not np.isnan(state.fp).any()
     if aided:
         penalty = aiding_penalty(maps.radio, state.fp, state.walked_m, params)
-        used = rf.refined(m, wknn(maps.radio, m.scan, k=params.k, penalty_db=penalty))
+        on_floor = maps.radio.rp_floor == whole.floor
+        aided_fix = wknn(maps.radio, m.scan, k=params.k, candidates=on_floor, penalty_db=penalty)
+        used = rf.refined(m, aided_fix)
         diagnostics["aided"] = 1.0
     found = used.whole
     u = rf.position_update(state.x, state.P, used)

@@ -344,13 +344,16 @@ def _radio_weights(
     cloud: particle.Particles, m: rf.Matched, params: PfMagneticParams, rng: np.random.Generator
 ) -> particle.Particles:
     """Particles weighed by the scan's fix: a Gaussian of the fix's variance (scaled by
-    ``radio_var_scale``) mixed with a flat share ``radio_outlier``. The cloud is on the
-    floor filter's floor already (``_to_floor``)."""
+    ``radio_var_scale``) mixed with a flat share ``radio_outlier``; a particle on another
+    floor than the fix's (the cloud is moved there unless ``follow_scan_floor`` is off)
+    gets the flat share once more."""
     var = m.var_m2 * params.radio_var_scale
     d2 = np.sum((cloud.xy.astype(np.float64) - [m.whole.x_m, m.whole.y_m]) ** 2, axis=1)
     ll = np.logaddexp(
         -0.5 * d2 / var + math.log1p(-params.radio_outlier), math.log(params.radio_outlier)
     )
+    # particles on another floor than the fix's (only without follow_scan_floor)
+    ll = np.where(cloud.floor == m.whole.floor, ll, ll + math.log(params.radio_outlier))
     cloud = particle.reweight(cloud, ll)
     if not particle.alive(cloud):
         return cloud

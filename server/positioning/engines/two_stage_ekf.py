@@ -302,6 +302,7 @@ def _on_scan(
         return new, _fix(new, m.t_ms, m.kind, diagnostics)
 
     near = _partition(maps, state.x, params.partition_radius_m)
+    near &= maps.radio.rp_floor == whole.floor
     in_partition = wknn(maps.radio, m.scan, k=params.k, candidates=near)
     diagnostics["partition"] = 1.0 if in_partition is not None else 0.0
     u = rf.position_update(state.x, state.P, rf.refined(m, in_partition))

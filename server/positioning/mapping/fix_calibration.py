@@ -82,8 +82,16 @@ def held_out_fixes(
         train = np.flatnonzero(fold != f)
         if test.size == 0 or train.size == 0:
             continue
+        # the fold's map knows only the emitters its own scans heard, as any map does
+        heard = np.isfinite(rssi[train]).any(axis=0)
         radio = in_place_order(
-            build_radio_map(xy_m[train], floor[train], rssi[train], emitters, cell_m=cell_m)
+            build_radio_map(
+                xy_m[train],
+                floor[train],
+                rssi[np.ix_(train, np.flatnonzero(heard))],
+                tuple(emitters[j] for j in np.flatnonzero(heard).tolist()),
+                cell_m=cell_m,
+            )
         )
         if test.size > max_per_fold:
             test = np.sort(rng.choice(test, max_per_fold, replace=False))

@@ -228,9 +228,9 @@ def fold_radio_maps(
     return RadioMap(
         rp_xy=_inside_cells(rp_xy, keys, cell_m),
         rp_floor=keys[:, 0].astype(np.int32),
-        mean_dbm=mean.reshape(n_rp, n_em),
-        var_db2=var.reshape(n_rp, n_em),
-        count=count.reshape(n_rp, n_em),
+        mean_dbm=mean.astype(np.float32),
+        var_db2=var.astype(np.float32),
+        count=count.astype(np.int32),
         emitters=emitters,
         rp_points=points.astype(np.int32),
     )
