@@ -52,10 +52,9 @@ fall inside the outline and none inside a unit).
 from __future__ import annotations
 
 import json
-import lzma
 import math
 import re
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
@@ -64,11 +63,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from server.datasets.records import keep_strongest, open_text, readings
 from server.positioning.events import (
     BleEvent,
     Event,
     ImuEvent,
-    RadioReading,
     WifiEvent,
     window_ble,
 )
@@ -320,16 +319,6 @@ def floor_level(name: str) -> int:
     raise ValueError(f"cannot tell the level of floor {name!r}: expected B1, F1, 1F or L1")
 
 
-def _open_text(path: Path) -> Iterator[str]:
-    """Lines of a ``.txt`` or ``.xz`` file (undecodable bytes replaced, line ends kept)."""
-    if path.suffix == ".xz":
-        with lzma.open(path, "rt", encoding="utf-8", errors="replace", newline="") as f:
-            yield from f
-    else:
-        with path.open(encoding="utf-8", errors="replace", newline="") as f:
-            yield from f
-
-
 def _path_id(path: Path) -> str:
     name = path.name
     for suffix in (".xz", ".txt"):
@@ -437,7 +426,7 @@ class _TraceParser:
                 if self.wifi_max_age_ms is not None and t - int(f[6]) > self.wifi_max_age_ms:
                     self.stale_wifi += 1
                     return
-                _keep_strongest(self.wifi.setdefault(t, {}), f[3].lower(), rssi)
+                keep_strongest(self.wifi.setdefault(t, {}), f[3].lower(), rssi)
             elif kind == "TYPE_BEACON":
                 if n != _N_FIELDS_BEACON or not (f[2] and _is_uint(f[3]) and _is_uint(f[4])):
                     raise ValueError(kind)
@@ -448,7 +437,7 @@ class _TraceParser:
                 # the MAC is the beacon: one iBeacon id is often shared by hundreds of
                 # beacons on every floor (site2: one id covers 318 MACs on all 9 floors)
                 emitter = (f[8] or f"{f[2]}:{f[3]}:{f[4]}").lower()
-                _keep_strongest(self.ble.setdefault(t, {}), emitter, rssi)
+                keep_strongest(self.ble.setdefault(t, {}), emitter, rssi)
             elif kind == "TYPE_WAYPOINT":
                 if n != _N_FIELDS_WAYPOINT:
                     raise ValueError(kind)
@@ -473,8 +462,8 @@ class _TraceParser:
             if streams[stream].shape[0] == 0 and rows:
                 streams[stream] = self._rows(rows, 4)
                 uncalibrated.add(stream)
-        wifi = tuple(WifiEvent(t, _readings(self.wifi[t])) for t in sorted(self.wifi))
-        ble = tuple(window_ble([BleEvent(t, _readings(self.ble[t])) for t in sorted(self.ble)]))
+        wifi = tuple(WifiEvent(t, readings(self.wifi[t])) for t in sorted(self.wifi))
+        ble = tuple(window_ble([BleEvent(t, readings(self.ble[t])) for t in sorted(self.ble)]))
         t_all = [waypoints[:, 0], *(a[:, 0] for a in streams.values())]
         t_all.append(np.asarray(self.radio_t, dtype=np.float64))
         t_concat = np.concatenate(t_all)
@@ -522,15 +511,6 @@ def _increasing(samples: NDArray[np.float64]) -> NDArray[np.float64]:
     return samples if keep.all() else samples[keep]
 
 
-def _keep_strongest(scan: dict[str, float], emitter: str, rssi: float) -> None:
-    if scan.get(emitter, -math.inf) < rssi:
-        scan[emitter] = rssi
-
-
-def _readings(scan: dict[str, float]) -> tuple[RadioReading, ...]:
-    return tuple(RadioReading(emitter, rssi) for emitter, rssi in scan.items())
-
-
 def read_trace(
     path: Path, floor: str | None = None, *, wifi_max_age_ms: int | None = WIFI_MAX_AGE_MS
 ) -> IlcTrace:
@@ -554,7 +534,7 @@ def read_trace(
         file is not xz data at all.
     """
     parser = _TraceParser(wifi_max_age_ms)
-    lines = _open_text(path)
+    lines = open_text(path)
     try:
         parser.feed(lines)
     except EOFError:  # compressed stream cut short: keep what was read

@@ -79,10 +79,9 @@ one more bad line.
 from __future__ import annotations
 
 import csv
-import lzma
 import math
 import re
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from types import MappingProxyType
@@ -92,7 +91,8 @@ import pymap3d
 from numpy.typing import ArrayLike, NDArray
 
 from server.datasets.ilc import IlcFloor, IlcSite, IlcTrace
-from server.positioning.events import BLE_WINDOW_MS, BleEvent, RadioReading, WifiEvent, window_ble
+from server.datasets.records import keep_strongest, open_text, readings
+from server.positioning.events import BLE_WINDOW_MS, BleEvent, WifiEvent, window_ble
 
 VENUE_LEVELS = (-2, -1, 0)
 """Floors of the IPIN 2023 venue (Museum Industriekultur, Nuremberg): 0, -1 and -2."""
@@ -297,16 +297,6 @@ def _log_id(path: Path) -> str:
     return name
 
 
-def _open_text(path: Path) -> Iterator[str]:
-    """Lines of a ``.txt`` or ``.xz`` file (undecodable bytes replaced)."""
-    if path.suffix == ".xz":
-        with lzma.open(path, "rt", encoding="utf-8", errors="replace") as f:
-            yield from f
-    else:
-        with path.open(encoding="utf-8", errors="replace") as f:
-            yield from f
-
-
 def _finite(*values: float) -> bool:
     return all(map(math.isfinite, values))
 
@@ -379,7 +369,7 @@ class _LogParser:
             t_s, frequency, rssi = float(f[1]), float(f[5]), float(f[6])
             if not _finite(t_s, frequency, rssi):
                 raise ValueError(kind)
-            _keep_strongest(self.wifi.setdefault(_ms(t_s), {}), f[4].lower(), rssi)
+            keep_strongest(self.wifi.setdefault(_ms(t_s), {}), f[4].lower(), rssi)
         elif kind == "BLE4":
             self._ble(f)
         elif kind == "GNSS":
@@ -422,7 +412,7 @@ class _LogParser:
         if not f[3] or not _finite(t_s, rssi):
             raise ValueError("BLE4")
         mac = f[3].lower()
-        _keep_strongest(self.ble.setdefault(_ms(t_s), {}), mac, rssi)
+        keep_strongest(self.ble.setdefault(_ms(t_s), {}), mac, rssi)
         if beacon is not None:
             self.beacons.setdefault(mac, beacon)
 
@@ -435,8 +425,8 @@ class _LogParser:
             streams[name], on_app_clock = _on_app_clock(rows)
             if on_app_clock:
                 app_clock.add(name)
-        wifi = tuple(WifiEvent(t, _readings(self.wifi[t])) for t in sorted(self.wifi))
-        ble_rows = [BleEvent(t, _readings(self.ble[t])) for t in sorted(self.ble)]
+        wifi = tuple(WifiEvent(t, readings(self.wifi[t])) for t in sorted(self.wifi))
+        ble_rows = [BleEvent(t, readings(self.ble[t])) for t in sorted(self.ble)]
         ble = tuple(ble_rows if ble_window_ms is None else window_ble(ble_rows, ble_window_ms))
 
         posi = np.asarray(self.posi, dtype=np.float64).reshape(-1, 6)
@@ -518,15 +508,6 @@ def _on_app_clock(rows: NDArray[np.float64]) -> tuple[NDArray[np.float64], bool]
     return np.column_stack([app_ms[order].astype(np.float64), rows[order, 2:]]), True
 
 
-def _keep_strongest(scan: dict[str, float], emitter: str, rssi: float) -> None:
-    if scan.get(emitter, -math.inf) < rssi:
-        scan[emitter] = rssi
-
-
-def _readings(scan: dict[str, float]) -> tuple[RadioReading, ...]:
-    return tuple(RadioReading(emitter, rssi) for emitter, rssi in scan.items())
-
-
 def read_log(
     path: Path, frame: LocalFrame | None = None, *, ble_window_ms: int | None = BLE_WINDOW_MS
 ) -> IpinLog:
@@ -565,7 +546,7 @@ def read_log(
         frame = venue_frame(venue)
     parser = _LogParser()
     try:
-        parser.feed(_open_text(path))
+        parser.feed(open_text(path))
     except EOFError:  # compressed stream cut short: keep what was read
         parser.bad_lines += 1
     return parser.log(path, frame, ble_window_ms)
