@@ -9,7 +9,7 @@ import lzma
 import socket
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from enum import StrEnum
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -380,11 +380,16 @@ def _summarise_crowd(summary: dict[str, Any], reports: list[dict[str, Any]]) -> 
         floor.pop("magnetic_at_waypoints", None)
 
 
-def _points_path(json_path: Path, engine: str, n_runs: int) -> Path:
-    """Where the per-point errors go beside the summary: ``out.points.csv`` (one engine)
-    or ``out.<engine>.points.csv``."""
-    middle = f".{engine}" if n_runs > 1 else ""
-    return json_path.with_name(f"{json_path.stem}{middle}.points.csv")
+def _write_points(json_path: Path, runs: Sequence[Any]) -> None:
+    """The per-point errors of each run beside the summary: ``out.points.csv`` (one
+    engine) or ``out.<engine>.points.csv``."""
+    from server.lab import evaluation
+
+    for run in runs:
+        middle = f".{run.summary['engine']}" if len(runs) > 1 else ""
+        points = json_path.with_name(f"{json_path.stem}{middle}.points.csv")
+        evaluation.write_points(run.paths, points)
+        console.print(f"per-point errors written to {points}")
 
 
 @evaluate_app.command("ilc")
@@ -509,10 +514,7 @@ def evaluate_ilc(
         payload = runs[0].summary if len(runs) == 1 else {"runs": [r.summary for r in runs]}
         json_path.write_text(json.dumps(payload, indent=2) + "\n")
         console.print(f"metrics written to {json_path}")
-        for run in runs:
-            points = _points_path(json_path, run.summary["engine"], len(runs))
-            evaluation.write_points(run.paths, points)
-            console.print(f"per-point errors written to {points}")
+        _write_points(json_path, runs)
     if plots is not None:
         written = evaluation.write_ilc_plots(runs, plots)
         console.print(f"{len(written)} figures written to {plots}")
@@ -589,10 +591,7 @@ def evaluate_ipin(
         payload = runs[0].summary if len(runs) == 1 else {"runs": [r.summary for r in runs]}
         json_path.write_text(json.dumps(payload, indent=2) + "\n")
         console.print(f"metrics written to {json_path}")
-        for run in runs:
-            points = _points_path(json_path, run.summary["engine"], len(runs))
-            evaluation.write_points(run.paths, points)
-            console.print(f"per-point errors written to {points}")
+        _write_points(json_path, runs)
 
 
 class StepDetector(StrEnum):

@@ -214,16 +214,7 @@ def initial_state(params: EverywhereParams) -> EverywhereState:
 
 
 def _fix(state: EverywhereState, t_ms: int, source: str, diagnostics: dict[str, float]) -> Fix:
-    return rf.to_fix(
-        state.x,
-        state.P,
-        state.floor,
-        state.heading_known,
-        t_ms,
-        source,
-        diagnostics,
-        state.floor_logp,
-    )
+    return rf.state_fix(state, t_ms, source, diagnostics)
 
 
 def step_motion(x: FloatArray, length_m: float, turn_rad: float) -> tuple[FloatArray, FloatArray]:

@@ -220,6 +220,20 @@ def to_fix(
     )
 
 
+def state_fix(state: FilterState, t_ms: int, source: str, diagnostics: dict[str, float]) -> Fix:
+    """``to_fix`` of a PDR fusion engine's state."""
+    return to_fix(
+        state.x,
+        state.P,
+        state.floor,
+        state.heading_known,
+        t_ms,
+        source,
+        diagnostics,
+        state.floor_logp,
+    )
+
+
 def check_positive(**values: float) -> None:
     """Raise ValueError naming the first value that is not positive and finite."""
     for name, value in values.items():
@@ -290,6 +304,8 @@ class FilterState(Protocol):
     def floor_logp(self) -> FloatArray: ...
     @property
     def floor_t_ms(self) -> int: ...
+    @property
+    def heading_known(self) -> bool: ...
 
 
 class EvidenceParams(Protocol):

@@ -198,16 +198,7 @@ def initial_state(params: TwoStageParams) -> TwoStageState:
 
 
 def _fix(state: TwoStageState, t_ms: int, source: str, diagnostics: dict[str, float]) -> Fix:
-    return rf.to_fix(
-        state.x,
-        state.P,
-        state.floor,
-        state.heading_known,
-        t_ms,
-        source,
-        diagnostics,
-        state.floor_logp,
-    )
+    return rf.state_fix(state, t_ms, source, diagnostics)
 
 
 def step_motion(x: FloatArray, turn_rad: float) -> tuple[FloatArray, FloatArray]:
