@@ -12,7 +12,18 @@ from fastapi import FastAPI
 from fastapi.routing import APIRoute
 
 from server import worker
-from server.api import admin, errors, health, live, locate, metrics, quality, sessions, uploads
+from server.api import (
+    admin,
+    body_limit,
+    errors,
+    health,
+    live,
+    locate,
+    metrics,
+    quality,
+    sessions,
+    uploads,
+)
 from server.config import Settings, get_settings
 from server.services import telemetry
 from server.services.runtime import open_runtime
@@ -59,6 +70,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     errors.install(app)
     for module in (health, admin, sessions, live, locate, uploads, quality, metrics):
         app.include_router(module.router)
+    app.add_middleware(
+        body_limit.BodyLimit,
+        json_max_bytes=settings.json_max_bytes,
+        bulk_max_bytes=settings.upload_max_bytes,
+    )
     app.add_middleware(metrics.RequestTimer)
     _with_hand_read_schemas(app)
     return app

@@ -46,6 +46,13 @@ class Settings(BaseSettings):
         "3,000-particle cloud); 0 turns the cache off",
     )
     map_cache_size: int = Field(32, ge=1, description="site map sets kept in memory")
+    json_max_bytes: int = Field(
+        4 * 1024 * 1024,
+        ge=1024,
+        description="largest JSON body of a device route (sessions, batches, locate); a "
+        "batch at its limit of imu rows is about 3 MB. Bulk routes (uploads, surveys, "
+        "plans) take upload_max_bytes",
+    )
     upload_max_bytes: int = Field(
         64 * 1024 * 1024, ge=1024, description="largest upload, after decompression"
     )

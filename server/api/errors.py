@@ -14,6 +14,7 @@ from typing import Any
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException
 
 from server.services import telemetry
 from server.services.errors import ServiceError
@@ -46,19 +47,28 @@ def validation_detail(errors: list[Any]) -> dict[str, Any]:
     detail = []
     for err in errors:
         loc = _clean_loc(err.get("loc", ()))
+        msg = err.get("msg", "invalid")
         if err.get("type") == "union_tag_invalid":
             loc.append("type")
-        detail.append({"loc": loc, "msg": err.get("msg", "invalid"), "type": err.get("type")})
+        elif err.get("type") == "json_invalid":  # FastAPI puts the character offset in loc
+            offset = loc[1] if len(loc) > 1 else None
+            loc = ["body"]
+            msg = f"{msg} (the body is not JSON; at character {offset})"
+        detail.append({"loc": loc, "msg": msg, "type": err.get("type")})
     message = "; ".join(f"{_field(d['loc'])}: {d['msg']}" for d in detail[:5])
     return {"detail": detail, "message": message}
 
 
-def service_detail(exc: ServiceError) -> dict[str, Any]:
-    field = exc.field or "request"
+def problem(field: str, msg: str, kind: str) -> dict[str, Any]:
+    """The error body about one field (dotted path)."""
     return {
-        "detail": [{"loc": field.split("."), "msg": exc.message, "type": type(exc).__name__}],
-        "message": f"{field}: {exc.message}",
+        "detail": [{"loc": field.split("."), "msg": msg, "type": kind}],
+        "message": f"{field}: {msg}",
     }
+
+
+def service_detail(exc: ServiceError) -> dict[str, Any]:
+    return problem(exc.field or "request", exc.message, type(exc).__name__)
 
 
 async def _on_validation(_request: Request, exc: Exception) -> JSONResponse:
@@ -79,16 +89,36 @@ async def _on_store_error(_request: Request, exc: Exception) -> JSONResponse:
     logger.warning("the %s store failed", store, exc_info=exc)
     msg = f"the {store} store is unavailable; retry later"
     return JSONResponse(
-        {
-            "detail": [{"loc": ["request"], "msg": msg, "type": "StoreUnavailable"}],
-            "message": f"request: {msg}",
-        },
+        problem("request", msg, "StoreUnavailable"),
         status_code=503,
         headers={"Retry-After": str(STORE_RETRY_AFTER_S)},
     )
 
 
+# what the framework itself refuses (no route, wrong method, a body that is not JSON or
+# not UTF-8, nested past the parser's depth): the field it is about
+HTTP_FIELDS = {400: "body", 404: "path", 405: "method", 413: "body", 415: "content-type"}
+
+
+async def _on_http(_request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, HTTPException)
+    field = HTTP_FIELDS.get(exc.status_code, "request")
+    msg = str(exc.detail) if exc.detail else "refused"
+    if exc.status_code == 400 and "parsing the body" in msg:
+        msg = "the body is not valid JSON (bad UTF-8, a syntax error or nesting too deep)"
+    body = problem(field, msg[:1].lower() + msg[1:], "HTTPError")
+    return JSONResponse(body, status_code=exc.status_code, headers=exc.headers)
+
+
+async def _on_unexpected(_request: Request, _exc: Exception) -> JSONResponse:
+    # logged with its traceback by the server (Starlette re-raises after answering)
+    msg = "internal error; nothing of this request can be assumed applied: retry it"
+    return JSONResponse(problem("request", msg, "InternalError"), status_code=500)
+
+
 def install(app: FastAPI) -> None:
+    app.add_exception_handler(HTTPException, _on_http)
+    app.add_exception_handler(Exception, _on_unexpected)
     app.add_exception_handler(RequestValidationError, _on_validation)
     app.add_exception_handler(ServiceError, _on_service)
     for error_type in telemetry.STORE_ERROR_TYPES:

@@ -32,7 +32,7 @@ from server.positioning.engines.base import EngineSpec, SiteMaps
 from server.positioning.events import Event, Fix, ImuEvent, StepEvent
 from server.services import telemetry, traces, uploads
 from server.services.device_offsets import on_common_level
-from server.services.errors import Conflict, Forbidden, Invalid, NotFound
+from server.services.errors import Conflict, Forbidden, Invalid
 from server.services.maps import site_maps
 from server.services.runtime import Runtime
 from server.storage import repositories as repo
@@ -232,13 +232,23 @@ async def create_session(
     return CreatedSession(session_id, token, site_id, engine, ttl)
 
 
+def _no_session() -> Forbidden:
+    """One answer for a wrong token and for a session that does not exist (any more), so
+    that session ids cannot be probed."""
+    return Forbidden(
+        "this token opens no live session of this id (wrong token, or the session ended "
+        "or expired)",
+        field="authorization",
+    )
+
+
 async def _load(rt: Runtime, session_id: str, token: str) -> tuple[StoredSession, SessionMeta]:
     stored = await rt.store.get(session_id)
     if stored is None:
-        raise NotFound(f"session {session_id} not found or expired", field="session_id")
+        raise _no_session()
     meta = SessionMeta.from_bytes(stored.meta)
     if not hmac.compare_digest(meta.token_digest, _digest(token)):
-        raise Forbidden("this token does not belong to the session", field="authorization")
+        raise _no_session()
     return stored, meta
 
 
@@ -254,7 +264,7 @@ async def _load_decoded(
         stored = await rt.store.get_changed(session_id, cached[0])
     if stored is None:
         rt.states.drop(session_id)
-        raise NotFound(f"session {session_id} not found or expired", field="session_id")
+        raise _no_session()
     if isinstance(stored, int):
         assert cached is not None
         version, meta, state = cached
@@ -264,7 +274,7 @@ async def _load_decoded(
         state = SessionState.from_bytes(stored.state, get_engine(meta.engine))
         rt.states.put(session_id, version, meta, state)
     if not hmac.compare_digest(meta.token_digest, _digest(token)):
-        raise Forbidden("this token does not belong to the session", field="authorization")
+        raise _no_session()
     return version, meta, state
 
 

@@ -209,4 +209,4 @@ async def test_unknown_engine_and_site_are_rejected(
 async def test_deleted_session_is_gone(client: httpx.AsyncClient, site: ToySite) -> None:
     sid, auth = await open_session(client, site)
     assert (await client.delete(f"/v1/sessions/{sid}", headers=auth)).status_code == 204
-    assert (await client.get(f"/v1/sessions/{sid}", headers=auth)).status_code == 404
+    assert (await client.get(f"/v1/sessions/{sid}", headers=auth)).status_code == 403

@@ -1,0 +1,106 @@
+"""One error shape for everything the service refuses, bodies bounded, no session probing."""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator
+from typing import Any
+
+import httpx
+import pytest
+
+from tests.api.test_sessions import open_session, step
+from tests.api.toy_site import ToySite, build_toy_site
+
+T0 = 1_700_000_000_000
+
+
+@pytest.fixture
+async def site(client: httpx.AsyncClient, admin: dict[str, str]) -> ToySite:
+    return await build_toy_site(client, admin)
+
+
+def assert_shape(r: httpx.Response, status: int, field: str) -> dict[str, Any]:
+    assert r.status_code == status, r.text
+    assert r.headers["content-type"].startswith("application/json")
+    body: dict[str, Any] = r.json()
+    assert body["message"].startswith(f"{field}: "), body
+    assert body["detail"][0]["loc"] == field.split(".")
+    return body
+
+
+async def test_unknown_route_and_wrong_method_answer_in_the_api_shape(
+    client: httpx.AsyncClient,
+) -> None:
+    assert_shape(await client.get("/v1/no-such-thing"), 404, "path")
+    assert_shape(await client.put("/v1/sessions"), 405, "method")
+
+
+@pytest.mark.parametrize(
+    "raw",
+    [b"\xff\xfe not utf-8", b"[" * 1000 + b"]" * 1000, b'{"site_id": '],
+    ids=["bad-utf8", "deep-nesting", "truncated"],
+)
+async def test_an_unparseable_body_names_the_body(client: httpx.AsyncClient, raw: bytes) -> None:
+    r = await client.post("/v1/sessions", content=raw, headers={"content-type": "application/json"})
+    assert r.status_code in (400, 422), r.text
+    body = r.json()
+    assert body["message"].startswith("body"), body
+
+
+async def test_a_declared_large_body_is_refused_before_it_is_read(
+    client: httpx.AsyncClient, app: Any
+) -> None:
+    limit = app.state.runtime.settings.json_max_bytes
+    big = b'{"site_id": "' + b"a" * limit + b'"}'
+    r = await client.post("/v1/sessions", content=big, headers={"content-type": "application/json"})
+    assert_shape(r, 413, "body")
+
+
+async def test_a_chunked_large_body_is_cut_off_at_the_limit(
+    client: httpx.AsyncClient, app: Any
+) -> None:
+    limit = app.state.runtime.settings.json_max_bytes
+    sent = 0
+
+    async def chunks() -> AsyncIterator[bytes]:
+        nonlocal sent
+        yield b'{"site_id": "'
+        for _ in range(4 * limit // 65536):
+            sent += 65536
+            yield b"a" * 65536
+        yield b'"}'
+
+    r = await client.post(
+        "/v1/sessions", content=chunks(), headers={"content-type": "application/json"}
+    )
+    assert_shape(r, 413, "body")
+
+
+async def test_a_batch_under_the_limit_still_passes(
+    client: httpx.AsyncClient, site: ToySite
+) -> None:
+    sid, auth = await open_session(client, site)
+    # 2,000 steps: about 150 KB, far below the device limit
+    events = [step(T0 + 600 * i) for i in range(2000)]
+    r = await client.post(
+        f"/v1/sessions/{sid}/batches", json={"seq": 1, "events": events}, headers=auth
+    )
+    assert r.status_code == 200, r.text
+
+
+async def test_a_missing_session_and_a_wrong_token_get_the_same_answer(
+    client: httpx.AsyncClient, site: ToySite
+) -> None:
+    sid, auth = await open_session(client, site)
+    wrong = {"Authorization": "Bearer not-the-token"}
+    missing = "0" * 32
+    answers = [
+        await client.get(f"/v1/sessions/{sid}", headers=wrong),
+        await client.get(f"/v1/sessions/{missing}", headers=auth),
+        await client.post(
+            f"/v1/sessions/{missing}/batches", json={"seq": 1, "events": []}, headers=auth
+        ),
+        await client.delete(f"/v1/sessions/{missing}", headers=auth),
+    ]
+    bodies = [assert_shape(r, 403, "authorization") for r in answers]
+    assert all(b == bodies[0] for b in bodies)
