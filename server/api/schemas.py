@@ -20,6 +20,9 @@ from pydantic import (
     field_validator,
     model_validator,
 )
+from pydantic import (
+    Strict as StrictMode,
+)
 
 MAX_EVENTS_PER_BATCH = 2000
 MAX_READINGS_PER_SCAN = 2048  # malls with every SSID per radio reach 500+
@@ -30,11 +33,13 @@ MAX_IMU_ROWS_PER_BATCH = 60_000
 MAX_IMU_SPAN_MS = 60_000  # no sample later than t + this
 MAX_IMU_RATE_HZ = 500  # mean rate of one sensor over its samples in one event
 
-FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+FiniteFloat = Annotated[float, StrictMode(), Field(allow_inf_nan=False)]
 # below 2**53: exact as a float, and far inside int64
-TimestampMs = Annotated[int, Field(ge=0, le=2**53, description="milliseconds since the epoch")]
+TimestampMs = Annotated[
+    int, StrictMode(), Field(ge=0, le=2**53, description="milliseconds since the epoch")
+]
 # local coordinates: a building frame is never 100 km across
-Coordinate = Annotated[float, Field(ge=-100_000, le=100_000, allow_inf_nan=False)]
+Coordinate = Annotated[float, StrictMode(), Field(ge=-100_000, le=100_000, allow_inf_nan=False)]
 # ids we hand out are 32 hex characters
 Id = Annotated[str, Field(pattern=r"^[0-9a-f]{32}$", description="an id this service made")]
 # emitter ids: printable ASCII without spaces (BSSIDs, "uuid:major:minor")
@@ -42,22 +47,41 @@ EmitterId = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[!-~]+$
 
 
 def _plain_text(value: str) -> str:
-    if any(ord(c) < 32 or ord(c) == 127 or 0xD800 <= ord(c) <= 0xDFFF for c in value):
+    # C0 and C1 controls (ANSI escapes start with ESC or CSI), unpaired surrogates
+    if any(ord(c) < 32 or 127 <= ord(c) <= 159 or 0xD800 <= ord(c) <= 0xDFFF for c in value):
         raise ValueError("control characters and unpaired surrogates are not allowed")
     return value
 
 
 Name = Annotated[str, Field(min_length=1, max_length=200), AfterValidator(_plain_text)]
+DeviceModel = Annotated[
+    str,
+    Field(min_length=1, max_length=128, description="the phone's model name, plain text"),
+    AfterValidator(_plain_text),
+]
+
+
+# a JSON array fills a tuple; its items keep their own strict types
+LAX_ARRAY = StrictMode(False)
 
 
 class Strict(BaseModel):
+    """Every wire model: unknown fields refused."""
+
     model_config = ConfigDict(extra="forbid", ser_json_inf_nan="null")
+
+
+class StrictIn(Strict):
+    """What clients send: no coercion either (``"1"``, ``true`` or ``1.0`` is not an
+    integer, ``"1"`` or ``true`` not a number; JSON arrays still fill tuples)."""
+
+    model_config = ConfigDict(strict=True)
 
 
 # ---------------------------------------------------------------- sites, buildings, floors
 
 
-class SiteCreate(Strict):
+class SiteCreate(StrictIn):
     name: Name
 
 
@@ -72,7 +96,7 @@ class SiteList(Strict):
     count: int
 
 
-class BuildingCreate(Strict):
+class BuildingCreate(StrictIn):
     name: Name
     origin_lat: Annotated[float | None, Field(ge=-90, le=90, allow_inf_nan=False)] = None
     origin_lon: Annotated[float | None, Field(ge=-180, le=180, allow_inf_nan=False)] = None
@@ -96,7 +120,7 @@ class BuildingList(Strict):
     count: int
 
 
-class FloorCreate(Strict):
+class FloorCreate(StrictIn):
     level: Annotated[int, Field(ge=-20, le=200)]
     name: Name | None = None
 
@@ -126,17 +150,17 @@ class FloorPlan(BaseModel):
 # ---------------------------------------------------------------- radio readings and events
 
 
-class WifiReading(Strict):
+class WifiReading(StrictIn):
     bssid: EmitterId
     rssi_dbm: Annotated[float, Field(ge=-130, le=0, allow_inf_nan=False)]
 
 
-class BleReading(Strict):
+class BleReading(StrictIn):
     id: EmitterId
     rssi_dbm: Annotated[float, Field(ge=-130, le=0, allow_inf_nan=False)]
 
 
-class StepIn(Strict):
+class StepIn(StrictIn):
     type: Literal["step"]
     t: TimestampMs
     length_m: Annotated[float, Field(gt=0, le=3.0, allow_inf_nan=False)]
@@ -144,22 +168,22 @@ class StepIn(Strict):
     confidence: Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)] = 1.0
 
 
-class WifiIn(Strict):
+class WifiIn(StrictIn):
     type: Literal["wifi"]
     t: TimestampMs
     readings: Annotated[list[WifiReading], Field(max_length=MAX_READINGS_PER_SCAN)]
 
 
-class BleIn(Strict):
+class BleIn(StrictIn):
     type: Literal["ble"]
     t: TimestampMs
     readings: Annotated[list[BleReading], Field(max_length=MAX_READINGS_PER_SCAN)]
 
 
-class MagIn(Strict):
+class MagIn(StrictIn):
     type: Literal["mag"]
     t: TimestampMs
-    field_ut: tuple[FiniteFloat, FiniteFloat, FiniteFloat] | None = None
+    field_ut: Annotated[tuple[FiniteFloat, FiniteFloat, FiniteFloat], LAX_ARRAY] | None = None
     magnitude_ut: Annotated[float | None, Field(ge=0, le=2000, allow_inf_nan=False)] = None
 
     @model_validator(mode="after")
@@ -171,15 +195,15 @@ class MagIn(Strict):
 
 # plausible ranges: accelerometers saturate at 16 g, gyroscopes at 2000 °/s; raw
 # (uncalibrated) magnetometers report several hundred µT of hard-iron bias
-Accel = Annotated[float, Field(ge=-160, le=160, allow_inf_nan=False)]
-Gyro = Annotated[float, Field(ge=-35, le=35, allow_inf_nan=False)]
-Magnetic = Annotated[float, Field(ge=-5000, le=5000, allow_inf_nan=False)]
-Quaternion = Annotated[float, Field(ge=-1, le=1, allow_inf_nan=False)]
-Pressure = Annotated[float, Field(ge=300, le=1100, allow_inf_nan=False)]
+Accel = Annotated[float, StrictMode(), Field(ge=-160, le=160, allow_inf_nan=False)]
+Gyro = Annotated[float, StrictMode(), Field(ge=-35, le=35, allow_inf_nan=False)]
+Magnetic = Annotated[float, StrictMode(), Field(ge=-5000, le=5000, allow_inf_nan=False)]
+Quaternion = Annotated[float, StrictMode(), Field(ge=-1, le=1, allow_inf_nan=False)]
+Pressure = Annotated[float, StrictMode(), Field(ge=300, le=1100, allow_inf_nan=False)]
 UNIT_NORM_TOLERANCE = 0.1  # how far |q| of a rotation row may be from 1
 
 
-class ImuIn(Strict):
+class ImuIn(StrictIn):
     """Raw motion samples of the phone from ``t`` on, for engines that detect steps and
     track the attitude themselves (the others accept and ignore them).
 
@@ -195,28 +219,30 @@ class ImuIn(Strict):
 
     type: Literal["imu"]
     t: TimestampMs = Field(description="start of the block: no sample is earlier")
-    accel: list[tuple[TimestampMs, Accel, Accel, Accel]] = Field(
+    accel: list[Annotated[tuple[TimestampMs, Accel, Accel, Accel], LAX_ARRAY]] = Field(
         [],
         max_length=MAX_IMU_ROWS_PER_SENSOR,
         description="[t, x, y, z]: specific force in m/s², gravity included",
     )
-    gyro: list[tuple[TimestampMs, Gyro, Gyro, Gyro]] = Field(
+    gyro: list[Annotated[tuple[TimestampMs, Gyro, Gyro, Gyro], LAX_ARRAY]] = Field(
         [], max_length=MAX_IMU_ROWS_PER_SENSOR, description="[t, x, y, z]: angular rate in rad/s"
     )
-    magnetic: list[tuple[TimestampMs, Magnetic, Magnetic, Magnetic]] = Field(
+    magnetic: list[Annotated[tuple[TimestampMs, Magnetic, Magnetic, Magnetic], LAX_ARRAY]] = Field(
         [], max_length=MAX_IMU_ROWS_PER_SENSOR, description="[t, x, y, z]: magnetic field in µT"
     )
     magnetic_calibrated: bool = Field(
         True, description="false when magnetic still holds the hard-iron bias (uncalibrated)"
     )
-    rotation: list[tuple[TimestampMs, Quaternion, Quaternion, Quaternion, Quaternion]] = Field(
+    rotation: list[
+        Annotated[tuple[TimestampMs, Quaternion, Quaternion, Quaternion, Quaternion], LAX_ARRAY]
+    ] = Field(
         [],
         max_length=MAX_IMU_ROWS_PER_SENSOR,
         description="[t, x, y, z, w]: unit quaternion (norm 1 ± 0.1) of the phone in the "
         "east-north-up frame: Android's rotation vector, with w = sqrt(1 - x² - y² - z²) "
         "when the phone gives only x, y, z",
     )
-    pressure: list[tuple[TimestampMs, Pressure]] = Field(
+    pressure: list[Annotated[tuple[TimestampMs, Pressure], LAX_ARRAY]] = Field(
         [], max_length=MAX_IMU_ROWS_PER_SENSOR, description="[t, hPa]: barometric pressure"
     )
 
@@ -264,7 +290,7 @@ class ImuIn(Strict):
         return sum(len(rows) for rows in sensors)
 
 
-class GnssIn(Strict):
+class GnssIn(StrictIn):
     """A satellite fix; near an entrance it anchors a walk offered for map building
     (``accuracy_m`` < 5 m and ``hdop`` < 20, Mansour IV-B; without ``hdop``, never)."""
 
@@ -290,7 +316,7 @@ class FixOut(Strict):
     building_id: str | None
     floor_id: str | None
     heading_rad: float | None
-    cov_m2: tuple[float, float, float, float] = Field(
+    cov_m2: Annotated[tuple[float, float, float, float], LAX_ARRAY] = Field(
         description="position covariance xx, xy, yx, yy in m²"
     )
     uncertainty_m: float
@@ -302,7 +328,7 @@ class FixOut(Strict):
 # ---------------------------------------------------------------- sessions
 
 
-class SessionCreate(Strict):
+class SessionCreate(StrictIn):
     site_id: Id
     engine: Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[a-z0-9_]+$")] = "step_ekf"
     contribute: bool = Field(
@@ -310,7 +336,7 @@ class SessionCreate(Strict):
         description="offer this walk for map building: its batches are kept and, when the "
         "session ends, become one upload (anchored by the floor plan's beacons)",
     )
-    device_model: Annotated[str | None, Field(min_length=1, max_length=128)] = None
+    device_model: DeviceModel | None = None
 
 
 class SessionCreated(Strict):
@@ -330,7 +356,7 @@ class SessionRead(Strict):
     idle_timeout_s: int
 
 
-class BatchIn(Strict):
+class BatchIn(StrictIn):
     seq: Annotated[int, Field(ge=1, description="1, 2, 3, ... per session")]
     events: Annotated[
         list[EventIn],
@@ -361,17 +387,17 @@ class BatchOut(Strict):
 # ---------------------------------------------------------------- surveys and maps
 
 
-class SurveyPoint(Strict):
+class SurveyPoint(StrictIn):
     x_m: Coordinate
     y_m: Coordinate
     floor: int = Field(description="floor level")
     t: TimestampMs | None = None
     wifi: Annotated[list[WifiReading], Field(max_length=MAX_READINGS_PER_SCAN)] = []
     ble: Annotated[list[BleReading], Field(max_length=MAX_READINGS_PER_SCAN)] = []
-    mag_ut: tuple[FiniteFloat, FiniteFloat, FiniteFloat] | None = None
+    mag_ut: Annotated[tuple[FiniteFloat, FiniteFloat, FiniteFloat], LAX_ARRAY] | None = None
 
 
-class SurveyIn(Strict):
+class SurveyIn(StrictIn):
     points: Annotated[list[SurveyPoint], Field(min_length=1, max_length=100_000)]
 
 
@@ -394,16 +420,16 @@ class RadioMapList(Strict):
 
 # Survey readings must come from a calibrated magnetometer: indoor fields stay far below
 # this, the hard-iron bias of an uncalibrated one often does not
-SurveyField = Annotated[float, Field(ge=-500, le=500, allow_inf_nan=False)]
+SurveyField = Annotated[float, StrictMode(), Field(ge=-500, le=500, allow_inf_nan=False)]
 MAX_MAGNETIC_SAMPLES = 200_000  # per request, points and line samples together
 
 
-class MagneticPointIn(Strict):
+class MagneticPointIn(StrictIn):
     """The field measured standing at a marked spot."""
 
     x_m: Coordinate
     y_m: Coordinate
-    field_ut: tuple[SurveyField, SurveyField, SurveyField] | None = Field(
+    field_ut: Annotated[tuple[SurveyField, SurveyField, SurveyField], LAX_ARRAY] | None = Field(
         None, description="calibrated field in the phone frame (µT); its norm is the magnitude"
     )
     magnitude_ut: Annotated[float | None, Field(ge=0, le=500, allow_inf_nan=False)] = None
@@ -417,16 +443,16 @@ class MagneticPointIn(Strict):
         return self
 
 
-class MagneticLineIn(Strict):
+class MagneticLineIn(StrictIn):
     """A survey line walked at constant speed from ``start`` (at ``t_start``) to ``end``
     (at ``t_end``); samples are placed along it by their time, those outside dropped."""
 
-    start: tuple[Coordinate, Coordinate]
-    end: tuple[Coordinate, Coordinate]
+    start: Annotated[tuple[Coordinate, Coordinate], LAX_ARRAY]
+    end: Annotated[tuple[Coordinate, Coordinate], LAX_ARRAY]
     t_start: TimestampMs
     t_end: TimestampMs
     samples: Annotated[
-        list[tuple[TimestampMs, SurveyField, SurveyField, SurveyField]],
+        list[Annotated[tuple[TimestampMs, SurveyField, SurveyField, SurveyField], LAX_ARRAY]],
         Field(min_length=1, max_length=MAX_MAGNETIC_SAMPLES),
     ] = Field(description="[t, x, y, z]: calibrated field in the phone frame (µT)")
 
@@ -437,7 +463,7 @@ class MagneticLineIn(Strict):
         return self
 
 
-class MagneticSurveyIn(Strict):
+class MagneticSurveyIn(StrictIn):
     points: Annotated[list[MagneticPointIn], Field(max_length=MAX_MAGNETIC_SAMPLES)] = []
     lines: Annotated[list[MagneticLineIn], Field(max_length=10_000)] = []
 
@@ -491,7 +517,7 @@ MAX_UPLOAD_EVENTS = 200_000
 MAX_UPLOAD_ANCHORS = 10_000
 
 
-class UploadAnchorIn(Strict):
+class UploadAnchorIn(StrictIn):
     """A place the walker was known to be at, at a time (a tap on the map, a QR code)."""
 
     t: TimestampMs
@@ -499,7 +525,7 @@ class UploadAnchorIn(Strict):
     y_m: Coordinate
 
 
-class UploadTraceIn(Strict):
+class UploadTraceIn(StrictIn):
     """A walk as our own events (as a session's batches carry them) and its anchors.
     Without two anchors the worker looks for passes by the floor plan's beacons."""
 
@@ -525,7 +551,7 @@ class UploadRead(Strict):
 # ---------------------------------------------------------------- locate
 
 
-class LocateIn(Strict):
+class LocateIn(StrictIn):
     site_id: Id
     wifi: Annotated[list[WifiReading], Field(max_length=MAX_READINGS_PER_SCAN)] = []
     ble: Annotated[list[BleReading], Field(max_length=MAX_READINGS_PER_SCAN)] = []
@@ -537,7 +563,7 @@ class LocateOut(Strict):
     floor: int
     building_id: str
     floor_id: str
-    cov_m2: tuple[float, float, float, float]
+    cov_m2: Annotated[tuple[float, float, float, float], LAX_ARRAY]
     uncertainty_m: float
 
 
@@ -619,7 +645,7 @@ class EmitterPositionOut(Strict):
     key: str = Field(description="lower-cased BSSID or beacon id")
     x_m: float
     y_m: float
-    xy_std_m: tuple[float, float] | None = Field(
+    xy_std_m: Annotated[tuple[float, float], LAX_ARRAY] | None = Field(
         description="standard deviations of x and y from the fit; null when the noise cannot "
         "be estimated (exactly 4 readings)"
     )

@@ -91,7 +91,7 @@ async def create_upload(
     site_id: Annotated[str, Query(pattern=r"^[0-9a-f]{32}$")],
     building_id: Annotated[str | None, Query(pattern=r"^[0-9a-f]{32}$")] = None,
     floor: Annotated[int | None, Query(ge=-20, le=200, description="floor level hint")] = None,
-    device_model: Annotated[str | None, Query(min_length=1, max_length=128)] = None,
+    device_model: Annotated[sc.DeviceModel | None, Query()] = None,
     content_type: Annotated[str, Header()] = "text/plain",
     content_encoding: Annotated[str | None, Header()] = None,
     idempotency_key: Annotated[str | None, Header(min_length=1, max_length=128)] = None,

@@ -104,3 +104,47 @@ async def test_a_missing_session_and_a_wrong_token_get_the_same_answer(
     ]
     bodies = [assert_shape(r, 403, "authorization") for r in answers]
     assert all(b == bodies[0] for b in bodies)
+
+
+@pytest.mark.parametrize(
+    ("batch", "field"),
+    [
+        ({"seq": "1", "events": []}, "seq"),
+        ({"seq": True, "events": []}, "seq"),
+        ({"seq": 1.0, "events": []}, "seq"),
+        ({"seq": 1, "events": [{**step(T0), "t": "1700000000000"}]}, "t"),
+        ({"seq": 1, "events": [{**step(T0), "length_m": "0.7"}]}, "length_m"),
+        ({"seq": 1, "events": [{**step(T0), "length_m": True}]}, "length_m"),
+    ],
+)
+async def test_numbers_are_not_coerced_from_strings_or_booleans(
+    client: httpx.AsyncClient, site: ToySite, batch: dict[str, Any], field: str
+) -> None:
+    sid, auth = await open_session(client, site)
+    r = await client.post(f"/v1/sessions/{sid}/batches", json=batch, headers=auth)
+    assert r.status_code == 422, r.text
+    assert field in r.json()["message"]
+    # an integer where a float is asked stays fine
+    ok = {"seq": 1, "events": [{**step(T0), "length_m": 1}]}
+    assert (
+        await client.post(f"/v1/sessions/{sid}/batches", json=ok, headers=auth)
+    ).status_code == 200
+
+
+async def test_a_floor_level_must_be_an_integer(
+    client: httpx.AsyncClient, site: ToySite, admin: dict[str, str]
+) -> None:
+    url = f"/v1/buildings/{site.building_id}/floors"
+    for level in (True, "3", 3.0):
+        r = await client.post(url, json={"level": level, "name": "x"}, headers=admin)
+        assert r.status_code == 422, (level, r.text)
+        assert "level" in r.json()["message"]
+
+
+@pytest.mark.parametrize("model", ["Pixel\x1b[31m", "Pixel\x9b31m", "Pixel\n7", "x" * 129])
+async def test_device_model_is_plain_short_text(
+    client: httpx.AsyncClient, site: ToySite, model: str
+) -> None:
+    r = await client.post("/v1/sessions", json={"site_id": site.site_id, "device_model": model})
+    assert r.status_code == 422, r.text
+    assert "device_model" in r.json()["message"]
