@@ -19,7 +19,6 @@ from collections import Counter
 from collections.abc import AsyncIterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
-from urllib.parse import urlencode
 
 import httpx
 from websockets.asyncio.client import ClientConnection, connect
@@ -250,13 +249,12 @@ class ApiClient:
 
 
 def live_url(base_url: str, session: Session) -> str:
-    """``ws(s)://.../v1/sessions/{id}/live?token=...`` under ``base_url``."""
+    """``ws(s)://.../v1/sessions/{id}/live`` under ``base_url`` (the token goes in a
+    header, never in the URL)."""
     url = httpx.URL(base_url)
     scheme = {"http": "ws", "https": "wss"}.get(url.scheme, url.scheme)
     path = url.path.rstrip("/") + f"/v1/sessions/{session.id}/live"
-    return str(
-        url.copy_with(scheme=scheme, path=path, query=urlencode({"token": session.token}).encode())
-    )
+    return str(url.copy_with(scheme=scheme, path=path, query=None))
 
 
 class LiveFixes:
@@ -290,7 +288,10 @@ class LiveFixes:
     ) -> AsyncIterator[LiveFixes]:
         """Connect, read in the background, and on exit close the socket and the reader."""
         async with connect(
-            live_url(base_url, session), open_timeout=open_timeout_s, close_timeout=2.0
+            live_url(base_url, session),
+            additional_headers={"Authorization": f"Bearer {session.token}"},
+            open_timeout=open_timeout_s,
+            close_timeout=2.0,
         ) as ws:
             live = cls(ws)
             try:

@@ -46,6 +46,11 @@ class Settings(BaseSettings):
         "3,000-particle cloud); 0 turns the cache off",
     )
     map_cache_size: int = Field(32, ge=1, description="site map sets kept in memory")
+    live_query_token: bool = Field(
+        False,
+        description="deprecated: accept a session token as ?token= on the live socket "
+        "(it is scrubbed from the logs); clients send a bearer header or an auth message",
+    )
     json_max_bytes: int = Field(
         4 * 1024 * 1024,
         ge=1024,

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import logging
 import logging.config
+import re
 from collections.abc import Iterator
 from contextlib import contextmanager
 from contextvars import ContextVar
@@ -49,6 +50,35 @@ def session_context(session_id: str) -> Iterator[None]:
         yield
     finally:
         session_id_var.reset(token)
+
+
+# credentials as they show up in log lines: in a URL's query (``?token=``, as uvicorn logs
+# request paths), in a header (``Authorization: Bearer ...``, as the websockets library
+# logs a handshake at DEBUG) and in a JSON message (``"token": "..."``, a socket's frames)
+_SECRETS = re.compile(
+    r"""([?&](?:token|access_token|key|api_key)=)[^&\s"']*"""
+    r"|(authorization:\s*[a-z]+\s+)[^\s\"']+"
+    r"""|(["'](?:token|key|api_key)["']\s*:\s*["'])[^"']*""",
+    re.IGNORECASE,
+)
+
+
+def redact(text: str) -> str:
+    """``text`` with every credential :data:`_SECRETS` finds replaced by ``[redacted]``."""
+    return _SECRETS.sub(lambda m: f"{m.group(1) or m.group(2) or m.group(3)}[redacted]", text)
+
+
+class RedactSecrets(logging.Filter):
+    """Replaces credentials (:func:`redact`) in every record's message (the arguments
+    formatted in first), whatever logger wrote it."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        message = record.getMessage()
+        scrubbed = redact(message)
+        if scrubbed != message:
+            record.msg, record.args = scrubbed, ()
+            record.__dict__.pop("color_message", None)
+        return True
 
 
 class JsonFormatter(logging.Formatter):
@@ -97,16 +127,18 @@ class TextFormatter(logging.Formatter):
 
 def dict_config(fmt: LogFormat, level: str) -> dict[str, Any]:
     """A ``dictConfig`` document: one stderr handler on the root logger with the chosen
-    formatter; uvicorn's loggers hand their records to it."""
+    formatter and :class:`RedactSecrets`; uvicorn's loggers hand their records to it."""
     formatter = JsonFormatter if fmt == "json" else TextFormatter
     return {
         "version": 1,
         "disable_existing_loggers": False,
         "formatters": {"indoorpos": {"()": f"{__name__}.{formatter.__name__}"}},
+        "filters": {"redact": {"()": f"{__name__}.{RedactSecrets.__name__}"}},
         "handlers": {
             "indoorpos": {
                 "class": "logging.StreamHandler",
                 "formatter": "indoorpos",
+                "filters": ["redact"],
                 "stream": "ext://sys.stderr",
             }
         },

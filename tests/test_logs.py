@@ -143,8 +143,8 @@ async def test_a_failed_batch_on_the_live_socket_is_logged_with_its_session(
             raise ArithmeticError("the filter diverged")
 
         monkeypatch.setattr(session_service, "apply_batch", diverges)
-        url = live_url.replace("http", "ws", 1) + f"/v1/sessions/{sid}/live?token={token}"
-        async with connect(url) as ws:
+        url = live_url.replace("http", "ws", 1) + f"/v1/sessions/{sid}/live"
+        async with connect(url, additional_headers={"Authorization": f"Bearer {token}"}) as ws:
             assert json.loads(await asyncio.wait_for(ws.recv(), 10))["type"] == "ready"
             await ws.send(json.dumps({"type": "batch", "seq": 1, "events": []}))
             reply = json.loads(await asyncio.wait_for(ws.recv(), 10))
@@ -155,3 +155,18 @@ async def test_a_failed_batch_on_the_live_socket_is_logged_with_its_session(
     assert line["message"] == "batch over the live socket failed"
     assert line["session_id"] == sid
     assert "ArithmeticError: the filter diverged" in line["exc"]
+
+
+@pytest.mark.parametrize(
+    ("line", "kept"),
+    [
+        ('127.0.0.1:1 - "WebSocket /v1/sessions/abc/live?token=SECRET" [accepted]', "?token="),
+        ('"GET /v1/sites?limit=2&api_key=SECRET HTTP/1.1" 401', "limit=2&api_key="),
+        ("< Authorization: Bearer SECRET", "Authorization: Bearer "),
+        ("""< TEXT '{"type": "auth", "token": "SECRET"}' [40 bytes]""", '"token": "'),
+    ],
+)
+def test_credentials_are_redacted_from_log_lines(line: str, kept: str) -> None:
+    out = logs.redact(line)
+    assert "SECRET" not in out
+    assert kept + "[redacted]" in out

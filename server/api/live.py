@@ -1,7 +1,11 @@
 """WebSocket ``/v1/sessions/{id}/live``: every new fix of the session, as it is made.
 
-The token comes as ``?token=`` (browsers cannot set headers on a socket) or as a bearer
-header. Messages out: ``{"type": "ready"}`` once the socket follows the session (fixes
+The session token never goes in the URL (URLs end up in logs): it comes as a bearer
+``Authorization`` header, or, from a browser (which cannot set headers on a socket), as
+the first message ``{"type": "auth", "token": "..."}`` within ``AUTH_TIMEOUT_S``. The old
+``?token=`` query parameter is refused unless ``INDOORPOS_LIVE_QUERY_TOKEN`` is set
+(deprecated; ``server.logs`` scrubs it from every log line either way).
+Messages out: ``{"type": "ready"}`` once the socket follows the session (fixes
 of batches posted after it are never missed), ``{"type": "fix", "seq", "fix"}``,
 ``{"type": "batch_result", ...}`` for batches sent over the socket, and
 ``{"type": "error", "status", "detail", "message"}`` (with the ``seq`` of the batch it
@@ -13,12 +17,12 @@ from __future__ import annotations
 
 import contextlib
 import logging
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 import anyio
 import orjson
 from fastapi import APIRouter, Depends, Query, WebSocket, WebSocketDisconnect
-from pydantic import ValidationError
+from pydantic import Field, ValidationError
 from uvicorn.protocols.utils import ClientDisconnected
 
 from server.api import schemas as sc
@@ -50,13 +54,38 @@ class _Socket:
             await self.ws.send_text(orjson.dumps(message).decode())
 
 
-def _token(ws: WebSocket, query_token: str | None) -> str:
-    if query_token:
-        return query_token
+AUTH_TIMEOUT_S = 10.0
+
+
+class AuthMessage(sc.StrictIn):
+    type: Literal["auth"]
+    token: Annotated[str, Field(min_length=1, max_length=256)]
+
+
+async def _token(ws: WebSocket, query_token: str | None, allow_query: bool) -> str:
     header = ws.headers.get("authorization", "")
-    if header.lower().startswith("bearer "):
+    if header.lower().startswith("bearer ") and header[7:].strip():
         return header[7:].strip()
-    raise Unauthorized("missing token (query parameter or bearer header)", field="token")
+    if query_token:
+        if allow_query:
+            return query_token
+        raise Unauthorized(
+            "a token in the URL is refused (URLs are logged): send it as a bearer header "
+            'or as the first message {"type": "auth", "token": ...}',
+            field="token",
+        )
+    with anyio.move_on_after(AUTH_TIMEOUT_S):
+        message = await ws.receive()
+        if message["type"] == "websocket.disconnect":
+            raise WebSocketDisconnect(message.get("code", 1000))
+        text = message.get("text") or (message.get("bytes") or b"").decode("utf-8", "replace")
+        try:
+            return AuthMessage.model_validate_json(text).token
+        except ValidationError:
+            raise Unauthorized(
+                'the first message must be {"type": "auth", "token": ...}', field="token"
+            ) from None
+    raise Unauthorized(f"no token within {AUTH_TIMEOUT_S:.0f} s", field="token")
 
 
 @router.websocket("/{session_id}/live")
@@ -64,7 +93,9 @@ async def live(
     websocket: WebSocket,
     session_id: IdPath,
     rt: Annotated[Runtime, Depends(get_ws_runtime)],
-    token: Annotated[str | None, Query()] = None,
+    token: Annotated[
+        str | None, Query(deprecated=True, description="refused unless enabled; use a header")
+    ] = None,
 ) -> None:
     with session_context(session_id):  # every log line of the socket names the session
         await _serve(websocket, session_id, rt, token)
@@ -74,11 +105,14 @@ async def _serve(websocket: WebSocket, session_id: str, rt: Runtime, token: str 
     await websocket.accept()
     sock = _Socket(websocket)
     try:
-        secret = _token(websocket, token)
+        secret = await _token(websocket, token, rt.settings.live_query_token)
         await sessions.authorize(rt, session_id, secret)
     except ServiceError as exc:
-        await sock.send({"type": "error", "status": exc.status, **service_detail(exc)})
-        await websocket.close(code=CLOSE_CODES.get(exc.status, 1008))
+        with contextlib.suppress(*GONE):
+            await sock.send({"type": "error", "status": exc.status, **service_detail(exc)})
+            await websocket.close(code=CLOSE_CODES.get(exc.status, 1008))
+        return
+    except GONE:
         return
     async with sessions.follow(rt, session_id) as messages, anyio.create_task_group() as tg:
         # the subscription is live from here on: tell the client nothing will be missed

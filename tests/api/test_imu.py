@@ -373,8 +373,8 @@ async def test_raw_imu_in_fixes_out_over_the_websocket(live_url: str) -> None:  
         site = await build_toy_site(client, admin)
         sid, auth = await open_session(client, site.site_id, engine="two_stage_ekf")
         token = auth["Authorization"].removeprefix("Bearer ")
-        ws_url = live_url.replace("http", "ws", 1) + f"/v1/sessions/{sid}/live?token={token}"
-        async with connect(ws_url) as ws:
+        ws_url = live_url.replace("http", "ws", 1) + f"/v1/sessions/{sid}/live"
+        async with connect(ws_url, additional_headers={"Authorization": f"Bearer {token}"}) as ws:
 
             async def receive() -> dict[str, Any]:
                 message: dict[str, Any] = json.loads(await asyncio.wait_for(ws.recv(), 10))

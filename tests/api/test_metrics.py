@@ -252,10 +252,10 @@ async def test_batches_over_the_socket_count_as_ws(
         site = await build_toy_site(client, admin)
         sid, auth = await open_session(client, site)
     token = auth["Authorization"].removeprefix("Bearer ")
-    ws_url = live_url.replace("http", "ws", 1) + f"/v1/sessions/{sid}/live?token={token}"
+    ws_url = live_url.replace("http", "ws", 1) + f"/v1/sessions/{sid}/live"
     applied, replayed = batches("ws", "applied"), batches("ws", "replayed")
     http_applied, steps = batches("http", "applied"), value("indoorpos_steps_total")
-    async with connect(ws_url) as ws:
+    async with connect(ws_url, additional_headers={"Authorization": f"Bearer {token}"}) as ws:
 
         async def result() -> dict[str, Any]:
             while True:

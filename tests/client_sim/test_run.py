@@ -80,8 +80,8 @@ def test_summary_without_fixes_is_still_json() -> None:
 
 
 def test_live_url_follows_the_base_url() -> None:
-    assert live_url("http://h:8000", SESSION) == "ws://h:8000/v1/sessions/s1/live?token=tok%2Fen%2B"
-    assert live_url("https://h/api/", SESSION).startswith("wss://h/api/v1/sessions/s1/live?token=")
+    assert live_url("http://h:8000", SESSION) == "ws://h:8000/v1/sessions/s1/live"
+    assert live_url("https://h/api/?x=1", SESSION) == "wss://h/api/v1/sessions/s1/live"
 
 
 async def test_client_sends_the_contract() -> None:

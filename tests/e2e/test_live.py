@@ -29,15 +29,19 @@ async def _recv(ws: ClientConnection) -> dict[str, Any]:
     return message
 
 
-def _ws_url(live_url: str, sid: str, token: str) -> str:
-    return live_url.replace("http", "ws", 1) + f"/v1/sessions/{sid}/live?token={token}"
+def _ws_url(live_url: str, sid: str) -> str:
+    return live_url.replace("http", "ws", 1) + f"/v1/sessions/{sid}/live"
+
+
+def _bearer(token: str) -> dict[str, str]:
+    return {"Authorization": f"Bearer {token}"}
 
 
 async def test_fixes_posted_over_http_arrive_on_the_socket(live_url: str) -> None:
     async with httpx.AsyncClient(base_url=live_url) as client:
         site = await build_toy_site(client, ADMIN)
         sid, token = await _session(client, site.site_id)
-        async with connect(_ws_url(live_url, sid, token)) as ws:
+        async with connect(_ws_url(live_url, sid), additional_headers=_bearer(token)) as ws:
             assert (await _recv(ws))["type"] == "ready"
             batch = {
                 "seq": 1,
@@ -114,7 +118,9 @@ async def test_socket_refuses_another_sessions_token(live_url: str) -> None:
         site = await build_toy_site(client, ADMIN)
         sid_a, _ = await _session(client, site.site_id)
         _, token_b = await _session(client, site.site_id)
-        async with connect(_ws_url(live_url, sid_a, token_b)) as ws:
+        async with connect(_ws_url(live_url, sid_a)) as ws:
+            # a browser's way: the token as the first message
+            await ws.send(json.dumps({"type": "auth", "token": token_b}))
             err = await _recv(ws)
             assert err["type"] == "error"
             assert err["status"] == 403
@@ -122,3 +128,38 @@ async def test_socket_refuses_another_sessions_token(live_url: str) -> None:
                 await asyncio.wait_for(ws.recv(), timeout=5)
             assert closed.value.rcvd is not None
             assert closed.value.rcvd.code == 4403
+
+
+async def test_a_browser_authenticates_with_its_first_message(live_url: str) -> None:
+    async with httpx.AsyncClient(base_url=live_url) as client:
+        site = await build_toy_site(client, ADMIN)
+        sid, token = await _session(client, site.site_id)
+        async with connect(_ws_url(live_url, sid)) as ws:
+            await ws.send(json.dumps({"type": "auth", "token": token}))
+            assert (await _recv(ws))["type"] == "ready"
+
+
+@pytest.mark.parametrize("first", ['{"type": "batch", "seq": 1, "events": []}', "not json"])
+async def test_a_socket_without_credentials_is_closed(live_url: str, first: str) -> None:
+    async with httpx.AsyncClient(base_url=live_url) as client:
+        site = await build_toy_site(client, ADMIN)
+        sid, _ = await _session(client, site.site_id)
+        async with connect(_ws_url(live_url, sid)) as ws:
+            await ws.send(first)
+            err = await _recv(ws)
+            assert err["status"] == 401
+            assert err["message"].startswith("token: ")
+            with pytest.raises(ConnectionClosed) as closed:
+                await asyncio.wait_for(ws.recv(), timeout=5)
+            assert closed.value.rcvd is not None
+            assert closed.value.rcvd.code == 4401
+
+
+async def test_a_token_in_the_url_is_refused(live_url: str) -> None:
+    async with httpx.AsyncClient(base_url=live_url) as client:
+        site = await build_toy_site(client, ADMIN)
+        sid, token = await _session(client, site.site_id)
+        async with connect(_ws_url(live_url, sid) + f"?token={token}") as ws:
+            err = await _recv(ws)
+            assert err["status"] == 401
+            assert "URL" in err["message"]
