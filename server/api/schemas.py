@@ -443,6 +443,9 @@ class MagneticPointIn(StrictIn):
         return self
 
 
+MAX_LINE_M = 1000.0  # one walked survey line: a corridor, not a city
+
+
 class MagneticLineIn(StrictIn):
     """A survey line walked at constant speed from ``start`` (at ``t_start``) to ``end``
     (at ``t_end``); samples are placed along it by their time, those outside dropped."""
@@ -460,6 +463,9 @@ class MagneticLineIn(StrictIn):
     def _ordered(self) -> MagneticLineIn:
         if self.t_end <= self.t_start:
             raise ValueError("t_end must be after t_start")
+        length = math.dist(self.start, self.end)
+        if length > MAX_LINE_M:
+            raise ValueError(f"the line is {length:.0f} m long; at most {MAX_LINE_M:g} m")
         return self
 
 

@@ -244,6 +244,11 @@ def plan_from_geojson(geojson: Mapping[str, Any], cell_m: float = CELL_M) -> Flo
     return FloorPlan(*_raster(area, cell_m), walls=walls)
 
 
+PLAN_MARGIN_M = 10.0
+"""How far outside its plan's walkable extent a sample may lie and still be used (a
+wrong anchor or a typo must not stretch a floor's maps across a city)."""
+
+
 def plan_extent(geojson: Mapping[str, Any] | None) -> tuple[float, float, float, float] | None:
     """``(x0, y0, x1, y1)``: the bounding box of a plan's walkable features (what
     ``plan_from_geojson`` builds the walkable area from), without rasterising; None when

@@ -90,6 +90,24 @@ FloatArray = NDArray[np.float64]
 Component = Literal["magnitude", "horizontal", "vertical"]
 
 CELL_M = 0.5  # DESIGN.md "Maps": magnetic grid of 0.5 m
+# most cells one floor's grid may have: 1 km x 1 km at 0.5 m (about 100 MB while two such
+# grids are merged). A grid spanning more comes from a misplaced sample, not a building.
+MAX_GRID_CELLS = 4_000_000
+
+
+class GridTooLarge(ValueError):
+    """A grid would have more than its ``max_cells`` cells; raised before allocating."""
+
+
+def check_cells(nx: int, ny: int, cell_m: float, max_cells: int) -> None:
+    """Raise GridTooLarge when an ``nx`` x ``ny`` grid has more than ``max_cells`` cells."""
+    if nx * ny > max_cells:
+        raise GridTooLarge(
+            f"the samples span {nx * cell_m:.0f} m x {ny * cell_m:.0f} m ({nx * ny} cells "
+            f"of {cell_m:g} m; at most {max_cells}): a sample lies far outside the building"
+        )
+
+
 # sampling: a point whose known corners carry less bilinear weight than this is unknown
 MIN_CORNER_WEIGHT = 1e-6
 
@@ -237,6 +255,7 @@ def grid_from_samples(
     cell_m: float = CELL_M,
     extent: tuple[float, float, float, float] | None = None,
     min_count: int = 1,
+    max_cells: int = MAX_GRID_CELLS,
 ) -> MagneticGrid:
     """Grid positioned magnetic samples (see the module docstring).
 
@@ -257,6 +276,8 @@ def grid_from_samples(
         margin of one cell on each side.
     min_count : int
         Fewest samples for a cell to be known.
+    max_cells : int
+        Largest grid made; GridTooLarge (a ValueError) before allocating a larger one.
 
     Returns
     -------
@@ -301,6 +322,7 @@ def grid_from_samples(
         nx = int(np.ceil(round((x1 - x0) / cell_m, 9)))
         ny = int(np.ceil(round((y1 - y0) / cell_m, 9)))
 
+    check_cells(nx, ny, cell_m, max_cells)
     col = np.floor((pts[:, 0] - x0) / cell_m).astype(np.int64)
     row = np.floor((pts[:, 1] - y0) / cell_m).astype(np.int64)
     inside = (col >= 0) & (col < nx) & (row >= 0) & (row < ny)
@@ -336,6 +358,7 @@ def grid_from_sources(
     cell_m: float = CELL_M,
     extent: tuple[float, float, float, float] | None = None,
     min_count: int = 1,
+    max_cells: int = MAX_GRID_CELLS,
 ) -> MagneticGrid:
     """Grid the samples of several sources of one floor together.
 
@@ -347,7 +370,7 @@ def grid_from_sources(
     ----------
     sources : sequence of MagneticSamples
         Survey points, placed line samples (``samples_along_line``), training traces.
-    cell_m, extent, min_count
+    cell_m, extent, min_count, max_cells
         As in ``grid_from_samples``.
 
     Returns
@@ -381,10 +404,11 @@ def grid_from_sources(
         cell_m=cell_m,
         extent=extent,
         min_count=min_count,
+        max_cells=max_cells,
     )
 
 
-def merge_grids(a: MagneticGrid, b: MagneticGrid) -> MagneticGrid:
+def merge_grids(a: MagneticGrid, b: MagneticGrid, max_cells: int = MAX_GRID_CELLS) -> MagneticGrid:
     """Fold two grids of one floor into one (see the module docstring).
 
     Parameters
@@ -392,6 +416,8 @@ def merge_grids(a: MagneticGrid, b: MagneticGrid) -> MagneticGrid:
     a, b : MagneticGrid
         Same ``cell_m``; origins a whole number of cells apart. A cell whose magnitude is
         NaN counts as empty.
+    max_cells : int
+        Largest union made; GridTooLarge (a ValueError) before allocating a larger one.
 
     Returns
     -------
@@ -411,6 +437,7 @@ def merge_grids(a: MagneticGrid, b: MagneticGrid) -> MagneticGrid:
     off_b = np.round(shift).astype(np.int64) - lo
     nx = int(max(off_a[0] + a.magnitude.shape[1], off_b[0] + b.magnitude.shape[1]))
     ny = int(max(off_a[1] + a.magnitude.shape[0], off_b[1] + b.magnitude.shape[0]))
+    check_cells(nx, ny, c, max_cells)
 
     def placed(
         grid: MagneticGrid, off: NDArray[np.int64], values: ArrayLike, fill: float

@@ -16,7 +16,9 @@ import anyio
 import numpy as np
 from sqlalchemy.ext.asyncio import AsyncSession
 
+from server.positioning.floorplan import PLAN_MARGIN_M, plan_extent
 from server.positioning.magnetic import (
+    GridTooLarge,
     MagneticGrid,
     MagneticSamples,
     grid_from_sources,
@@ -25,7 +27,7 @@ from server.positioning.magnetic import (
 )
 from server.services.errors import Invalid, NotFound
 from server.storage import repositories as repo
-from server.storage.models import MagneticMapVersion
+from server.storage.models import Floor, MagneticMapVersion
 
 
 @dataclass(frozen=True)
@@ -87,18 +89,49 @@ def survey_sources(
 
 
 async def fold_sources(
-    s: AsyncSession, floor_id: str, sources: Sequence[MagneticSamples], source: str = "survey"
+    s: AsyncSession,
+    floor_id: str,
+    sources: Sequence[MagneticSamples],
+    source: str = "survey",
+    field: str = "body",
 ) -> MagneticMapVersion:
     """Grid the sources and store them merged with the floor's current grid as its next
-    version. The caller holds the building lock."""
+    version. The caller holds the building lock. Invalid (about ``field``) when the grid
+    would be larger than ``magnetic.MAX_GRID_CELLS``, before it is allocated."""
     current = await repo.latest_magnetic_map(s, floor_id)
 
     def build() -> MagneticGrid:
         grid = grid_from_sources(sources)
         return merge_grids(repo.magnetic_grid(current), grid) if current else grid
 
-    grid = await anyio.to_thread.run_sync(build)
+    try:
+        grid = await anyio.to_thread.run_sync(build)
+    except GridTooLarge as exc:
+        raise Invalid(str(exc), field=field) from None
     return await repo.save_magnetic_map(s, floor_id, grid, source=source)
+
+
+def check_within_plan(
+    floor: Floor, points: Sequence[MagneticPointData], lines: Sequence[MagneticLineData]
+) -> None:
+    """Refuse (naming it) a survey point or line end farther than ``PLAN_MARGIN_M`` outside
+    the floor plan's walkable extent; floors without a plan are bounded by the grid size
+    alone (``magnetic.MAX_GRID_CELLS``)."""
+    extent = plan_extent(floor.plan_geojson)
+    if extent is None:
+        return
+    x0, y0, x1, y1 = extent
+    m = PLAN_MARGIN_M
+    places = [(f"points.{i}", (p.x_m, p.y_m)) for i, p in enumerate(points)]
+    for i, line in enumerate(lines):
+        places += [(f"lines.{i}.start", line.start_xy), (f"lines.{i}.end", line.end_xy)]
+    for name, (x, y) in places:
+        if not (x0 - m <= x <= x1 + m and y0 - m <= y <= y1 + m):
+            raise Invalid(
+                f"({x:g}, {y:g}) lies more than {m:g} m outside the floor plan, which spans "
+                f"x {x0:g}..{x1:g} m and y {y0:g}..{y1:g} m",
+                field=name,
+            )
 
 
 async def add_magnetic_survey(
@@ -110,9 +143,10 @@ async def add_magnetic_survey(
     floor = await repo.get_floor(s, floor_id)
     if floor is None:
         raise NotFound(f"floor {floor_id} not found", field="floor_id")
+    check_within_plan(floor, points, lines)
     sources = survey_sources(points, lines)
     await repo.lock_building(s, floor.building_id)
-    return await fold_sources(s, floor_id, sources)
+    return await fold_sources(s, floor_id, sources, field="points" if not lines else "lines")
 
 
 async def list_magnetic_maps(s: AsyncSession, floor_id: str) -> Sequence[MagneticMapVersion]:

@@ -43,7 +43,7 @@ from server.datasets.ilc import IlcTrace, TraceFormatError, floor_level, parse_t
 from server.positioning.anchors import anchors_from_plan
 from server.positioning.events import WifiEvent
 from server.positioning.fingerprint import MISSING_DBM
-from server.positioning.floorplan import plan_extent
+from server.positioning.floorplan import PLAN_MARGIN_M, plan_extent
 from server.positioning.magnetic import MagneticSamples
 from server.positioning.mapping.anchors import GeoReference, ble_anchors, gnss_anchors
 from server.positioning.mapping.labelled import interpolate_track
@@ -64,7 +64,7 @@ SETTLED = frozenset({DONE, REJECTED, FAILED})
 MAX_ATTEMPTS = 3
 ILC_TEXT = "text/plain"
 WEAK_DBM = -90.0  # papers/003_* IV-D: weaker readings are not signatures
-PLAN_MARGIN_M = 10.0
+MAX_WALK_MPS = 3.0  # brisk walking is under 2 m/s; faster between anchors is not a walk
 
 
 @dataclass(frozen=True)
@@ -387,7 +387,7 @@ def contribution(
         not_used.append("magnetometer: uncalibrated only")
     report["not_used"] = not_used
     if not points and magnetic is None:
-        why = f": {not_used[0]}" if not_used else ""
+        why = f": {'; '.join(not_used)}" if not_used else ""
         return Contribution(level, rejected=f"nothing could be placed{why}", report=report)
     return Contribution(level, points, magnetic, report=report)
 
@@ -454,6 +454,17 @@ def _with_passes(trace: IlcTrace, beacons: Sequence[Beacon], geo: GeoReference |
     )
 
 
+def _between_fast_anchors(trace: IlcTrace, times: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """Which ``times`` fall between two consecutive anchors that a walker could not go
+    between at ``MAX_WALK_MPS`` (a wrong anchor, or one from another building)."""
+    t = trace.waypoint_t_ms.astype(np.float64)
+    dt_s = np.maximum(np.diff(t), 1.0) / 1000.0
+    speed = np.linalg.norm(np.diff(trace.waypoint_xy_m, axis=0), axis=1) / dt_s
+    segment = np.clip(np.searchsorted(t, times, side="right") - 1, 0, speed.size - 1)
+    out: NDArray[np.bool_] = speed[segment] > MAX_WALK_MPS
+    return out
+
+
 def _place(
     trace: IlcTrace, times: NDArray[np.float64], report: dict[str, Any]
 ) -> tuple[NDArray[np.float64], NDArray[np.bool_], list[str]]:
@@ -466,7 +477,14 @@ def _place(
         report["placement"] = "constant speed between anchors (no steps found)"
         outside = int(np.count_nonzero(~valid))
         reasons = [f"{outside} samples before the first or after the last anchor"]
-        return xy, valid, reasons if outside else []
+        reasons = reasons if outside else []
+        too_fast = valid & _between_fast_anchors(trace, times)
+        if too_fast.any():
+            reasons.append(
+                f"{int(np.count_nonzero(too_fast))} samples between anchors farther apart "
+                f"than a walker goes at {MAX_WALK_MPS:g} m/s"
+            )
+        return xy, valid & ~too_fast, reasons
     placement = place_samples(
         steps.t_ms,
         steps.length_m,
@@ -498,13 +516,18 @@ async def settle(s: AsyncSession, upload_id: str, result: Contribution) -> bool:
         row.report = {**report, "reason": result.rejected}
         return True
     building_id = target.building_id
+    if result.magnetic is not None:  # first: it may refuse the walk before anything is written
+        await repo.lock_building(s, building_id)
+        try:
+            version = await fold_sources(s, target.id, [result.magnetic], source="upload")
+        except Invalid as exc:
+            row.status = REJECTED
+            row.report = {**report, "reason": f"magnetic samples: {exc.message}"}
+            return True
+        report["magnetic_map_version"] = version.version
     if result.points:
         radio = await add_survey(s, building_id, result.points, upload_id=row.id)
         report["radio_map_version"] = radio.version
-    if result.magnetic is not None:
-        await repo.lock_building(s, building_id)
-        version = await fold_sources(s, target.id, [result.magnetic], source="upload")
-        report["magnetic_map_version"] = version.version
     row.status = DONE
     row.report = report
     return True

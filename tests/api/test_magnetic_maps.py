@@ -146,3 +146,75 @@ async def test_magnetic_survey_needs_a_known_floor_and_an_admin(
     assert "floor_id" in r.json()["message"]
     r = await client.post(f"/v1/floors/{'0' * 32}/magnetic-survey", json=body)
     assert r.status_code == 401
+
+
+@pytest.mark.parametrize(
+    ("body", "field"),
+    [
+        # two points 200 km apart: a 1.2 TiB grid once
+        (
+            {
+                "points": [
+                    {"x_m": -1e5, "y_m": -1e5, "magnitude_ut": 50.0},
+                    {"x_m": 1e5, "y_m": 1e5, "magnitude_ut": 50.0},
+                ]
+            },
+            "points",
+        ),
+        # two points 2 km apart: 16 million cells
+        (
+            {
+                "points": [
+                    {"x_m": 0.0, "y_m": 0.0, "magnitude_ut": 50.0},
+                    {"x_m": 1500.0, "y_m": 1500.0, "magnitude_ut": 50.0},
+                ]
+            },
+            "points",
+        ),
+        # a walked line 12 km long
+        ({"lines": [{**line_body(1.0), "end": [12_000.0, 1.0]}]}, "lines.0"),
+    ],
+)
+async def test_a_survey_spanning_a_city_is_refused_before_it_is_gridded(
+    client: httpx.AsyncClient, admin: dict[str, str], body: dict[str, Any], field: str
+) -> None:
+    site = await build_toy_site(client, admin)
+    floor = site.floor_ids[0]
+    r = await client.post(f"/v1/floors/{floor}/magnetic-survey", json=body, headers=admin)
+    assert r.status_code == 422, r.text
+    assert r.json()["message"].startswith(field), r.json()
+    r = await client.get(f"/v1/floors/{floor}/magnetic-maps", headers=admin)
+    assert r.json()["count"] == 0
+
+
+async def test_a_survey_must_lie_on_the_floor_plan(
+    client: httpx.AsyncClient, admin: dict[str, str]
+) -> None:
+    site = await build_toy_site(client, admin)
+    floor = site.floor_ids[0]
+    outline = [[0.0, 0.0], [20.0, 0.0], [20.0, 10.0], [0.0, 10.0], [0.0, 0.0]]
+    plan = {
+        "type": "FeatureCollection",
+        "features": [
+            {
+                "type": "Feature",
+                "properties": {"kind": "walkable"},
+                "geometry": {"type": "Polygon", "coordinates": [outline]},
+            }
+        ],
+    }
+    r = await client.put(f"/v1/floors/{floor}/plan", json=plan, headers=admin)
+    assert r.status_code == 200, r.text
+    url = f"/v1/floors/{floor}/magnetic-survey"
+    inside = {"x_m": 25.0, "y_m": 5.0, "magnitude_ut": 50.0}  # within the 10 m margin
+    far = {"x_m": 5.0, "y_m": 45.0, "magnitude_ut": 50.0}
+    r = await client.post(url, json={"points": [inside, far]}, headers=admin)
+    assert r.status_code == 422, r.text
+    assert r.json()["message"].startswith("points.1: "), r.json()
+    r = await client.post(
+        url, json={"lines": [{**line_body(1.0), "end": [60.0, 1.0]}]}, headers=admin
+    )
+    assert r.status_code == 422, r.text
+    assert r.json()["message"].startswith("lines.0.end: "), r.json()
+    r = await client.post(url, json={"points": [inside], "lines": [line_body(1.0)]}, headers=admin)
+    assert r.status_code == 201, r.text

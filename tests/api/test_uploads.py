@@ -479,3 +479,29 @@ async def test_satellite_fixes_at_the_doors_anchor_a_walk(
     r = await client.post("/v1/uploads", params={"site_id": site_id}, json=bad, headers=admin)
     assert r.status_code == 422
     assert "events.0.lat_deg" in r.json()["message"]
+
+
+async def test_a_walk_stretched_across_a_city_by_its_anchors_is_rejected(
+    client: httpx.AsyncClient, admin: dict[str, str], upload_worker: None
+) -> None:
+    site_id = await _site(client, admin, [0])
+    anchors = [
+        {"t": WALK_T0 + 1000, "x_m": -90_000.0, "y_m": WALK_Y},
+        {"t": WALK_T0 + 1000 * (WALK_S + 1), "x_m": 90_000.0, "y_m": WALK_Y},
+    ]
+    # no steps (a phone that sends none): placed at constant speed between the anchors
+    events: list[dict[str, Any]] = [
+        {"type": "mag", "t": WALK_T0 + 500 * k, "field_ut": [20.0, 0.0, -40.0]}
+        for k in range(2 * (WALK_S + 2))
+    ]
+    r = await client.post(
+        "/v1/uploads",
+        params={"site_id": site_id, "floor": 0},
+        json={"events": events, "anchors": anchors},
+        headers=admin,
+    )
+    assert r.status_code == 202, r.text
+    upload = await _settled(client, admin, r.json()["id"])
+    assert upload["status"] == "rejected", str(upload["report"])
+    assert "m/s" in upload["report"]["reason"]
+    assert "magnetic_map_version" not in upload["report"]
