@@ -85,6 +85,13 @@ never the test paths) WKNN had a mean error of 16.8 m keeping every row against 
 with a 4 s limit, so the default keeps them.
 """
 
+UPLOAD_RSSI_DBM = (-130.0, 0.0)
+"""RSS a strict read (an upload) accepts, as the wire API does."""
+UPLOAD_ID_CHARS = 64
+"""Longest BSSID or beacon MAC a strict read accepts (printable ASCII, as the wire API)."""
+UPLOAD_MAX_COORD_M = 100_000.0
+"""Largest waypoint coordinate a strict read accepts (as the wire API's coordinates)."""
+
 IMU_BLOCK_MS = 1000
 """Phone time covered by one ``ImuEvent`` of ``IlcTrace.imu_events``: a phone posting raw
 samples about once a second (as the evaluation replays batches)."""
@@ -339,6 +346,10 @@ class TraceFormatError(ValueError):
         self.reason = reason
 
 
+class _Refused(ValueError):
+    """A record that parsed but holds a value a strict read does not accept."""
+
+
 class _TraceParser:
     """Accumulates the records of one trace; ``trace`` builds the arrays at the end.
     ``strict`` raises :class:`TraceFormatError` on the first unreadable record instead of
@@ -408,20 +419,24 @@ class _TraceParser:
             elif kind in _UNCALIBRATED_STREAMS:
                 if n != _N_FIELDS_UNCALIBRATED:
                     raise ValueError(kind)
-                self.uncal[_UNCALIBRATED_STREAMS[kind]].append(
-                    (
-                        t,
-                        float(f[2]) - float(f[5]),
-                        float(f[3]) - float(f[6]),
-                        float(f[4]) - float(f[7]),
-                    )
+                row = (
+                    t,
+                    float(f[2]) - float(f[5]),
+                    float(f[3]) - float(f[6]),
+                    float(f[4]) - float(f[7]),
                 )
+                if self.strict and not all(map(math.isfinite, row)):
+                    raise ValueError(kind)
+                self.uncal[_UNCALIBRATED_STREAMS[kind]].append(row)
             elif kind == "TYPE_WIFI":
                 if n != _N_FIELDS_WIFI or not f[3] or not _is_uint(f[6]):
                     raise ValueError(kind)
                 rssi = float(f[4])
                 if not math.isfinite(rssi):
                     raise ValueError(f[4])
+                if self.strict:
+                    self._check_emitter("bssid", f[3])
+                    self._check_rssi(rssi)
                 self.radio_t.append(t)
                 if self.wifi_max_age_ms is not None and t - int(f[6]) > self.wifi_max_age_ms:
                     self.stale_wifi += 1
@@ -433,6 +448,9 @@ class _TraceParser:
                 rssi = float(f[6])
                 if not math.isfinite(rssi):
                     raise ValueError(f[6])
+                if self.strict:
+                    self._check_emitter("mac", f[8] or f"{f[2]}:{f[3]}:{f[4]}")
+                    self._check_rssi(rssi)
                 self.radio_t.append(t)
                 # the MAC is the beacon: one iBeacon id is often shared by hundreds of
                 # beacons on every floor (site2: one id covers 318 MACs on all 9 floors)
@@ -441,13 +459,39 @@ class _TraceParser:
             elif kind == "TYPE_WAYPOINT":
                 if n != _N_FIELDS_WAYPOINT:
                     raise ValueError(kind)
-                self.waypoints.append((t, float(f[2]), float(f[3])))
+                x, y = float(f[2]), float(f[3])
+                if self.strict and not (
+                    abs(x) <= UPLOAD_MAX_COORD_M and abs(y) <= UPLOAD_MAX_COORD_M
+                ):
+                    raise _Refused(
+                        f"TYPE_WAYPOINT ({f[2]}, {f[3]}): coordinates must be finite and "
+                        f"within {UPLOAD_MAX_COORD_M:g} m"
+                    )
+                self.waypoints.append((t, x, y))
             elif kind.startswith("TYPE_"):
                 self.skipped[kind] = self.skipped.get(kind, 0) + 1
             else:
                 raise ValueError(kind)
+        except _Refused as exc:
+            self._bad(str(exc))
         except ValueError:
             self._bad(f"unreadable {kind[:40]!r} record ({n} fields)")
+
+    @staticmethod
+    def _check_rssi(rssi: float) -> None:
+        lo, hi = UPLOAD_RSSI_DBM
+        if not lo <= rssi <= hi:
+            raise _Refused(f"rssi {rssi:g} dBm is outside {lo:g}..{hi:g} dBm")
+
+    @staticmethod
+    def _check_emitter(name: str, value: str) -> None:
+        if not (0 < len(value) <= UPLOAD_ID_CHARS and value.isascii() and value.isprintable()):
+            raise _Refused(
+                f"{name} must be 1 to {UPLOAD_ID_CHARS} printable ASCII characters "
+                f"(got {len(value)} characters)"
+            )
+        if " " in value:
+            raise _Refused(f"{name} must not hold spaces")
 
     def _bad(self, reason: str) -> None:
         if self.strict:

@@ -134,6 +134,36 @@ async def _count_uploads(app: FastAPI) -> int:
         return int(await s.scalar(select(func.count()).select_from(Upload)) or 0)
 
 
+@pytest.mark.parametrize(
+    ("record", "says"),
+    [
+        ("1574140000100\tTYPE_WIFI\tnet\taa:bb:cc:dd:ee:ff\t500\t2412\t1574140000000", "rssi 500"),
+        ("1574140000100\tTYPE_WIFI\tnet\t" + "a" * 300 + "\t-60\t2412\t1574140000000", "bssid"),
+        ("1574140000100\tTYPE_WIFI\tnet\taa bb\t-60\t2412\t1574140000000", "bssid"),
+        ("1574140000100\tTYPE_BEACON\tu\t1\t2\t-59\t-300\t1.0\tmac\t0", "rssi -300"),
+        ("1574140000100\tTYPE_WAYPOINT\tnan\t2.0", "TYPE_WAYPOINT"),
+        ("1574140000100\tTYPE_WAYPOINT\t1e9\t2.0", "TYPE_WAYPOINT"),
+        ("1574140000100\tTYPE_ACCELEROMETER\tinf\t0\t9.8\t3", "TYPE_ACCELEROMETER"),
+    ],
+)
+async def test_implausible_values_in_an_ilc_upload_are_refused_with_their_line(
+    client: httpx.AsyncClient, admin: dict[str, str], app: FastAPI, record: str, says: str
+) -> None:
+    site_id = await _site(client, admin, [0])
+    before = await _count_uploads(app)
+    text = f"#\tSiteID:x\n1574140000000\tTYPE_WAYPOINT\t1.0\t2.0\n{record}\n".encode()
+    r = await client.post(
+        "/v1/uploads",
+        params={"site_id": site_id},
+        content=text,
+        headers={**admin, "content-type": "text/plain"},
+    )
+    assert r.status_code == 422, r.text
+    assert r.json()["message"].startswith("body: line 3: "), r.json()
+    assert says in r.json()["message"]
+    assert await _count_uploads(app) == before
+
+
 async def test_malformed_and_huge_traces_are_refused_without_rows(
     client: httpx.AsyncClient, admin: dict[str, str], app: FastAPI
 ) -> None:
