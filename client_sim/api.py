@@ -104,9 +104,16 @@ def _bearer(token: str) -> dict[str, str]:
 class ApiClient:
     """The API calls the simulator makes, over a shared ``httpx.AsyncClient``."""
 
-    def __init__(self, http: httpx.AsyncClient, admin_key: str | None = None) -> None:
+    def __init__(
+        self,
+        http: httpx.AsyncClient,
+        admin_key: str | None = None,
+        device_key: str | None = None,
+    ) -> None:
         self.http = http
         self._admin_key = admin_key
+        self._device_key = device_key
+        self._device_lock = asyncio.Lock()
 
     @property
     def base_url(self) -> str:
@@ -217,9 +224,22 @@ class ApiClient:
 
     # ------------------------------------------------------------ device
 
+    async def device_key(self) -> str:
+        """The key sessions are opened with: the one given, or a ``device`` key made once
+        with the admin key."""
+        async with self._device_lock:
+            if self._device_key is None:
+                body = {"name": "client simulator", "scopes": ["device"]}
+                made = await self._admin("POST", "/v1/keys", body)
+                self._device_key = str(made["key"])
+            return self._device_key
+
     async def create_session(self, site_id: str, engine: str) -> Session:
         body = await self._call(
-            "POST", "/v1/sessions", token=None, body={"site_id": site_id, "engine": engine}
+            "POST",
+            "/v1/sessions",
+            token=await self.device_key(),
+            body={"site_id": site_id, "engine": engine},
         )
         return Session(
             id=str(body["id"]),

@@ -17,6 +17,7 @@ from server.api import (
     body_limit,
     errors,
     health,
+    keys,
     live,
     locate,
     metrics,
@@ -68,7 +69,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         generate_unique_id_function=_operation_id,
     )
     errors.install(app)
-    for module in (health, admin, sessions, live, locate, uploads, quality, metrics):
+    for module in (health, admin, keys, sessions, live, locate, uploads, quality, metrics):
         app.include_router(module.router)
     app.add_middleware(
         body_limit.BodyLimit,

@@ -25,6 +25,7 @@ from server.config import Settings, get_settings
 from server.positioning.engines.base import SiteMaps
 from server.positioning.events import Event, Fix
 from server.services import auth
+from server.services.errors import ServiceError
 from server.services.runtime import open_runtime
 from server.storage import db
 
@@ -148,19 +149,79 @@ def migrate() -> None:
     console.print(f"[green]schema up to date[/] on {url.split('@')[-1]}")
 
 
-async def _create_key(name: str) -> tuple[str, str]:
+def _database() -> str:
+    """The database the key commands act on, without credentials, for the operator."""
+    settings = get_settings()
+    url = settings.resolved_database_url
+    where = url.split("@")[-1]
+    if settings.database_url is None:
+        return f"the embedded SQLite database {where} (set INDOORPOS_DATABASE_URL for another)"
+    return where
+
+
+async def _in_transaction(work: Any) -> Any:
     async with open_runtime(get_settings()) as rt, rt.transaction() as s:
-        return await auth.create_admin_key(s, name)
+        return await work(s)
+
+
+def _run_keys(work: Any) -> Any:
+    db.migrate(get_settings().resolved_database_url)
+    try:
+        return asyncio.run(_in_transaction(work))
+    except ServiceError as exc:
+        console.print(f"[red]{exc.field or 'key'}: {exc.message}[/]")
+        raise typer.Exit(1) from None
 
 
 @keys_app.command("create")
 def keys_create(
-    name: Annotated[str, typer.Option(help="what the key is for")] = "admin",
+    name: Annotated[str | None, typer.Option(help="what the key is for")] = None,
+    scope: Annotated[
+        list[str] | None,
+        typer.Option(help=f"repeatable; one of {', '.join(auth.SCOPES)} (default admin)"),
+    ] = None,
+    site: Annotated[str | None, typer.Option(help="the one site id the key is for")] = None,
 ) -> None:
-    """Create an admin API key; it is printed once and only its digest is stored."""
-    db.migrate(get_settings().resolved_database_url)
-    key_id, key = asyncio.run(_create_key(name))
-    console.print(f"key id {key_id}; keep this key, it is not shown again:")
+    """Create an API key; it is printed once and only its digest is stored."""
+    scopes = scope or ["admin"]
+    label = name or f"{' '.join(scopes)} key"
+    row, key = _run_keys(lambda s: auth.create_key(s, label, scopes, site))
+    console.print(
+        f"key id {row.id} ({row.scopes}; {'site ' + row.site_id if row.site_id else 'all sites'})"
+        f" in {_database()}; keep this key, it is not shown again:"
+    )
+    typer.echo(key)
+
+
+@keys_app.command("list")
+def keys_list(
+    revoked: Annotated[bool, typer.Option(help="revoked keys too")] = False,
+) -> None:
+    """List the keys (never their secrets)."""
+    rows = _run_keys(lambda s: auth.list_keys(s, revoked))
+    table = Table(title=_database())
+    table.add_column("id", no_wrap=True)
+    for column in ("name", "scopes", "site", "created", "revoked"):
+        table.add_column(column)
+    for row in rows:
+        revoked_at = row.revoked_at.isoformat(timespec="seconds") if row.revoked_at else ""
+        created_at = row.created_at.isoformat(timespec="seconds")
+        table.add_row(row.id, row.name, row.scopes, row.site_id or "all", created_at, revoked_at)
+    console.print(table)
+
+
+@keys_app.command("revoke")
+def keys_revoke(key_id: Annotated[str, typer.Argument(help="the key's id")]) -> None:
+    """Revoke a key: it stops working at once."""
+    _run_keys(lambda s: auth.revoke_key(s, key_id))
+    console.print(f"key {key_id} revoked in {_database()}")
+
+
+@keys_app.command("rotate")
+def keys_rotate(key_id: Annotated[str, typer.Argument(help="the key's id")]) -> None:
+    """Give a key a new secret (printed once); the old one stops working."""
+    _, key = _run_keys(lambda s: auth.rotate_key(s, key_id))
+    console.print(f"key {key_id} rotated in {_database()}; its new secret, shown once:")
     typer.echo(key)
 
 
@@ -210,9 +271,8 @@ def demo(
     """Serve, build a synthetic site through the API, and walk simulated users through it."""
     from client_sim.run import run_walkers
 
-    settings = get_settings()
-    db.migrate(settings.resolved_database_url)
-    _, key = asyncio.run(_create_key("demo"))
+    # an admin key builds the site; the simulator makes itself a device key with it
+    _, key = _run_keys(lambda s: auth.create_key(s, "demo"))
     port = _free_port(port)
     server = _ServerThread(port)
     server.start()

@@ -135,7 +135,9 @@ async def test_a_failed_batch_on_the_live_socket_is_logged_with_its_session(
     try:
         async with httpx.AsyncClient(base_url=live_url) as client:
             site = await build_toy_site(client, admin)
-            r = await client.post("/v1/sessions", json={"site_id": site.site_id})
+            r = await client.post(
+                "/v1/sessions", json={"site_id": site.site_id}, headers=site.device
+            )
             assert r.status_code == 201, r.text
         sid, token = r.json()["id"], r.json()["token"]
 

@@ -9,12 +9,12 @@ from fastapi import APIRouter, Path, status
 
 from server.api import schemas as sc
 from server.api.convert import ble_pairs, wifi_pairs
-from server.api.deps import AdminDep, IdPath, SqlDep
+from server.api.deps import AdminDep, IdPath, MapsWriteDep, SqlDep, Viewer, ViewerDep
 from server.services import device_offsets, magnetic_maps, maps, sites
 
 VersionPath = Annotated[int, Path(ge=1, le=2**31 - 1, description="map version number")]
 
-router = APIRouter(prefix="/v1", tags=["admin"], dependencies=[AdminDep])
+router = APIRouter(prefix="/v1", tags=["admin"])
 
 
 def _floor(f: Any) -> sc.FloorRead:
@@ -32,68 +32,77 @@ def _radio_map(m: Any) -> sc.RadioMapRead:
     return sc.RadioMapRead.model_validate(m, from_attributes=True)
 
 
-@router.post("/sites", status_code=status.HTTP_201_CREATED)
+@router.post("/sites", status_code=status.HTTP_201_CREATED, dependencies=[AdminDep])
 async def create_site(body: sc.SiteCreate, s: SqlDep) -> sc.SiteRead:
     return sc.SiteRead.model_validate(await sites.create_site(s, body.name), from_attributes=True)
 
 
 @router.get("/sites")
-async def list_sites(s: SqlDep) -> sc.SiteList:
-    items = [sc.SiteRead.model_validate(x, from_attributes=True) for x in await sites.list_sites(s)]
+async def list_sites(s: SqlDep, principal: Viewer) -> sc.SiteList:
+    rows = [x for x in await sites.list_sites(s) if principal.site_id in (None, x.id)]
+    items = [sc.SiteRead.model_validate(x, from_attributes=True) for x in rows]
     return sc.SiteList(items=items, count=len(items))
 
 
-@router.get("/sites/{site_id}")
+@router.get("/sites/{site_id}", dependencies=[ViewerDep])
 async def get_site(site_id: IdPath, s: SqlDep) -> sc.SiteRead:
     return sc.SiteRead.model_validate(await sites.get_site(s, site_id), from_attributes=True)
 
 
-@router.post("/sites/{site_id}/buildings", status_code=status.HTTP_201_CREATED)
+@router.post(
+    "/sites/{site_id}/buildings", status_code=status.HTTP_201_CREATED, dependencies=[AdminDep]
+)
 async def create_building(site_id: IdPath, body: sc.BuildingCreate, s: SqlDep) -> sc.BuildingRead:
     building = await sites.create_building(s, site_id, **body.model_dump())
     return sc.BuildingRead.model_validate(building, from_attributes=True)
 
 
-@router.get("/sites/{site_id}/buildings")
+@router.get("/sites/{site_id}/buildings", dependencies=[ViewerDep])
 async def list_buildings(site_id: IdPath, s: SqlDep) -> sc.BuildingList:
     rows = await sites.list_buildings(s, site_id)
     items = [sc.BuildingRead.model_validate(b, from_attributes=True) for b in rows]
     return sc.BuildingList(items=items, count=len(items))
 
 
-@router.get("/buildings/{building_id}")
+@router.get("/buildings/{building_id}", dependencies=[ViewerDep])
 async def get_building(building_id: IdPath, s: SqlDep) -> sc.BuildingRead:
     building = await sites.get_building(s, building_id)
     return sc.BuildingRead.model_validate(building, from_attributes=True)
 
 
-@router.post("/buildings/{building_id}/floors", status_code=status.HTTP_201_CREATED)
+@router.post(
+    "/buildings/{building_id}/floors", status_code=status.HTTP_201_CREATED, dependencies=[AdminDep]
+)
 async def create_floor(building_id: IdPath, body: sc.FloorCreate, s: SqlDep) -> sc.FloorRead:
     return _floor(await sites.create_floor(s, building_id, body.level, body.name))
 
 
-@router.get("/buildings/{building_id}/floors")
+@router.get("/buildings/{building_id}/floors", dependencies=[ViewerDep])
 async def list_floors(building_id: IdPath, s: SqlDep) -> sc.FloorList:
     items = [_floor(f) for f in await sites.list_floors(s, building_id)]
     return sc.FloorList(items=items, count=len(items))
 
 
-@router.get("/floors/{floor_id}")
+@router.get("/floors/{floor_id}", dependencies=[ViewerDep])
 async def get_floor(floor_id: IdPath, s: SqlDep) -> sc.FloorRead:
     return _floor(await sites.get_floor(s, floor_id))
 
 
-@router.put("/floors/{floor_id}/plan")
+@router.put("/floors/{floor_id}/plan", dependencies=[MapsWriteDep])
 async def put_floor_plan(floor_id: IdPath, body: sc.FloorPlan, s: SqlDep) -> sc.FloorRead:
     return _floor(await sites.put_floor_plan(s, floor_id, body.model_dump(mode="json")))
 
 
-@router.get("/floors/{floor_id}/plan")
+@router.get("/floors/{floor_id}/plan", dependencies=[ViewerDep])
 async def get_floor_plan(floor_id: IdPath, s: SqlDep) -> sc.FloorPlan:
     return sc.FloorPlan.model_validate(await sites.get_floor_plan(s, floor_id))
 
 
-@router.post("/buildings/{building_id}/survey", status_code=status.HTTP_201_CREATED)
+@router.post(
+    "/buildings/{building_id}/survey",
+    status_code=status.HTTP_201_CREATED,
+    dependencies=[MapsWriteDep],
+)
 async def post_survey(building_id: IdPath, body: sc.SurveyIn, s: SqlDep) -> sc.RadioMapRead:
     points = [
         maps.SurveyPointData(
@@ -110,13 +119,17 @@ async def post_survey(building_id: IdPath, body: sc.SurveyIn, s: SqlDep) -> sc.R
     return _radio_map(await maps.add_survey(s, building_id, points))
 
 
-@router.get("/buildings/{building_id}/radio-maps")
+@router.get("/buildings/{building_id}/radio-maps", dependencies=[ViewerDep])
 async def list_radio_maps(building_id: IdPath, s: SqlDep) -> sc.RadioMapList:
     items = [_radio_map(m) for m in await maps.list_radio_maps(s, building_id)]
     return sc.RadioMapList(items=items, count=len(items))
 
 
-@router.post("/floors/{floor_id}/magnetic-survey", status_code=status.HTTP_201_CREATED)
+@router.post(
+    "/floors/{floor_id}/magnetic-survey",
+    status_code=status.HTTP_201_CREATED,
+    dependencies=[MapsWriteDep],
+)
 async def post_magnetic_survey(
     floor_id: IdPath, body: sc.MagneticSurveyIn, s: SqlDep
 ) -> sc.MagneticMapRead:
@@ -147,14 +160,14 @@ async def post_magnetic_survey(
     return sc.MagneticMapRead.model_validate(row, from_attributes=True)
 
 
-@router.get("/floors/{floor_id}/magnetic-maps")
+@router.get("/floors/{floor_id}/magnetic-maps", dependencies=[ViewerDep])
 async def list_magnetic_maps(floor_id: IdPath, s: SqlDep) -> sc.MagneticMapList:
     rows = await magnetic_maps.list_magnetic_maps(s, floor_id)
     items = [sc.MagneticMapRead.model_validate(m, from_attributes=True) for m in rows]
     return sc.MagneticMapList(items=items, count=len(items))
 
 
-@router.post("/buildings/{building_id}/radio-maps/{version}:activate")
+@router.post("/buildings/{building_id}/radio-maps/{version}:activate", dependencies=[MapsWriteDep])
 async def activate_radio_map(
     building_id: IdPath, version: VersionPath, s: SqlDep
 ) -> sc.RadioMapRead:
@@ -162,7 +175,7 @@ async def activate_radio_map(
     return _radio_map(await maps.activate_radio_map(s, building_id, version))
 
 
-@router.post("/floors/{floor_id}/magnetic-maps/{version}:activate")
+@router.post("/floors/{floor_id}/magnetic-maps/{version}:activate", dependencies=[MapsWriteDep])
 async def activate_magnetic_map(
     floor_id: IdPath, version: VersionPath, s: SqlDep
 ) -> sc.MagneticMapRead:
@@ -171,7 +184,7 @@ async def activate_magnetic_map(
     return sc.MagneticMapRead.model_validate(row, from_attributes=True)
 
 
-@router.get("/buildings/{building_id}/device-offsets")
+@router.get("/buildings/{building_id}/device-offsets", dependencies=[ViewerDep])
 async def list_device_offsets(building_id: IdPath, s: SqlDep) -> sc.DeviceOffsetList:
     """Per device model, the RSSI offset estimated from co-located contributions; a
     session that names its device model has it taken off its scans."""

@@ -3,17 +3,17 @@
 from __future__ import annotations
 
 from collections.abc import AsyncIterator
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import Depends, Path, Request, WebSocket
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.ext.asyncio import AsyncSession
 
-from server.services import auth
+from server.services import auth, sites
 from server.services.errors import Unauthorized
 from server.services.runtime import Runtime
 
-_bearer = HTTPBearer(auto_error=False, description="admin API key or session token")
+_bearer = HTTPBearer(auto_error=False, description="an API key or a session token")
 
 
 # Every dependency is ``async def``: FastAPI runs a plain ``def`` one in a worker thread,
@@ -56,10 +56,45 @@ async def get_bearer(
 BearerDep = Annotated[str, Depends(get_bearer)]
 
 
-async def require_admin(rt: RuntimeDep, token: BearerDep) -> None:
-    async with rt.transaction() as s:
-        if not await auth.is_admin_key(s, rt.settings, token):
-            raise Unauthorized("not a valid admin API key", field="authorization")
+async def get_principal(rt: RuntimeDep, token: BearerDep) -> auth.Principal:
+    async with rt.read() as s:
+        principal = await auth.authenticate(s, rt.settings, token)
+    if principal is None:
+        raise Unauthorized("not a valid API key", field="authorization")
+    return principal
 
 
-AdminDep = Depends(require_admin)
+PrincipalDep = Annotated[auth.Principal, Depends(get_principal)]
+
+
+async def _site_of_path(rt: Runtime, params: dict[str, str]) -> str | None:
+    """The site a route's path names (by its site, building or floor id); None when it
+    names none or the thing does not exist (the route answers 404 then)."""
+    if "site_id" in params:
+        return params["site_id"]
+    async with rt.read() as s:
+        return await sites.site_of(s, params.get("building_id"), params.get("floor_id"))
+
+
+def scoped(scope: str) -> Any:
+    """A dependency that lets a request through only with a key holding ``scope`` (401
+    without a valid key, 403 without the scope or for another site's resources)."""
+
+    async def check(request: Request, rt: RuntimeDep, principal: PrincipalDep) -> auth.Principal:
+        site_id = None
+        if principal.site_id is not None:
+            site_id = await _site_of_path(rt, dict(request.path_params))
+        principal.require(scope, site_id)
+        return principal
+
+    return Depends(check)
+
+
+AdminDep = scoped("admin")
+MapsWriteDep = scoped("maps:write")
+ViewerDep = scoped("viewer")
+# the principal itself, for routes that check a site given in the body or the query
+Admin = Annotated[auth.Principal, AdminDep]
+MapsWriter = Annotated[auth.Principal, MapsWriteDep]
+Viewer = Annotated[auth.Principal, ViewerDep]
+Device = Annotated[auth.Principal, scoped("device")]

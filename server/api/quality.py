@@ -7,10 +7,10 @@ from typing import Annotated
 from fastapi import APIRouter, Query
 
 from server.api import schemas as sc
-from server.api.deps import AdminDep, IdPath, SqlDep
+from server.api.deps import IdPath, SqlDep, ViewerDep
 from server.services import map_quality
 
-router = APIRouter(prefix="/v1", tags=["admin"], dependencies=[AdminDep])
+router = APIRouter(prefix="/v1", tags=["admin"], dependencies=[ViewerDep])
 
 
 @router.get("/floors/{floor_id}/maps/quality")

@@ -7,7 +7,7 @@ from fastapi import APIRouter, Response, status
 
 from server.api import schemas as sc
 from server.api.convert import to_events
-from server.api.deps import BearerDep, IdPath, RuntimeDep
+from server.api.deps import BearerDep, Device, IdPath, RuntimeDep
 from server.logs import session_context
 from server.services import sessions, telemetry
 
@@ -15,7 +15,13 @@ router = APIRouter(prefix="/v1/sessions", tags=["sessions"])
 
 
 @router.post("", status_code=status.HTTP_201_CREATED)
-async def create_session(body: sc.SessionCreate, rt: RuntimeDep) -> sc.SessionCreated:
+async def create_session(
+    body: sc.SessionCreate, rt: RuntimeDep, principal: Device
+) -> sc.SessionCreated:
+    """Open a session with a ``device`` key (``contribute`` too for ``contribute: true``)."""
+    principal.require("device", body.site_id)
+    if body.contribute:
+        principal.require("contribute", body.site_id)
     created = await sessions.create_session(
         rt, body.site_id, body.engine, contribute=body.contribute, device_model=body.device_model
     )

@@ -21,11 +21,11 @@ from pydantic.json_schema import models_json_schema
 
 from server.api import schemas as sc
 from server.api.convert import to_events
-from server.api.deps import AdminDep, IdPath, RuntimeDep, SqlDep
+from server.api.deps import IdPath, MapsWriter, RuntimeDep, SqlDep, Viewer
 from server.services import traces, uploads
 from server.services.errors import Invalid, TooLarge
 
-router = APIRouter(prefix="/v1", tags=["uploads"], dependencies=[AdminDep])
+router = APIRouter(prefix="/v1", tags=["uploads"])
 log = logging.getLogger("indoorpos.api.uploads")
 
 XZ_TYPES = {"application/x-xz", "application/xz"}
@@ -95,8 +95,11 @@ async def create_upload(
     content_type: Annotated[str, Header()] = "text/plain",
     content_encoding: Annotated[str | None, Header()] = None,
     idempotency_key: Annotated[str | None, Header(min_length=1, max_length=128)] = None,
+    *,
+    principal: MapsWriter,
 ) -> sc.UploadRead:
     """Accept a trace for the map builder (202); the worker folds it in later."""
+    principal.require("maps:write", site_id)
     limit = rt.settings.upload_max_bytes
     media = content_type.split(";", 1)[0].strip().lower()
     if media == traces.CONTENT_TYPE:  # our stored shape: made here from validated input only
@@ -136,8 +139,10 @@ async def create_upload(
 
 
 @router.get("/uploads/{upload_id}")
-async def get_upload(upload_id: IdPath, s: SqlDep) -> sc.UploadRead:
-    return _read(await uploads.get_upload(s, upload_id))
+async def get_upload(upload_id: IdPath, s: SqlDep, principal: Viewer) -> sc.UploadRead:
+    row = await uploads.get_upload(s, upload_id)
+    principal.require("viewer", row.site_id)
+    return _read(row)
 
 
 def _read(row: Any) -> sc.UploadRead:

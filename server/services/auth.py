@@ -1,17 +1,37 @@
-"""Admin API keys: the configured key, or keys created with ``indoorpos keys create``."""
+"""API keys with scopes: who may do what, on which site.
+
+A key holds a set of scopes and belongs to one site or to all (``site_id`` None):
+
+* ``admin``: everything, keys included (the configured ``INDOORPOS_ADMIN_KEY`` is one,
+  for every site);
+* ``maps:write``: floor plans, radio and magnetic surveys, uploads, map activation;
+* ``viewer``: reading sites, buildings, floors, maps, their quality and uploads;
+* ``device``: opening positioning sessions and ``/v1/locate``;
+* ``contribute``: opening sessions whose walk is offered to the map builder.
+
+``admin`` implies every scope and ``maps:write`` implies ``viewer``; ``contribute`` is
+asked for on top of ``device``. Only a key's SHA-256 digest is stored: a key is shown
+once, when it is made or rotated.
+"""
 
 from __future__ import annotations
 
 import hashlib
 import hmac
 import secrets
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 
 from sqlalchemy.ext.asyncio import AsyncSession
 
 from server.config import Settings
+from server.services.errors import Forbidden, Invalid, NotFound
 from server.storage import repositories as repo
+from server.storage.models import ApiKey
 
 KEY_PREFIX = "ipk_"
+SCOPES = ("admin", "maps:write", "viewer", "device", "contribute")
+_IMPLIED = {"admin": frozenset(SCOPES), "maps:write": frozenset({"maps:write", "viewer"})}
 
 
 def digest(secret: str) -> str:
@@ -22,15 +42,80 @@ def new_secret(prefix: str = "") -> str:
     return prefix + secrets.token_urlsafe(32)
 
 
-async def is_admin_key(s: AsyncSession, settings: Settings, key: str) -> bool:
+@dataclass(frozen=True)
+class Principal:
+    """Who a request comes from: the key's id (None for the configured admin key), what it
+    may do and on which site (None: every site)."""
+
+    key_id: str | None
+    scopes: frozenset[str]
+    site_id: str | None
+
+    def allows(self, scope: str) -> bool:
+        return any(scope in _IMPLIED.get(held, {held}) for held in self.scopes)
+
+    def require(self, scope: str, site_id: str | None = None) -> None:
+        """Raise Forbidden unless the key holds ``scope`` (for ``site_id``, when given)."""
+        if not self.allows(scope):
+            raise Forbidden(f"this key lacks the {scope!r} scope", field="authorization")
+        if site_id is not None and self.site_id not in (None, site_id):
+            raise Forbidden("this key belongs to another site", field="authorization")
+
+
+def check_scopes(scopes: Iterable[str]) -> frozenset[str]:
+    wanted = frozenset(scopes)
+    unknown = sorted(wanted - set(SCOPES))
+    if unknown:
+        raise Invalid(f"unknown scopes {unknown}: choose from {list(SCOPES)}", field="scopes")
+    if not wanted:
+        raise Invalid("a key needs at least one scope", field="scopes")
+    return wanted
+
+
+async def authenticate(s: AsyncSession, settings: Settings, key: str) -> Principal | None:
+    """The principal of a key, or None when it is not a live key."""
     configured = settings.admin_key.get_secret_value() if settings.admin_key else None
     if configured and hmac.compare_digest(configured.encode(), key.encode()):
-        return True
-    return await repo.find_api_key(s, digest(key)) is not None
+        return Principal(None, frozenset({"admin"}), None)
+    row = await repo.find_api_key(s, digest(key))
+    if row is None:
+        return None
+    return Principal(row.id, frozenset(row.scopes.split()), row.site_id)
 
 
-async def create_admin_key(s: AsyncSession, name: str) -> tuple[str, str]:
-    """Create a key; returns (id, key). Only the digest is stored: the key is shown once."""
+async def create_key(
+    s: AsyncSession, name: str, scopes: Iterable[str] = ("admin",), site_id: str | None = None
+) -> tuple[ApiKey, str]:
+    """Create a key; returns (row, key). Only the digest is stored: the key is shown once."""
+    wanted = check_scopes(scopes)
+    if site_id is not None and await repo.get_site(s, site_id) is None:
+        raise NotFound(f"site {site_id} not found", field="site_id")
     key = new_secret(KEY_PREFIX)
-    row = await repo.create_api_key(s, name, digest(key))
-    return row.id, key
+    row = await repo.create_api_key(s, name, digest(key), " ".join(sorted(wanted)), site_id=site_id)
+    return row, key
+
+
+async def list_keys(s: AsyncSession, include_revoked: bool = False) -> Sequence[ApiKey]:
+    return await repo.list_api_keys(s, include_revoked=include_revoked)
+
+
+async def _live_key(s: AsyncSession, key_id: str) -> ApiKey:
+    row = await repo.get_api_key(s, key_id)
+    if row is None or row.revoked_at is not None:
+        raise NotFound(f"no live key {key_id}", field="key_id")
+    return row
+
+
+async def revoke_key(s: AsyncSession, key_id: str) -> ApiKey:
+    """Revoke a key: it stops working at once (its row stays, for the record)."""
+    row = await _live_key(s, key_id)
+    await repo.revoke_api_key(s, row)
+    return row
+
+
+async def rotate_key(s: AsyncSession, key_id: str) -> tuple[ApiKey, str]:
+    """Give a key a new secret (same id, scopes and site); the old secret stops working."""
+    row = await _live_key(s, key_id)
+    key = new_secret(KEY_PREFIX)
+    await repo.rotate_api_key(s, row, digest(key))
+    return row, key

@@ -36,6 +36,16 @@ class Runtime:
     states: AnySessionCache = field(default_factory=lambda: SessionCache(0))
 
     @asynccontextmanager
+    async def read(self) -> AsyncIterator[AsyncSession]:
+        """A SQL session for reading only: it takes no writer's turn (SQLite), so it can
+        be opened while the same request holds a transaction; nothing it does is kept."""
+        async with self.sql() as session:
+            try:
+                yield session
+            finally:
+                await session.rollback()
+
+    @asynccontextmanager
     async def transaction(self) -> AsyncIterator[AsyncSession]:
         """A SQL session that commits on success and rolls back on error; a write that
         collides with an existing row is a Conflict."""

@@ -75,3 +75,14 @@ async def get_floor_plan(s: AsyncSession, floor_id: str) -> dict[str, Any]:
     if floor.plan_geojson is None:
         raise NotFound(f"floor {floor_id} has no plan", field="floor_id")
     return floor.plan_geojson
+
+
+async def site_of(s: AsyncSession, building_id: str | None, floor_id: str | None) -> str | None:
+    """The site of a building or of a floor; None when neither is given or found."""
+    if floor_id is not None:
+        floor = await repo.get_floor(s, floor_id)
+        building_id = floor.building_id if floor is not None else None
+    if building_id is None:
+        return None
+    building = await repo.get_building(s, building_id)
+    return building.site_id if building is not None else None

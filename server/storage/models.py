@@ -237,13 +237,19 @@ class SessionContribution(Base):
 
 
 class ApiKey(Base):
-    """An admin API key; only its SHA-256 digest is stored."""
+    """An API key; only its SHA-256 digest is stored. ``scopes`` is a space-separated set
+    (``services.auth.SCOPES``); ``site_id`` None means every site."""
 
     __tablename__ = "api_keys"
     id: Mapped[str] = mapped_column(String(32), primary_key=True, default=new_id)
     name: Mapped[str] = mapped_column(String(200))
     key_hash: Mapped[str] = mapped_column(String(64), unique=True)
+    scopes: Mapped[str] = mapped_column(String(200), default="admin", server_default="admin")
+    site_id: Mapped[str | None] = mapped_column(
+        String(32), ForeignKey("sites.id", ondelete="CASCADE")
+    )
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
+    rotated_at: Mapped[datetime | None] = mapped_column()
     revoked_at: Mapped[datetime | None] = mapped_column()
 
 

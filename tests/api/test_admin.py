@@ -173,18 +173,21 @@ async def test_locate_finds_the_surveyed_point(
     from tests.api.toy_site import rssi_at
 
     site = await build_toy_site(client, admin)
-    r = await client.post("/v1/locate", json={"site_id": site.site_id, "wifi": rssi_at(12, 3, 1)})
+    body = {"site_id": site.site_id, "wifi": rssi_at(12, 3, 1)}
+    assert (await client.post("/v1/locate", json=body)).status_code == 401
+    r = await client.post("/v1/locate", json=body, headers=site.device)
     assert r.status_code == 200, r.text
     body = r.json()
     assert body["floor"] == 1
     assert body["floor_id"] == site.floor_ids[1]
     assert abs(body["x_m"] - 12) < 1.0
     assert abs(body["y_m"] - 3) < 1.0
-    r = await client.post("/v1/locate", json={"site_id": site.site_id})
+    r = await client.post("/v1/locate", json={"site_id": site.site_id}, headers=site.device)
     assert r.status_code == 422
     r = await client.post(
         "/v1/locate",
         json={"site_id": site.site_id, "wifi": [{"bssid": "ff:ff", "rssi_dbm": -50}]},
+        headers=site.device,
     )
     assert r.status_code == 422
     assert "wifi" in r.json()["message"]

@@ -26,7 +26,9 @@ async def test_a_beacon_in_the_plan_places_the_phone(
     r = await client.put(f"/v1/floors/{site.floor_ids[1]}/plan", json=plan, headers=admin)
     assert r.status_code == 200, r.text
     r = await client.post(
-        "/v1/sessions", json={"site_id": site.site_id, "engine": "everywhere_ekf"}
+        "/v1/sessions",
+        json={"site_id": site.site_id, "engine": "everywhere_ekf"},
+        headers=site.device,
     )
     assert r.status_code == 201, r.text
     sid, token = r.json()["id"], r.json()["token"]
@@ -58,5 +60,7 @@ async def test_a_malformed_anchor_is_skipped_not_fatal(
     }
     r = await client.put(f"/v1/floors/{site.floor_ids[0]}/plan", json=plan, headers=admin)
     assert r.status_code == 200, r.text
-    r = await client.post("/v1/sessions", json={"site_id": site.site_id, "engine": "wknn"})
+    r = await client.post(
+        "/v1/sessions", json={"site_id": site.site_id, "engine": "wknn"}, headers=site.device
+    )
     assert r.status_code == 201, r.text

@@ -145,6 +145,10 @@ async def test_a_floor_level_must_be_an_integer(
 async def test_device_model_is_plain_short_text(
     client: httpx.AsyncClient, site: ToySite, model: str
 ) -> None:
-    r = await client.post("/v1/sessions", json={"site_id": site.site_id, "device_model": model})
+    r = await client.post(
+        "/v1/sessions",
+        json={"site_id": site.site_id, "device_model": model},
+        headers=site.device,
+    )
     assert r.status_code == 422, r.text
     assert "device_model" in r.json()["message"]

@@ -39,9 +39,11 @@ async def site(client: httpx.AsyncClient, admin: dict[str, str]) -> ToySite:
 
 
 async def open_session(
-    client: httpx.AsyncClient, site_id: str, engine: str = "step_ekf"
+    client: httpx.AsyncClient, site: ToySite, engine: str = "step_ekf"
 ) -> tuple[str, dict[str, str]]:
-    r = await client.post("/v1/sessions", json={"site_id": site_id, "engine": engine})
+    r = await client.post(
+        "/v1/sessions", json={"site_id": site.site_id, "engine": engine}, headers=site.device
+    )
     assert r.status_code == 201, r.text
     body = r.json()
     return body["id"], {"Authorization": f"Bearer {body['token']}"}
@@ -141,7 +143,7 @@ def case(name: str, change: Callable[[Event], Event], field: str) -> Any:
 async def test_malformed_imu_events_get_422_naming_the_field(
     client: httpx.AsyncClient, site: ToySite, change: Callable[[Event], Event], field: str
 ) -> None:
-    sid, auth = await open_session(client, site.site_id)
+    sid, auth = await open_session(client, site)
     url = f"/v1/sessions/{sid}/batches"
     r = await client.post(url, json={"seq": 1, "events": [scan(T0, 5, 5), imu(T0)]}, headers=auth)
     assert r.status_code == 200, r.text
@@ -158,7 +160,7 @@ async def test_malformed_imu_events_get_422_naming_the_field(
 async def test_valid_imu_events_are_accepted_and_ignored_by_step_ekf(
     client: httpx.AsyncClient, site: ToySite
 ) -> None:
-    sid, auth = await open_session(client, site.site_id)
+    sid, auth = await open_session(client, site)
     url = f"/v1/sessions/{sid}/batches"
     r = await client.post(url, json={"seq": 1, "events": [scan(T0, 5, 5), imu(T0)]}, headers=auth)
     assert r.status_code == 200, r.text
@@ -242,7 +244,7 @@ def accel_only(t: int, n: int, period_ms: int = 5) -> Event:
 async def test_a_batch_holds_at_most_60000_imu_rows(
     client: httpx.AsyncClient, site: ToySite
 ) -> None:
-    sid, auth = await open_session(client, site.site_id)
+    sid, auth = await open_session(client, site)
     url = f"/v1/sessions/{sid}/batches"
     # five minutes at 200 Hz, one minute per event, is the most one batch can carry
     full = [accel_only(T0 + 60_000 * i, 12_000) for i in range(5)]
@@ -266,7 +268,7 @@ def test_the_batch_limit_holds_on_the_socket_too() -> None:
 async def test_reused_seq_with_other_imu_samples_is_a_conflict(
     client: httpx.AsyncClient, site: ToySite
 ) -> None:
-    sid, auth = await open_session(client, site.site_id)
+    sid, auth = await open_session(client, site)
     url = f"/v1/sessions/{sid}/batches"
     minute = imu(T0, n=3000)
     other = {**minute, "accel": [list(r) for r in minute["accel"]]}
@@ -284,7 +286,7 @@ async def test_recorded_trace_posts_as_imu_batches(
     trace = read_trace(path)
     events = trace.events(imu=True)
     assert any(isinstance(e, ImuEvent) for e in events)
-    sid, auth = await open_session(client, site.site_id)
+    sid, auth = await open_session(client, site)
     url = f"/v1/sessions/{sid}/batches"
     for seq, batch in enumerate(batches(events), start=1):
         body = {"seq": seq, "events": [convert.to_wire(e) for e in batch]}
@@ -356,7 +358,7 @@ def check_walk_fixes(fixes: list[dict[str, Any]]) -> None:
 
 
 async def test_raw_imu_in_fixes_out_over_http(client: httpx.AsyncClient, site: ToySite) -> None:
-    sid, auth = await open_session(client, site.site_id, engine="two_stage_ekf")
+    sid, auth = await open_session(client, site, engine="two_stage_ekf")
     fixes: list[dict[str, Any]] = []
     for seq, events in enumerate(walk_batches(), start=1):
         r = await client.post(
@@ -371,7 +373,7 @@ async def test_raw_imu_in_fixes_out_over_the_websocket(live_url: str) -> None:  
     admin = {"Authorization": f"Bearer {ADMIN_KEY}"}
     async with httpx.AsyncClient(base_url=live_url) as client:
         site = await build_toy_site(client, admin)
-        sid, auth = await open_session(client, site.site_id, engine="two_stage_ekf")
+        sid, auth = await open_session(client, site, engine="two_stage_ekf")
         token = auth["Authorization"].removeprefix("Bearer ")
         ws_url = live_url.replace("http", "ws", 1) + f"/v1/sessions/{sid}/live"
         async with connect(ws_url, additional_headers={"Authorization": f"Bearer {token}"}) as ws:
@@ -401,7 +403,7 @@ async def test_raw_imu_in_fixes_out_over_the_websocket(live_url: str) -> None:  
 async def test_samples_without_gravity_do_not_break_a_session(
     client: httpx.AsyncClient, site: ToySite, engine: str
 ) -> None:
-    sid, auth = await open_session(client, site.site_id, engine=engine)
+    sid, auth = await open_session(client, site, engine=engine)
     odd = {
         "type": "imu",
         "t": T0,

@@ -72,7 +72,11 @@ def step(t: int) -> dict[str, Any]:
 
 
 async def open_session(client: httpx.AsyncClient, site: ToySite) -> tuple[str, dict[str, str]]:
-    r = await client.post("/v1/sessions", json={"site_id": site.site_id, "engine": "step_ekf"})
+    r = await client.post(
+        "/v1/sessions",
+        json={"site_id": site.site_id, "engine": "step_ekf"},
+        headers=site.device,
+    )
     assert r.status_code == 201, r.text
     return r.json()["id"], {"Authorization": f"Bearer {r.json()['token']}"}
 

@@ -16,7 +16,11 @@ async def test_pf_magnetic_session_follows_steps(
     client: httpx.AsyncClient, admin: dict[str, str]
 ) -> None:
     site = await build_toy_site(client, admin)
-    r = await client.post("/v1/sessions", json={"site_id": site.site_id, "engine": "pf_magnetic"})
+    r = await client.post(
+        "/v1/sessions",
+        json={"site_id": site.site_id, "engine": "pf_magnetic"},
+        headers=site.device,
+    )
     assert r.status_code == 201, r.text
     sid, token = r.json()["id"], r.json()["token"]
     auth = {"Authorization": f"Bearer {token}"}

@@ -22,7 +22,11 @@ async def site(client: httpx.AsyncClient, admin: dict[str, str]) -> ToySite:
 
 
 async def open_session(client: httpx.AsyncClient, site: ToySite) -> tuple[str, dict[str, str]]:
-    r = await client.post("/v1/sessions", json={"site_id": site.site_id, "engine": "step_ekf"})
+    r = await client.post(
+        "/v1/sessions",
+        json={"site_id": site.site_id, "engine": "step_ekf"},
+        headers=site.device,
+    )
     assert r.status_code == 201, r.text
     body = r.json()
     return body["id"], {"Authorization": f"Bearer {body['token']}"}
@@ -196,12 +200,14 @@ async def test_malformed_events_get_422_naming_the_field(
 
 
 async def test_unknown_engine_and_site_are_rejected(
-    client: httpx.AsyncClient, site: ToySite
+    client: httpx.AsyncClient, site: ToySite, admin: dict[str, str]
 ) -> None:
-    r = await client.post("/v1/sessions", json={"site_id": site.site_id, "engine": "nope"})
+    r = await client.post(
+        "/v1/sessions", json={"site_id": site.site_id, "engine": "nope"}, headers=site.device
+    )
     assert r.status_code == 422
     assert "engine" in r.json()["message"]
-    r = await client.post("/v1/sessions", json={"site_id": "0" * 32})
+    r = await client.post("/v1/sessions", json={"site_id": "0" * 32}, headers=admin)
     assert r.status_code == 404
     assert "site_id" in r.json()["message"]
 

@@ -18,6 +18,7 @@ from sqlalchemy import func, select
 
 from server import worker
 from server.storage.models import SurveyPoint, Upload
+from tests.api.toy_site import device_headers
 from tests.datasets.conftest import DATA_DIR
 
 TRACES = DATA_DIR / "ilc20-sample" / "site2" / "F4" / "path_data_files"
@@ -374,10 +375,15 @@ async def test_an_ended_session_offered_for_map_building_becomes_an_upload(
     )
     assert r.status_code == 201, r.text
 
-    r = await client.post(
-        "/v1/sessions",
-        json={"site_id": site_id, "engine": "wknn", "contribute": True, "device_model": "Pixel 4"},
-    )
+    body = {"site_id": site_id, "engine": "wknn", "contribute": True, "device_model": "Pixel 4"}
+    # contributing needs a key allowed to: none, or a plain device key, is refused
+    assert (await client.post("/v1/sessions", json=body)).status_code == 401
+    device = await device_headers(client, admin, site_id=site_id)
+    r = await client.post("/v1/sessions", json=body, headers=device)
+    assert r.status_code == 403, r.text
+    assert "contribute" in r.json()["message"]
+    contributor = await device_headers(client, admin, ("device", "contribute"), site_id)
+    r = await client.post("/v1/sessions", json=body, headers=contributor)
     assert r.status_code == 201, r.text
     sid, auth = r.json()["id"], {"Authorization": f"Bearer {r.json()['token']}"}
     events = sorted(_walk_events(), key=lambda e: e["t"])
@@ -402,7 +408,9 @@ async def test_an_ended_session_offered_for_map_building_becomes_an_upload(
     assert upload["report"]["anchor_source"] == "beacons"
     assert upload["report"]["scans"] >= 5
     # a session that did not offer its walk leaves nothing
-    r = await client.post("/v1/sessions", json={"site_id": site_id, "engine": "wknn"})
+    r = await client.post(
+        "/v1/sessions", json={"site_id": site_id, "engine": "wknn"}, headers=device
+    )
     sid, auth = r.json()["id"], {"Authorization": f"Bearer {r.json()['token']}"}
     await client.post(
         f"/v1/sessions/{sid}/batches", json={"seq": 1, "events": batches[0]}, headers=auth

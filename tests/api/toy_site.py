@@ -36,11 +36,27 @@ def rssi_at(x_m: float, y_m: float, level: int) -> list[dict[str, Any]]:
     return readings
 
 
+async def device_headers(
+    client: httpx.AsyncClient,
+    admin: dict[str, str],
+    scopes: tuple[str, ...] = ("device",),
+    site_id: str | None = None,
+) -> dict[str, str]:
+    """The header of a new key with ``scopes`` (for ``site_id`` only, when given)."""
+    body: dict[str, Any] = {"name": "test device", "scopes": list(scopes)}
+    if site_id is not None:
+        body["site_id"] = site_id
+    r = await client.post("/v1/keys", json=body, headers=admin)
+    assert r.status_code == 201, r.text
+    return {"Authorization": f"Bearer {r.json()['key']}"}
+
+
 @dataclass(frozen=True)
 class ToySite:
     site_id: str
     building_id: str
     floor_ids: dict[int, str]
+    device: dict[str, str]  # the header of a device key for the site
 
 
 async def build_toy_site(client: httpx.AsyncClient, admin: dict[str, str]) -> ToySite:
@@ -67,4 +83,5 @@ async def build_toy_site(client: httpx.AsyncClient, admin: dict[str, str]) -> To
         f"/v1/buildings/{building_id}/survey", json={"points": points}, headers=admin
     )
     assert r.status_code == 201, r.text
-    return ToySite(site_id, building_id, floor_ids)
+    device = await device_headers(client, admin, site_id=site_id)
+    return ToySite(site_id, building_id, floor_ids, device)

@@ -93,6 +93,8 @@ async def test_client_sends_the_contract() -> None:
         path = request.url.path
         if path == "/base/v1/sessions":
             return httpx.Response(201, json=CREATED)
+        if path == "/base/v1/keys":
+            return httpx.Response(201, json={"id": "k", "key": "dev"})
         if path.endswith("/batches"):
             assert body is not None
             if body["seq"] == 2:
@@ -133,7 +135,8 @@ async def test_client_sends_the_contract() -> None:
         ("POST", "/base/v1/buildings/bld/floors", "Bearer adm", {"level": 1, "name": "one"}),
         ("POST", "/base/v1/buildings/bld/survey", "Bearer adm", {"points": []}),
         ("PUT", "/base/v1/floors/fl/plan", "Bearer adm", PLAN),
-        ("POST", "/base/v1/sessions", None, {"site_id": "site", "engine": "step_ekf"}),
+        ("POST", "/base/v1/keys", "Bearer adm", {"name": "client simulator", "scopes": ["device"]}),
+        ("POST", "/base/v1/sessions", "Bearer dev", {"site_id": "site", "engine": "step_ekf"}),
         ("POST", "/base/v1/sessions/s1/batches", "Bearer t",
          {"seq": 1, "events": [{"type": "wifi", "t": 5, "readings": []}]}),
         ("POST", "/base/v1/sessions/s1/batches", "Bearer t", {"seq": 2, "events": []}),

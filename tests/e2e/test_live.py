@@ -11,15 +11,15 @@ import pytest
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed
 
-from tests.api.toy_site import build_toy_site, rssi_at
+from tests.api.toy_site import ToySite, build_toy_site, rssi_at
 from tests.conftest import ADMIN_KEY
 
 T0 = 1_700_000_000_000
 ADMIN = {"Authorization": f"Bearer {ADMIN_KEY}"}
 
 
-async def _session(client: httpx.AsyncClient, site_id: str) -> tuple[str, str]:
-    r = await client.post("/v1/sessions", json={"site_id": site_id})
+async def _session(client: httpx.AsyncClient, site: ToySite) -> tuple[str, str]:
+    r = await client.post("/v1/sessions", json={"site_id": site.site_id}, headers=site.device)
     assert r.status_code == 201, r.text
     return r.json()["id"], r.json()["token"]
 
@@ -40,7 +40,7 @@ def _bearer(token: str) -> dict[str, str]:
 async def test_fixes_posted_over_http_arrive_on_the_socket(live_url: str) -> None:
     async with httpx.AsyncClient(base_url=live_url) as client:
         site = await build_toy_site(client, ADMIN)
-        sid, token = await _session(client, site.site_id)
+        sid, token = await _session(client, site)
         async with connect(_ws_url(live_url, sid), additional_headers=_bearer(token)) as ws:
             assert (await _recv(ws))["type"] == "ready"
             batch = {
@@ -116,8 +116,8 @@ async def test_fixes_posted_over_http_arrive_on_the_socket(live_url: str) -> Non
 async def test_socket_refuses_another_sessions_token(live_url: str) -> None:
     async with httpx.AsyncClient(base_url=live_url) as client:
         site = await build_toy_site(client, ADMIN)
-        sid_a, _ = await _session(client, site.site_id)
-        _, token_b = await _session(client, site.site_id)
+        sid_a, _ = await _session(client, site)
+        _, token_b = await _session(client, site)
         async with connect(_ws_url(live_url, sid_a)) as ws:
             # a browser's way: the token as the first message
             await ws.send(json.dumps({"type": "auth", "token": token_b}))
@@ -133,7 +133,7 @@ async def test_socket_refuses_another_sessions_token(live_url: str) -> None:
 async def test_a_browser_authenticates_with_its_first_message(live_url: str) -> None:
     async with httpx.AsyncClient(base_url=live_url) as client:
         site = await build_toy_site(client, ADMIN)
-        sid, token = await _session(client, site.site_id)
+        sid, token = await _session(client, site)
         async with connect(_ws_url(live_url, sid)) as ws:
             await ws.send(json.dumps({"type": "auth", "token": token}))
             assert (await _recv(ws))["type"] == "ready"
@@ -143,7 +143,7 @@ async def test_a_browser_authenticates_with_its_first_message(live_url: str) -> 
 async def test_a_socket_without_credentials_is_closed(live_url: str, first: str) -> None:
     async with httpx.AsyncClient(base_url=live_url) as client:
         site = await build_toy_site(client, ADMIN)
-        sid, _ = await _session(client, site.site_id)
+        sid, _ = await _session(client, site)
         async with connect(_ws_url(live_url, sid)) as ws:
             await ws.send(first)
             err = await _recv(ws)
@@ -158,7 +158,7 @@ async def test_a_socket_without_credentials_is_closed(live_url: str, first: str)
 async def test_a_token_in_the_url_is_refused(live_url: str) -> None:
     async with httpx.AsyncClient(base_url=live_url) as client:
         site = await build_toy_site(client, ADMIN)
-        sid, token = await _session(client, site.site_id)
+        sid, token = await _session(client, site)
         async with connect(_ws_url(live_url, sid) + f"?token={token}") as ws:
             err = await _recv(ws)
             assert err["status"] == 401

@@ -35,7 +35,7 @@ async def _session_run(base: str) -> list[str]:
     ws_base = base.replace("http", "ws", 1)
     async with httpx.AsyncClient(base_url=base, timeout=30) as client:
         site = await build_toy_site(client, admin)
-        r = await client.post("/v1/sessions", json={"site_id": site.site_id})
+        r = await client.post("/v1/sessions", json={"site_id": site.site_id}, headers=site.device)
         assert r.status_code == 201, r.text
         sid, token = r.json()["id"], r.json()["token"]
         auth = {"Authorization": f"Bearer {token}"}
@@ -57,7 +57,8 @@ async def _session_run(base: str) -> list[str]:
         assert r.status_code == 401
         assert (await client.get(f"/v1/sessions/{sid}", headers=auth)).status_code == 200
         assert (await client.delete(f"/v1/sessions/{sid}", headers=auth)).status_code == 204
-    return [token, ADMIN_KEY]
+    device_key = site.device["Authorization"].split()[1]
+    return [token, ADMIN_KEY, device_key]
 
 
 @pytest.mark.parametrize("log_format", ["text", "json"])

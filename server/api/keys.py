@@ -1,0 +1,58 @@
+"""Admin routes for API keys: create (the secret shown once), list, revoke, rotate."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Path, Query, Response, status
+
+from server.api import schemas as sc
+from server.api.deps import AdminDep, SqlDep
+from server.services import auth
+from server.storage.models import ApiKey
+
+router = APIRouter(prefix="/v1/keys", tags=["keys"], dependencies=[AdminDep])
+KeyPath = Annotated[str, Path(pattern=r"^[0-9a-f]{32}$")]
+
+
+def read(row: ApiKey) -> sc.ApiKeyRead:
+    return sc.ApiKeyRead(
+        id=row.id,
+        name=row.name,
+        scopes=row.scopes.split(),
+        site_id=row.site_id,
+        created_at=row.created_at,
+        rotated_at=row.rotated_at,
+        revoked_at=row.revoked_at,
+    )
+
+
+def created(row: ApiKey, key: str) -> sc.ApiKeyCreated:
+    return sc.ApiKeyCreated(**read(row).model_dump(), key=key)
+
+
+@router.post("", status_code=status.HTTP_201_CREATED)
+async def create_key(body: sc.ApiKeyCreate, s: SqlDep) -> sc.ApiKeyCreated:
+    row, key = await auth.create_key(s, body.name, body.scopes, body.site_id)
+    return created(row, key)
+
+
+@router.get("")
+async def list_keys(
+    s: SqlDep, include_revoked: Annotated[bool, Query(description="revoked keys too")] = False
+) -> sc.ApiKeyList:
+    items = [read(row) for row in await auth.list_keys(s, include_revoked)]
+    return sc.ApiKeyList(items=items, count=len(items))
+
+
+@router.delete("/{key_id}", status_code=status.HTTP_204_NO_CONTENT)
+async def revoke_key(key_id: KeyPath, s: SqlDep) -> Response:
+    await auth.revoke_key(s, key_id)
+    return Response(status_code=status.HTTP_204_NO_CONTENT)
+
+
+@router.post("/{key_id}:rotate")
+async def rotate_key(key_id: KeyPath, s: SqlDep) -> sc.ApiKeyCreated:
+    """A new secret for the key (same id, scopes and site); the old one stops working."""
+    row, key = await auth.rotate_key(s, key_id)
+    return created(row, key)
