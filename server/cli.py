@@ -274,7 +274,8 @@ def demo(
     # an admin key builds the site; the simulator makes itself a device key with it
     _, key = _run_keys(lambda s: auth.create_key(s, "demo"))
     port = _free_port(port)
-    server = _ServerThread(port)
+    # the walkers all come from this machine: the per-address limits are not for them
+    server = _ServerThread(port, get_settings().model_copy(update={"rate_limits": False}))
     server.start()
     base_url = f"http://127.0.0.1:{port}"
     console.print(f"serving on {base_url} (docs at {base_url}/docs)")
@@ -408,7 +409,11 @@ def _embedded_service() -> Iterator[tuple[str, str]]:
     key = secrets.token_urlsafe(24)
     with tempfile.TemporaryDirectory(prefix="indoorpos-crowd-") as data_dir:
         settings = Settings(
-            data_dir=Path(data_dir), database_url=None, redis_url=None, admin_key=SecretStr(key)
+            data_dir=Path(data_dir),
+            database_url=None,
+            redis_url=None,
+            admin_key=SecretStr(key),
+            rate_limits=False,  # one local client opening many sessions on purpose
         )
         db.migrate(settings.resolved_database_url)
         port = _free_port(0)

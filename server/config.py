@@ -46,6 +46,22 @@ class Settings(BaseSettings):
         "3,000-particle cloud); 0 turns the cache off",
     )
     map_cache_size: int = Field(32, ge=1, description="site map sets kept in memory")
+    rate_limits: bool = Field(
+        True, description="refuse (429 + Retry-After) past the rate_* limits below"
+    )
+    rate_sessions_per_min: int = Field(
+        60, ge=1, description="sessions opened per client address (per key: 100 times this)"
+    )
+    rate_locate_per_min: int = Field(
+        600, ge=1, description="locate calls per client address (per key: 100 times this)"
+    )
+    rate_batches_per_min: int = Field(
+        600, ge=1, description="batches per session (per client address: 10 times this)"
+    )
+    rate_uploads_per_min: int = Field(120, ge=1, description="uploads per key and per address")
+    rate_auth_failures_per_min: int = Field(
+        30, ge=1, description="failed authentications per client address"
+    )
     live_query_token: bool = Field(
         False,
         description="deprecated: accept a session token as ?token= on the live socket "

@@ -53,6 +53,9 @@ def settings(tmp_path_factory: pytest.TempPathFactory) -> Settings:
         redis_url=redis_url,
         admin_key=SecretStr(ADMIN_KEY),
         seq_wait_s=5.0,
+        # the whole suite comes from one address; tests/api/test_rate_limits.py turns
+        # them on in an app of its own
+        rate_limits=False,
     )
     db.migrate(s.resolved_database_url)
     return s

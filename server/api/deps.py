@@ -8,6 +8,7 @@ from typing import Annotated, Any
 from fastapi import Depends, Path, Request, WebSocket
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.ext.asyncio import AsyncSession
+from starlette.requests import HTTPConnection
 
 from server.services import auth, sites
 from server.services.errors import Unauthorized
@@ -54,6 +55,19 @@ async def get_bearer(
 
 
 BearerDep = Annotated[str, Depends(get_bearer)]
+
+
+def client_address(connection: HTTPConnection) -> str:
+    """The client's address (uvicorn's ``--proxy-headers`` puts a trusted proxy's
+    ``X-Forwarded-For`` here)."""
+    return connection.client.host if connection.client else "unknown"
+
+
+async def get_address(request: Request) -> str:
+    return client_address(request)
+
+
+AddressDep = Annotated[str, Depends(get_address)]
 
 
 async def get_principal(rt: RuntimeDep, token: BearerDep) -> auth.Principal:

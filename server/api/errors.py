@@ -16,8 +16,9 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException
 
-from server.services import telemetry
-from server.services.errors import ServiceError
+from server.api.deps import client_address
+from server.services import limits, telemetry
+from server.services.errors import ServiceError, TooMany
 
 logger = logging.getLogger(__name__)
 STORE_RETRY_AFTER_S = 1
@@ -76,9 +77,17 @@ async def _on_validation(_request: Request, exc: Exception) -> JSONResponse:
     return JSONResponse(validation_detail(list(exc.errors())), status_code=422)
 
 
-async def _on_service(_request: Request, exc: Exception) -> JSONResponse:
+async def _on_service(request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, ServiceError)
+    if exc.status in (401, 403) and exc.field == "authorization":
+        # a wrong key or session token: counted per address, refused once too many
+        try:
+            await limits.check_auth_failure(request.app.state.runtime, client_address(request))
+        except TooMany as refused:
+            exc = refused
     headers = {"WWW-Authenticate": "Bearer"} if exc.status == 401 else None
+    if isinstance(exc, TooMany):
+        headers = {"Retry-After": str(exc.retry_after_s)}
     return JSONResponse(service_detail(exc), status_code=exc.status, headers=headers)
 
 

@@ -27,10 +27,10 @@ from uvicorn.protocols.utils import ClientDisconnected
 
 from server.api import schemas as sc
 from server.api.convert import to_events
-from server.api.deps import IdPath, get_ws_runtime
+from server.api.deps import IdPath, client_address, get_ws_runtime
 from server.api.errors import service_detail, validation_detail
 from server.logs import session_context
-from server.services import sessions, telemetry
+from server.services import limits, sessions, telemetry
 from server.services.errors import ServiceError, Unauthorized
 from server.services.runtime import Runtime
 
@@ -150,6 +150,7 @@ async def _read(sock: _Socket, rt: Runtime, session_id: str, secret: str) -> Non
             await sock.send({"type": "error", "status": 422, **validation_detail(errors)})
             continue
         try:
+            await limits.check_batch(rt, session_id, client_address(sock.ws))
             events = to_events(batch.events)
             result = await sessions.apply_batch(rt, session_id, secret, batch.seq, events)
         except ServiceError as exc:

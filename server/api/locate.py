@@ -6,15 +6,19 @@ from fastapi import APIRouter
 
 from server.api import schemas as sc
 from server.api.convert import ble_pairs, wifi_pairs
-from server.api.deps import Device, RuntimeDep
+from server.api.deps import AddressDep, Device, RuntimeDep
+from server.services import limits
 from server.services import locate as service
 
 router = APIRouter(prefix="/v1", tags=["locate"])
 
 
 @router.post("/locate")
-async def locate(body: sc.LocateIn, rt: RuntimeDep, principal: Device) -> sc.LocateOut:
+async def locate(
+    body: sc.LocateIn, rt: RuntimeDep, principal: Device, address: AddressDep
+) -> sc.LocateOut:
     principal.require("device", body.site_id)
+    await limits.check(rt, "locate", address, principal.key_id)
     found = await service.locate(rt, body.site_id, wifi_pairs(body.wifi), ble_pairs(body.ble))
     return sc.LocateOut(
         x_m=found.x_m,

@@ -7,21 +7,22 @@ from fastapi import APIRouter, Response, status
 
 from server.api import schemas as sc
 from server.api.convert import to_events
-from server.api.deps import BearerDep, Device, IdPath, RuntimeDep
+from server.api.deps import AddressDep, BearerDep, Device, IdPath, RuntimeDep
 from server.logs import session_context
-from server.services import sessions, telemetry
+from server.services import limits, sessions, telemetry
 
 router = APIRouter(prefix="/v1/sessions", tags=["sessions"])
 
 
 @router.post("", status_code=status.HTTP_201_CREATED)
 async def create_session(
-    body: sc.SessionCreate, rt: RuntimeDep, principal: Device
+    body: sc.SessionCreate, rt: RuntimeDep, principal: Device, address: AddressDep
 ) -> sc.SessionCreated:
     """Open a session with a ``device`` key (``contribute`` too for ``contribute: true``)."""
     principal.require("device", body.site_id)
     if body.contribute:
         principal.require("contribute", body.site_id)
+    await limits.check(rt, "sessions", address, principal.key_id)
     created = await sessions.create_session(
         rt, body.site_id, body.engine, contribute=body.contribute, device_model=body.device_model
     )
@@ -37,12 +38,13 @@ async def create_session(
 
 @router.post("/{session_id}/batches", response_model=sc.BatchOut)
 async def post_batch(
-    session_id: IdPath, body: sc.BatchIn, rt: RuntimeDep, token: BearerDep
+    session_id: IdPath, body: sc.BatchIn, rt: RuntimeDep, token: BearerDep, address: AddressDep
 ) -> Response:
     """Apply the next batch of the session; its fixes in the answer. The answer is written
     straight from the fixes the service made (already in the ``FixOut`` shape), without a
     second validation on the way out."""
     with session_context(session_id):
+        await limits.check_batch(rt, session_id, address)
         events = to_events(body.events)
         result = await sessions.apply_batch(rt, session_id, token, body.seq, events)
         telemetry.count_batch(

@@ -21,8 +21,8 @@ from pydantic.json_schema import models_json_schema
 
 from server.api import schemas as sc
 from server.api.convert import to_events
-from server.api.deps import IdPath, MapsWriter, RuntimeDep, SqlDep, Viewer
-from server.services import traces, uploads
+from server.api.deps import IdPath, MapsWriter, RuntimeDep, SqlDep, Viewer, client_address
+from server.services import limits, traces, uploads
 from server.services.errors import Invalid, TooLarge
 
 router = APIRouter(prefix="/v1", tags=["uploads"])
@@ -100,6 +100,7 @@ async def create_upload(
 ) -> sc.UploadRead:
     """Accept a trace for the map builder (202); the worker folds it in later."""
     principal.require("maps:write", site_id)
+    await limits.check(rt, "uploads", client_address(request), principal.key_id)
     limit = rt.settings.upload_max_bytes
     media = content_type.split(";", 1)[0].strip().lower()
     if media == traces.CONTENT_TYPE:  # our stored shape: made here from validated input only

@@ -36,3 +36,13 @@ class Invalid(ServiceError):
 
 class TooLarge(ServiceError):
     status = 413
+
+
+class TooMany(ServiceError):
+    """A rate limit was reached; ``retry_after_s`` says when to try again."""
+
+    status = 429
+
+    def __init__(self, message: str, retry_after_s: int, field: str | None = None) -> None:
+        super().__init__(message, field)
+        self.retry_after_s = retry_after_s

@@ -15,6 +15,7 @@ from server.services.errors import Conflict
 from server.services.maps import MapCache
 from server.services.session_cache import AnySessionCache, SessionCache
 from server.storage import db
+from server.storage.rate_limits import RateLimiter, make_rate_limiter
 from server.storage.session_store import SessionStore, make_session_store
 from server.storage.upload_queue import UploadQueue, make_upload_queue
 
@@ -27,6 +28,7 @@ class Runtime:
     store: SessionStore
     maps: MapCache
     uploads: UploadQueue
+    limits: RateLimiter
 
     # SQLite allows one writer; an embedded process takes turns rather than failing
     sqlite_lock: anyio.Lock | None = None
@@ -67,6 +69,7 @@ async def open_runtime(settings: Settings) -> AsyncIterator[Runtime]:
     engine = db.create_engine(settings.resolved_database_url)
     store = make_session_store(settings.redis_url)
     uploads = make_upload_queue(settings.redis_url, settings.upload_visibility_s)
+    limits = make_rate_limiter(settings.redis_url)
     try:
         yield Runtime(
             settings=settings,
@@ -75,11 +78,13 @@ async def open_runtime(settings: Settings) -> AsyncIterator[Runtime]:
             store=store,
             maps=MapCache(settings.map_cache_size),
             uploads=uploads,
+            limits=limits,
             sqlite_lock=anyio.Lock() if engine.dialect.name == "sqlite" else None,
             batch_gate=anyio.Semaphore(settings.batch_concurrency),
             states=SessionCache(settings.session_cache_size),
         )
     finally:
+        await limits.close()
         await uploads.close()
         await store.close()
         await engine.dispose()

@@ -1,0 +1,59 @@
+"""Rate limits per key, per client address and per session (``Settings.rate_*``), on the
+buckets of ``storage.rate_limits`` shared by every replica.
+
+Each call names its action and the subjects it is counted against; the first subject
+whose bucket is empty refuses the call with ``TooMany`` (429 with ``Retry-After``). A
+bucket holds a minute's worth of calls and refills evenly over the minute.
+"""
+
+from __future__ import annotations
+
+from server.services.errors import TooMany
+from server.services.runtime import Runtime
+from server.storage.rate_limits import retry_after_s
+
+# per-key (and per-address, for batches) allowance as a multiple of the base setting: a
+# device key is shared by every phone of an app, an address by the phones behind a NAT
+KEY_FACTOR = 100
+ADDRESS_FACTOR_BATCHES = 10
+
+
+async def _take(rt: Runtime, action: str, subject: str, per_min: int) -> None:
+    wait = await rt.limits.take(f"{action}:{subject}", per_min / 60.0, per_min)
+    if wait is not None:
+        raise TooMany(
+            f"too many {action} calls for this {subject.split(':', 1)[0]}; retry later",
+            retry_after_s(wait),
+            field="request",
+        )
+
+
+async def check(rt: Runtime, action: str, address: str, key: str | None = None) -> None:
+    """Count a ``sessions``, ``locate`` or ``uploads`` call against the client address
+    and the key (its id; None for the configured admin key, which is not limited)."""
+    if not rt.settings.rate_limits:
+        return
+    base = {
+        "sessions": rt.settings.rate_sessions_per_min,
+        "locate": rt.settings.rate_locate_per_min,
+        "uploads": rt.settings.rate_uploads_per_min,
+    }[action]
+    await _take(rt, action, f"address:{address}", base)
+    if key is not None:
+        factor = 1 if action == "uploads" else KEY_FACTOR
+        await _take(rt, action, f"key:{key}", base * factor)
+
+
+async def check_batch(rt: Runtime, session_id: str, address: str) -> None:
+    if not rt.settings.rate_limits:
+        return
+    base = rt.settings.rate_batches_per_min
+    await _take(rt, "batches", f"session:{session_id}", base)
+    await _take(rt, "batches", f"address:{address}", base * ADDRESS_FACTOR_BATCHES)
+
+
+async def check_auth_failure(rt: Runtime, address: str) -> None:
+    """Count a failed authentication; TooMany once the address has failed too often."""
+    if not rt.settings.rate_limits:
+        return
+    await _take(rt, "authentication", f"address:{address}", rt.settings.rate_auth_failures_per_min)

@@ -1,0 +1,96 @@
+"""Token buckets shared by every api process: in Redis (production shape) or in memory.
+
+A bucket named ``name`` holds up to ``burst`` tokens and refills at ``per_s`` tokens a
+second; :meth:`RateLimiter.take` takes one token and answers None, or, when the bucket is
+empty, takes nothing and answers how many seconds until a token is back. Redis keeps a
+bucket as a hash (``tokens``, ``ts``) updated by one Lua script on the server's clock, so
+replicas share the buckets and their clocks do not matter; an idle bucket expires once
+it would be full again.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Protocol
+
+from redis.asyncio import Redis
+
+KEY_PREFIX = "ips:rl:"
+MEMORY_MAX_BUCKETS = 100_000  # past this, full buckets are forgotten (they hold nothing)
+
+_TAKE_LUA = """
+local rate = tonumber(ARGV[1])
+local burst = tonumber(ARGV[2])
+local clock = redis.call('TIME')
+local now = tonumber(clock[1]) + tonumber(clock[2]) / 1000000
+local held = redis.call('HMGET', KEYS[1], 'tokens', 'ts')
+local tokens = tonumber(held[1]) or burst
+local ts = tonumber(held[2]) or now
+tokens = math.min(burst, tokens + math.max(0, now - ts) * rate)
+local wait = 0
+if tokens >= 1 then tokens = tokens - 1 else wait = (1 - tokens) / rate end
+redis.call('HSET', KEYS[1], 'tokens', tostring(tokens), 'ts', tostring(now))
+redis.call('EXPIRE', KEYS[1], math.ceil(burst / rate) + 1)
+return tostring(wait)
+"""
+
+
+class RateLimiter(Protocol):
+    async def take(self, name: str, per_s: float, burst: int) -> float | None: ...
+
+    async def close(self) -> None: ...
+
+
+class MemoryRateLimiter:
+    """The buckets of one process (embedded mode: there is only one)."""
+
+    def __init__(self) -> None:
+        self._buckets: dict[str, tuple[float, float]] = {}
+
+    async def take(self, name: str, per_s: float, burst: int) -> float | None:
+        now = time.monotonic()
+        tokens, ts = self._buckets.get(name, (float(burst), now))
+        tokens = min(float(burst), tokens + (now - ts) * per_s)
+        if tokens >= 1.0:
+            self._buckets[name] = (tokens - 1.0, now)
+            if len(self._buckets) > MEMORY_MAX_BUCKETS:
+                self._forget_full(now, per_s, burst)
+            return None
+        self._buckets[name] = (tokens, now)
+        return (1.0 - tokens) / per_s
+
+    def _forget_full(self, now: float, per_s: float, burst: int) -> None:
+        refill_s = burst / per_s
+        self._buckets = {k: v for k, v in self._buckets.items() if now - v[1] < refill_s}
+
+    async def close(self) -> None:
+        self._buckets.clear()
+
+
+class RedisRateLimiter:
+    def __init__(self, client: Redis) -> None:
+        self._client = client
+        self._take = client.register_script(_TAKE_LUA)
+
+    async def take(self, name: str, per_s: float, burst: int) -> float | None:
+        wait = float(await self._take(keys=[KEY_PREFIX + name], args=[per_s, burst]))
+        return None if wait <= 0 else wait
+
+    async def close(self) -> None:
+        await self._client.aclose()
+
+
+def make_rate_limiter(redis_url: str | None, connect_timeout_s: float = 2.0) -> RateLimiter:
+    """Redis when a URL is given, otherwise in memory."""
+    if not redis_url:
+        return MemoryRateLimiter()
+    client: Redis = Redis.from_url(
+        redis_url, decode_responses=True, socket_connect_timeout=connect_timeout_s
+    )
+    return RedisRateLimiter(client)
+
+
+def retry_after_s(wait_s: float) -> int:
+    """A ``Retry-After`` value: whole seconds, at least 1."""
+    return max(1, math.ceil(wait_s))
