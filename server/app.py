@@ -25,6 +25,7 @@ from server.api import (
     sessions,
     uploads,
 )
+from server.api import schemas as sc
 from server.config import Settings, get_settings
 from server.services import telemetry
 from server.services.runtime import open_runtime
@@ -34,6 +35,25 @@ DESCRIPTION = (
     "Indoor positioning service. Phones post batches of steps, sensor samples and "
     "WiFi/BLE scans; the server fuses them into fixes per session and pushes them live."
 )
+
+
+# what any route may answer besides its own success (server.api.errors makes each of them)
+ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
+    status: {"model": sc.ErrorOut, "description": description}
+    for status, description in {
+        400: "the body could not be read",
+        401: "no valid key or session token",
+        403: "the key or token may not do this (or the session does not exist)",
+        404: "no such thing, or no such route",
+        405: "the route does not take this method",
+        409: "conflicts with the current state; read it back and retry",
+        413: "the body is over the route's limit",
+        422: "a field is invalid; the message names it",
+        429: "a rate limit was reached; see Retry-After",
+        500: "an internal error; nothing of the request can be assumed applied",
+        503: "a store is unavailable; see Retry-After",
+    }.items()
+}
 
 
 def _operation_id(route: APIRoute) -> str:
@@ -67,6 +87,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         description=DESCRIPTION,
         lifespan=lifespan,
         generate_unique_id_function=_operation_id,
+        responses=ERROR_RESPONSES,
     )
     errors.install(app)
     for module in (health, admin, keys, sessions, live, locate, uploads, quality, metrics):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter
 from fastapi.responses import JSONResponse
+from pydantic import BaseModel, Field
 
 from server.api.deps import RuntimeDep
 from server.services.runtime import check_ready
@@ -16,7 +17,16 @@ async def healthz() -> dict[str, str]:
     return {"status": "ok"}
 
 
-@router.get("/readyz")
+class Readiness(BaseModel):
+    status: str = Field(description="ok, or unavailable")
+    reason: str | None = Field(None, description="which store did not answer")
+
+
+@router.get(
+    "/readyz",
+    response_model=Readiness,
+    responses={503: {"model": Readiness, "description": "a store does not answer"}},
+)
 async def readyz(rt: RuntimeDep) -> JSONResponse:
     try:
         await check_ready(rt)

@@ -78,6 +78,22 @@ class StrictIn(Strict):
     model_config = ConfigDict(strict=True)
 
 
+# ---------------------------------------------------------------- errors
+
+
+class ErrorItem(Strict):
+    loc: list[str | int] = Field(description="the field, as a path into the request")
+    msg: str
+    type: str | None = None
+
+
+class ErrorOut(Strict):
+    """Every refusal: what is wrong with which field (``message`` is ``field: text``)."""
+
+    detail: list[ErrorItem]
+    message: str
+
+
 # ---------------------------------------------------------------- sites, buildings, floors
 
 
