@@ -173,5 +173,6 @@ async def _read(sock: _Socket, rt: Runtime, session_id: str, secret: str) -> Non
                 "seq": result.seq,
                 "replayed": result.replayed,
                 "fixes": result.fixes,
+                "reinitialised": result.reinitialised,
             }
         )

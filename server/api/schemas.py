@@ -398,6 +398,11 @@ class BatchOut(Strict):
     seq: int
     replayed: bool = Field(description="true when this seq had been applied before")
     fixes: list[FixOut]
+    reinitialised: bool = Field(
+        False,
+        description="true when the session had to be rebuilt before this batch (the "
+        "server lost its state): the filter started again from this batch",
+    )
 
 
 # ---------------------------------------------------------------- surveys and maps

@@ -55,6 +55,7 @@ async def post_batch(
         "seq": result.seq,
         "replayed": result.replayed,
         "fixes": result.fixes,
+        "reinitialised": result.reinitialised,
     }
     return Response(orjson.dumps(answer), media_type="application/json")
 

@@ -8,13 +8,21 @@ to one session at once never overwrite each other: the loser re-reads and re-app
 
 Batches apply strictly in ``seq`` order (1, 2, 3, ...). A batch that arrives before its
 predecessor waits up to ``seq_wait_s`` for it, then is refused with 409.
+
+Each session is also a row in SQL (``SessionRecord``) with the store's epoch it lives in.
+When the store lost its data (a Redis restarted without it: a new epoch), the next call
+of the session rebuilds its record from the row: a fresh engine state that takes the next
+batch's ``seq`` as it comes, answered ``reinitialised: true``. A session missing at the
+epoch it was made in expired or ended, and stays gone.
 """
 
 from __future__ import annotations
 
+import contextlib
 import enum
 import hashlib
 import hmac
+import logging
 import secrets
 import time
 import uuid
@@ -37,8 +45,10 @@ from server.services.maps import site_maps
 from server.services.runtime import Runtime
 from server.storage import repositories as repo
 from server.storage.codec import array_to_str, decode_arrays, encode_arrays, str_to_array
-from server.storage.session_store import StoredSession
+from server.storage.models import SessionRecord
+from server.storage.session_store import SessionExists, StoredSession
 
+logger = logging.getLogger(__name__)
 ENGINE_PREFIX = "engine/"
 SEQ_POLL_S = 0.01
 INLINE_MAX_STEPS = 2  # batches with more steps, or any raw samples, run in a worker thread
@@ -89,14 +99,16 @@ class Reply:
 
 @dataclass(frozen=True)
 class SessionState:
-    last_seq: int
+    last_seq: int  # -1: rebuilt after the store lost it; the next seq is taken as it comes
     engine_state: Any
     replies: tuple[Reply, ...]
     last_fix: bytes  # JSON of the newest fix, b"" before the first
+    rebuilt_seq: int = 0  # the first seq applied after a rebuild (0: never rebuilt)
 
     def to_bytes(self) -> bytes:
         arrays: dict[str, np.ndarray] = {
             "last_seq": np.array(self.last_seq, dtype=np.int64),
+            "rebuilt_seq": np.array(self.rebuilt_seq, dtype=np.int64),
             "last_fix": np.frombuffer(self.last_fix, dtype=np.uint8),
             "replies/seq": np.array([r.seq for r in self.replies], dtype=np.int64),
             "replies/digest": np.frombuffer(
@@ -133,6 +145,7 @@ class SessionState:
             engine_state=spec.from_arrays(engine_arrays),
             replies=replies,
             last_fix=a["last_fix"].tobytes(),
+            rebuilt_seq=int(a["rebuilt_seq"]) if "rebuilt_seq" in a else 0,
         )
 
 
@@ -150,6 +163,7 @@ class BatchResult:
     seq: int
     replayed: bool
     fixes: list[dict[str, Any]]
+    reinitialised: bool = False  # the session was rebuilt before this batch
 
 
 @dataclass(frozen=True)
@@ -218,18 +232,64 @@ async def create_session(
     if engine not in ENGINES:
         known = ", ".join(sorted(ENGINES))
         raise Invalid(f"unknown engine {engine!r}; known engines: {known}", field="engine")
-    async with rt.transaction() as s:
-        await site_maps(s, rt.maps, site_id)
     spec = get_engine(engine)
     token = secrets.token_urlsafe(32)
     session_id = uuid.uuid4().hex
     meta = SessionMeta(
         site_id, engine, _digest(token), secrets.randbits(128), contribute, device_model or ""
     )
+    epoch = await rt.store.epoch()
+    async with rt.transaction() as s:
+        await site_maps(s, rt.maps, site_id)
+        await repo.create_session_record(s, _record(session_id, meta, epoch))
     state = SessionState(0, spec.initial_state(spec.params_type()), (), b"")
     ttl = rt.settings.session_idle_s
     await rt.store.create(session_id, meta.to_bytes(), state.to_bytes(), ttl)
     return CreatedSession(session_id, token, site_id, engine, ttl)
+
+
+def _record(session_id: str, meta: SessionMeta, epoch: str) -> SessionRecord:
+    return SessionRecord(
+        id=session_id,
+        site_id=meta.site_id,
+        engine=meta.engine,
+        token_digest=meta.token_digest,
+        entropy=f"{meta.entropy:032x}",
+        contribute=meta.contribute,
+        device_model=meta.device_model,
+        epoch=epoch,
+    )
+
+
+async def _rebuild(rt: Runtime, session_id: str, token: str) -> bool:
+    """Re-create a session's store record from its SQL row when the store lost it (module
+    docstring); False when the session is not one to rebuild (unknown, ended, another
+    token, or missing at the epoch it lives in: it expired)."""
+    epoch = await rt.store.epoch()
+    async with rt.read() as s:
+        row = await repo.get_session_record(s, session_id)
+        if row is None or row.ended_at is not None or row.epoch == epoch:
+            return False
+        if not hmac.compare_digest(row.token_digest, _digest(token)):
+            return False
+        meta = SessionMeta(
+            row.site_id,
+            row.engine,
+            row.token_digest,
+            int(row.entropy, 16),
+            row.contribute,
+            row.device_model,
+        )
+    spec = get_engine(meta.engine)
+    state = SessionState(-1, spec.initial_state(spec.params_type()), (), b"")
+    with contextlib.suppress(SessionExists):  # another replica rebuilt it first
+        await rt.store.create(
+            session_id, meta.to_bytes(), state.to_bytes(), rt.settings.session_idle_s
+        )
+    async with rt.transaction() as s:
+        await repo.set_session_epoch(s, session_id, epoch)
+    logger.warning("session %s rebuilt: the session store had lost it", session_id)
+    return True
 
 
 def _no_session() -> Forbidden:
@@ -244,6 +304,8 @@ def _no_session() -> Forbidden:
 
 async def _load(rt: Runtime, session_id: str, token: str) -> tuple[StoredSession, SessionMeta]:
     stored = await rt.store.get(session_id)
+    if stored is None and await _rebuild(rt, session_id, token):
+        stored = await rt.store.get(session_id)
     if stored is None:
         raise _no_session()
     meta = SessionMeta.from_bytes(stored.meta)
@@ -264,7 +326,10 @@ async def _load_decoded(
         stored = await rt.store.get_changed(session_id, cached[0])
     if stored is None:
         rt.states.drop(session_id)
-        raise _no_session()
+        if await _rebuild(rt, session_id, token):
+            stored = await rt.store.get(session_id)
+        if stored is None:
+            raise _no_session()
     if isinstance(stored, int):
         assert cached is not None
         version, meta, state = cached
@@ -329,9 +394,10 @@ async def _attempt(
     read them since the last attempt."""
     version, meta, state = await _load_decoded(rt, session_id, token)
     spec = get_engine(meta.engine)
+    rebuilt = state.last_seq < 0  # the first batch after a rebuild: its seq is the next one
     if seq <= state.last_seq:
         return _replay(state, seq, digest)
-    if seq > state.last_seq + 1:
+    if seq > state.last_seq + 1 and not rebuilt:
         if time.monotonic() >= deadline:
             raise Conflict(
                 f"seq {seq} arrived before seq {state.last_seq + 1}; send that one first",
@@ -371,6 +437,7 @@ async def _attempt(
         engine_state=new_engine_state,
         replies=replies,
         last_fix=orjson.dumps(wire[-1]) if wire else state.last_fix,
+        rebuilt_seq=seq if rebuilt else state.rebuilt_seq,
     )
     live = orjson.dumps({"seq": seq, "fixes": wire}) if wire else None
     ok = await rt.store.compare_and_set(
@@ -378,7 +445,7 @@ async def _attempt(
     )
     if ok:
         rt.states.put(session_id, version + 1, meta, new_state)
-        return BatchResult(seq, False, wire)
+        return BatchResult(seq, False, wire, reinitialised=rebuilt)
     return _Retry.LOST  # another writer got there first: read the new state and try again
 
 
@@ -396,7 +463,8 @@ def _replay(state: SessionState, seq: int, digest: bytes) -> BatchResult:
         if reply.seq == seq:
             if reply.digest != digest:
                 raise Conflict(f"seq {seq} was already applied with different events", field="seq")
-            return BatchResult(seq, True, orjson.loads(reply.body))
+            reinitialised = seq == state.rebuilt_seq
+            return BatchResult(seq, True, orjson.loads(reply.body), reinitialised)
     raise Conflict(
         f"seq {seq} was applied long ago and its reply is no longer kept; "
         f"the session is at seq {state.last_seq}",
@@ -410,7 +478,7 @@ async def get_session(rt: Runtime, session_id: str, token: str) -> SessionInfo:
         id=session_id,
         site_id=meta.site_id,
         engine=meta.engine,
-        last_seq=state.last_seq,
+        last_seq=max(state.last_seq, 0),
         last_fix=orjson.loads(state.last_fix) if state.last_fix else None,
         idle_timeout_s=rt.settings.session_idle_s,
     )
@@ -423,6 +491,8 @@ async def end_session(rt: Runtime, session_id: str, token: str) -> str | None:
     upload_id = None
     if meta.contribute:
         upload_id = await _offer_walk(rt, session_id, meta, state)
+    async with rt.transaction() as s:
+        await repo.end_session_record(s, session_id)
     rt.states.drop(session_id)
     await rt.store.delete(session_id)
     await rt.store.publish(session_id, orjson.dumps({"closed": True}))

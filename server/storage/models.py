@@ -236,6 +236,23 @@ class SessionContribution(Base):
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
 
 
+class SessionRecord(Base):
+    """A positioning session as it was opened: what the session store's record is rebuilt
+    from when the store lost it (``epoch``: the store's contents it was last held in)."""
+
+    __tablename__ = "sessions"
+    id: Mapped[str] = mapped_column(String(32), primary_key=True)
+    site_id: Mapped[str] = mapped_column(ForeignKey("sites.id", ondelete="CASCADE"), index=True)
+    engine: Mapped[str] = mapped_column(String(64))
+    token_digest: Mapped[str] = mapped_column(String(64))
+    entropy: Mapped[str] = mapped_column(String(32))  # 128 bits, hex
+    contribute: Mapped[bool] = mapped_column(default=False)
+    device_model: Mapped[str] = mapped_column(String(128), default="")
+    epoch: Mapped[str] = mapped_column(String(64))
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+    ended_at: Mapped[datetime | None] = mapped_column()
+
+
 class ApiKey(Base):
     """An API key; only its SHA-256 digest is stored. ``scopes`` is a space-separated set
     (``services.auth.SCOPES``); ``site_id`` None means every site."""

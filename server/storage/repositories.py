@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from sqlalchemy import func, insert, select
+from sqlalchemy import func, insert, select, update
 from sqlalchemy.ext.asyncio import AsyncSession
 
 from server.positioning.fingerprint import RadioMap
@@ -26,6 +26,7 @@ from server.storage.models import (
     RadioStat,
     ReferencePoint,
     SessionContribution,
+    SessionRecord,
     Site,
     SurveyPoint,
     Upload,
@@ -513,3 +514,25 @@ async def rotate_api_key(s: AsyncSession, key: ApiKey, key_hash: str) -> None:
     key.key_hash = key_hash
     key.rotated_at = utcnow()
     await s.flush()
+
+
+# ---------------------------------------------------------------- sessions
+
+
+async def create_session_record(s: AsyncSession, record: SessionRecord) -> None:
+    s.add(record)
+    await s.flush()
+
+
+async def get_session_record(s: AsyncSession, session_id: str) -> SessionRecord | None:
+    return await s.get(SessionRecord, session_id)
+
+
+async def set_session_epoch(s: AsyncSession, session_id: str, epoch: str) -> None:
+    await s.execute(update(SessionRecord).where(SessionRecord.id == session_id).values(epoch=epoch))
+
+
+async def end_session_record(s: AsyncSession, session_id: str) -> None:
+    await s.execute(
+        update(SessionRecord).where(SessionRecord.id == session_id).values(ended_at=utcnow())
+    )

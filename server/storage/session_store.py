@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import asyncio
 import time
+import uuid
 from collections.abc import AsyncIterator, Awaitable, Callable
 from contextlib import AbstractAsyncContextManager, asynccontextmanager
 from dataclasses import dataclass
@@ -91,6 +92,12 @@ class SessionStore(Protocol):
 
         The subscription is live when ``__aenter__`` returns: nothing published after
         that is missed. Leaving the block unsubscribes; the iterator then ends."""
+        ...
+
+    async def epoch(self) -> str:
+        """An id of the store's contents: it changes when the store lost what it held
+        (a Redis restarted without its data, an embedded process restarted), and only
+        then. A record missing at the epoch it was made in expired or was deleted."""
         ...
 
     async def ping(self) -> None:
@@ -162,6 +169,7 @@ class MemorySessionStore:
         self._records: dict[str, _Record] = {}
         self._subscribers: dict[str, set[asyncio.Queue[bytes]]] = {}
         self._next_sweep = clock() + MEMORY_SWEEP_INTERVAL_S
+        self._epoch = uuid.uuid4().hex  # a new process starts with a new, empty dict
 
     def _live(self, session_id: str) -> _Record | None:
         now = self._clock()
@@ -241,6 +249,9 @@ class MemorySessionStore:
 
     def subscribe(self, session_id: str) -> AbstractAsyncContextManager[AsyncIterator[bytes]]:
         return self._subscription(session_id)
+
+    async def epoch(self) -> str:
+        return self._epoch
 
     async def ping(self) -> None:
         return None
@@ -401,6 +412,17 @@ class RedisSessionStore:
 
     def subscribe(self, session_id: str) -> AbstractAsyncContextManager[AsyncIterator[bytes]]:
         return self._subscription(session_id)
+
+    def epoch_key(self) -> str:
+        """A key set once, never expiring: a Redis that lost its data has none, and the
+        next :meth:`epoch` makes a new one."""
+        return f"{self._prefix}:epoch:v1"
+
+    async def epoch(self) -> str:
+        key = self.epoch_key()
+        await self._client.set(key, uuid.uuid4().hex, nx=True)
+        found = await self._client.get(key)
+        return found.decode() if isinstance(found, bytes) else str(found)
 
     async def ping(self) -> None:
         await self._client.ping()

@@ -1,0 +1,86 @@
+"""A session whose store record was lost with the store's data (a Redis restarted without
+it) is rebuilt from SQL at its next call and says so; one that expired or ended is not."""
+
+from __future__ import annotations
+
+import uuid
+
+import httpx
+import pytest
+from fastapi import FastAPI
+
+from server.services.runtime import Runtime
+from server.storage.session_store import RedisSessionStore
+from tests.api.test_sessions import open_session, scan, step
+from tests.api.toy_site import ToySite, build_toy_site
+
+T0 = 1_700_000_000_000
+
+
+@pytest.fixture
+async def site(client: httpx.AsyncClient, admin: dict[str, str]) -> ToySite:
+    return await build_toy_site(client, admin)
+
+
+async def lose_the_store(rt: Runtime, session_id: str, new_epoch: bool = True) -> None:
+    """What a store restarted without its data looks like to this session: its record is
+    gone and (``new_epoch``) the store's epoch marker with it."""
+    rt.states.drop(session_id)
+    await rt.store.delete(session_id)
+    if not new_epoch:
+        return
+    if isinstance(rt.store, RedisSessionStore):
+        await rt.store._client.delete(rt.store.epoch_key())
+    else:
+        rt.store._epoch = uuid.uuid4().hex  # type: ignore[attr-defined]
+
+
+async def _batch(
+    client: httpx.AsyncClient, sid: str, auth: dict[str, str], seq: int
+) -> httpx.Response:
+    t = T0 + 2000 * seq
+    events = [scan(t, 5, 5), step(t + 600)]
+    return await client.post(
+        f"/v1/sessions/{sid}/batches", json={"seq": seq, "events": events}, headers=auth
+    )
+
+
+async def test_a_session_lost_with_the_store_is_rebuilt_at_its_next_batch(
+    client: httpx.AsyncClient, site: ToySite, app: FastAPI
+) -> None:
+    sid, auth = await open_session(client, site)
+    for seq in (1, 2, 3):
+        r = await _batch(client, sid, auth, seq)
+        assert r.status_code == 200, r.text
+        assert r.json()["reinitialised"] is False
+    await lose_the_store(app.state.runtime, sid)
+
+    r = await _batch(client, sid, auth, 4)  # the phone goes on where it was
+    assert r.status_code == 200, r.text
+    assert r.json()["reinitialised"] is True
+    assert r.json()["fixes"], "the rebuilt filter starts again from this batch's scan"
+    again = await _batch(client, sid, auth, 4)  # a retry of that batch says so too
+    assert again.json()["replayed"] is True
+    assert again.json()["reinitialised"] is True
+    r = await _batch(client, sid, auth, 5)
+    assert r.status_code == 200, r.text
+    assert r.json()["reinitialised"] is False
+    info = (await client.get(f"/v1/sessions/{sid}", headers=auth)).json()
+    assert info["last_seq"] == 5
+    # another token still gets nothing
+    wrong = {"Authorization": "Bearer wrong"}
+    assert (await client.get(f"/v1/sessions/{sid}", headers=wrong)).status_code == 403
+
+
+async def test_a_session_that_expired_or_ended_is_not_rebuilt(
+    client: httpx.AsyncClient, site: ToySite, app: FastAPI
+) -> None:
+    expired, auth = await open_session(client, site)
+    assert (await _batch(client, expired, auth, 1)).status_code == 200
+    await lose_the_store(app.state.runtime, expired, new_epoch=False)  # its TTL ran out
+    assert (await _batch(client, expired, auth, 2)).status_code == 403
+
+    ended, auth = await open_session(client, site)
+    assert (await client.delete(f"/v1/sessions/{ended}", headers=auth)).status_code == 204
+    await lose_the_store(app.state.runtime, ended)
+    assert (await _batch(client, ended, auth, 1)).status_code == 403
