@@ -33,6 +33,13 @@ def _ws_url(live_url: str, sid: str) -> str:
     return live_url.replace("http", "ws", 1) + f"/v1/sessions/{sid}/live"
 
 
+async def _closed_with(ws: ClientConnection, code: int) -> None:
+    with pytest.raises(ConnectionClosed) as closed:
+        await asyncio.wait_for(ws.recv(), timeout=5)
+    assert closed.value.rcvd is not None
+    assert closed.value.rcvd.code == code
+
+
 def _bearer(token: str) -> dict[str, str]:
     return {"Authorization": f"Bearer {token}"}
 
@@ -124,10 +131,7 @@ async def test_socket_refuses_another_sessions_token(live_url: str) -> None:
             err = await _recv(ws)
             assert err["type"] == "error"
             assert err["status"] == 403
-            with pytest.raises(ConnectionClosed) as closed:
-                await asyncio.wait_for(ws.recv(), timeout=5)
-            assert closed.value.rcvd is not None
-            assert closed.value.rcvd.code == 4403
+            await _closed_with(ws, 4403)
 
 
 async def test_a_browser_authenticates_with_its_first_message(live_url: str) -> None:
@@ -149,10 +153,7 @@ async def test_a_socket_without_credentials_is_closed(live_url: str, first: str)
             err = await _recv(ws)
             assert err["status"] == 401
             assert err["message"].startswith("token: ")
-            with pytest.raises(ConnectionClosed) as closed:
-                await asyncio.wait_for(ws.recv(), timeout=5)
-            assert closed.value.rcvd is not None
-            assert closed.value.rcvd.code == 4401
+            await _closed_with(ws, 4401)
 
 
 async def test_a_token_in_the_url_is_refused(live_url: str) -> None:
