@@ -116,6 +116,7 @@ def serve(
         log_config=logs.dict_config(settings.log_format, settings.log_level),
         log_level=settings.log_level.lower(),
         access_log=access_log,
+        ws_max_size=settings.json_max_bytes,  # a live-socket message: a batch at most
     )
 
 

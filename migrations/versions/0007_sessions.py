@@ -28,6 +28,7 @@ def upgrade() -> None:
         sa.Column("device_model", sa.String(length=128), nullable=False),
         sa.Column("epoch", sa.String(length=64), nullable=False),
         sa.Column("created_at", sa.DateTime(timezone=True), nullable=False),
+        sa.Column("last_active_at", sa.DateTime(timezone=True), nullable=False),
         sa.Column("ended_at", sa.DateTime(timezone=True), nullable=True),
         sa.ForeignKeyConstraint(
             ["site_id"], ["sites.id"], name=op.f("fk_sessions_site_id_sites"), ondelete="CASCADE"
@@ -35,8 +36,12 @@ def upgrade() -> None:
         sa.PrimaryKeyConstraint("id", name=op.f("pk_sessions")),
     )
     op.create_index(op.f("ix_sessions_site_id"), "sessions", ["site_id"], unique=False)
+    op.create_index(
+        op.f("ix_sessions_last_active_at"), "sessions", ["last_active_at"], unique=False
+    )
 
 
 def downgrade() -> None:
+    op.drop_index(op.f("ix_sessions_last_active_at"), table_name="sessions")
     op.drop_index(op.f("ix_sessions_site_id"), table_name="sessions")
     op.drop_table("sessions")

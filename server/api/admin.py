@@ -9,7 +9,15 @@ from fastapi import APIRouter, Path, status
 
 from server.api import schemas as sc
 from server.api.convert import ble_pairs, wifi_pairs
-from server.api.deps import AdminDep, IdPath, MapsWriteDep, SqlDep, Viewer, ViewerDep
+from server.api.deps import (
+    AdminDep,
+    GlobalAdminDep,
+    IdPath,
+    MapsWriteDep,
+    SqlDep,
+    Viewer,
+    ViewerDep,
+)
 from server.services import device_offsets, magnetic_maps, maps, sites
 
 VersionPath = Annotated[int, Path(ge=1, le=2**31 - 1, description="map version number")]
@@ -32,7 +40,7 @@ def _radio_map(m: Any) -> sc.RadioMapRead:
     return sc.RadioMapRead.model_validate(m, from_attributes=True)
 
 
-@router.post("/sites", status_code=status.HTTP_201_CREATED, dependencies=[AdminDep])
+@router.post("/sites", status_code=status.HTTP_201_CREATED, dependencies=[GlobalAdminDep])
 async def create_site(body: sc.SiteCreate, s: SqlDep) -> sc.SiteRead:
     return sc.SiteRead.model_validate(await sites.create_site(s, body.name), from_attributes=True)
 

@@ -5,7 +5,10 @@ A declared ``Content-Length`` over the limit is refused before a byte of the bod
 read; a chunked or lying body is counted as it arrives and refused at the first chunk
 that crosses the limit (the app sees the client disconnect and its answer is dropped).
 Device routes (sessions, batches, locate) get ``json_max_bytes``; the bulk routes an
-admin feeds (uploads, radio and magnetic surveys, floor plans) get ``upload_max_bytes``.
+admin feeds (uploads, radio and magnetic surveys, floor plans) get ``upload_max_bytes``
+when the request carries credentials at all (they are checked after the body is read).
+The live socket's messages are bounded by the server's ``ws_max_size`` (``serve`` sets it
+to ``json_max_bytes``).
 """
 
 from __future__ import annotations
@@ -28,15 +31,19 @@ class BodyLimit:
         self.json_max_bytes = json_max_bytes
         self.bulk_max_bytes = bulk_max_bytes
 
-    def limit_for(self, path: str) -> int:
-        return self.bulk_max_bytes if BULK_PATHS.match(path) else self.json_max_bytes
+    def limit_for(self, path: str, has_credentials: bool) -> int:
+        # the bulk size only with credentials: the framework reads a body before it checks
+        # the key, and no one without one gets to make it parse 64 MiB
+        bulk = has_credentials and BULK_PATHS.match(path)
+        return self.bulk_max_bytes if bulk else self.json_max_bytes
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
-        limit = self.limit_for(scope["path"])
-        declared = dict(scope["headers"]).get(b"content-length", b"")
+        headers = dict(scope["headers"])
+        limit = self.limit_for(scope["path"], b"authorization" in headers)
+        declared = headers.get(b"content-length", b"")
         if declared.isdigit() and int(declared) > limit:
             await _refuse(send, limit)
             return

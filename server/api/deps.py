@@ -10,8 +10,8 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.ext.asyncio import AsyncSession
 from starlette.requests import HTTPConnection
 
-from server.services import auth, sites
-from server.services.errors import Unauthorized
+from server.services import auth, limits, sites
+from server.services.errors import Forbidden, Unauthorized
 from server.services.runtime import Runtime
 
 _bearer = HTTPBearer(auto_error=False, description="an API key or a session token")
@@ -47,8 +47,13 @@ SqlDep = Annotated[AsyncSession, Depends(get_sql, scope="function")]
 
 
 async def get_bearer(
+    request: Request,
+    rt: RuntimeDep,
     credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
 ) -> str:
+    """The bearer token, once the address is not barred for failing too often (what
+    fails is counted by ``server.api.errors``)."""
+    await limits.refuse_failing_address(rt, client_address(request))
     if credentials is None or not credentials.credentials:
         raise Unauthorized("missing bearer token", field="authorization")
     return credentials.credentials
@@ -112,3 +117,14 @@ Admin = Annotated[auth.Principal, AdminDep]
 MapsWriter = Annotated[auth.Principal, MapsWriteDep]
 Viewer = Annotated[auth.Principal, ViewerDep]
 Device = Annotated[auth.Principal, scoped("device")]
+
+
+async def require_global_admin(principal: Admin) -> auth.Principal:
+    """An admin key for every site: what keys and new sites need (a site's admin key
+    making keys could make itself one for every site)."""
+    if principal.site_id is not None:
+        raise Forbidden("this needs an admin key for every site", field="authorization")
+    return principal
+
+
+GlobalAdminDep = Depends(require_global_admin)

@@ -7,11 +7,11 @@ from typing import Annotated
 from fastapi import APIRouter, Path, Query, Response, status
 
 from server.api import schemas as sc
-from server.api.deps import AdminDep, SqlDep
+from server.api.deps import GlobalAdminDep, SqlDep
 from server.services import auth
 from server.storage.models import ApiKey
 
-router = APIRouter(prefix="/v1/keys", tags=["keys"], dependencies=[AdminDep])
+router = APIRouter(prefix="/v1/keys", tags=["keys"], dependencies=[GlobalAdminDep])
 KeyPath = Annotated[str, Path(pattern=r"^[0-9a-f]{32}$")]
 
 

@@ -36,7 +36,7 @@ from server.services.runtime import Runtime
 
 router = APIRouter(prefix="/v1/sessions", tags=["sessions"])
 
-CLOSE_CODES = {401: 4401, 403: 4403, 404: 4404}
+CLOSE_CODES = {401: 4401, 403: 4403, 404: 4404, 429: 4429}
 # what a send or receive raises once the client has gone
 GONE = (WebSocketDisconnect, ClientDisconnected, RuntimeError)
 logger = logging.getLogger(__name__)
@@ -104,9 +104,15 @@ async def live(
 async def _serve(websocket: WebSocket, session_id: str, rt: Runtime, token: str | None) -> None:
     await websocket.accept()
     sock = _Socket(websocket)
+    address = client_address(websocket)
     try:
+        await limits.refuse_failing_address(rt, address)
         secret = await _token(websocket, token, rt.settings.live_query_token)
-        await sessions.authorize(rt, session_id, secret)
+        try:
+            await sessions.authorize(rt, session_id, secret)
+        except ServiceError:
+            await limits.check_auth_failure(rt, address)  # TooMany past the limit
+            raise
     except ServiceError as exc:
         with contextlib.suppress(*GONE):
             await sock.send({"type": "error", "status": exc.status, **service_detail(exc)})
@@ -150,9 +156,10 @@ async def _read(sock: _Socket, rt: Runtime, session_id: str, secret: str) -> Non
             await sock.send({"type": "error", "status": 422, **validation_detail(errors)})
             continue
         try:
-            await limits.check_batch(rt, session_id, client_address(sock.ws))
             events = to_events(batch.events)
-            result = await sessions.apply_batch(rt, session_id, secret, batch.seq, events)
+            result = await sessions.apply_batch(
+                rt, session_id, secret, batch.seq, events, client_address(sock.ws)
+            )
         except ServiceError as exc:
             detail = service_detail(exc)
             await sock.send({"type": "error", "status": exc.status, "seq": batch.seq, **detail})

@@ -44,9 +44,8 @@ async def post_batch(
     straight from the fixes the service made (already in the ``FixOut`` shape), without a
     second validation on the way out."""
     with session_context(session_id):
-        await limits.check_batch(rt, session_id, address)
         events = to_events(body.events)
-        result = await sessions.apply_batch(rt, session_id, token, body.seq, events)
+        result = await sessions.apply_batch(rt, session_id, token, body.seq, events, address)
         telemetry.count_batch(
             "http", events, result, session_id=session_id, idle_s=rt.settings.session_idle_s
         )

@@ -18,6 +18,7 @@ from fastapi import APIRouter, Header, Query, Request, Response, status
 from fastapi.exceptions import RequestValidationError
 from pydantic import ValidationError
 from pydantic.json_schema import models_json_schema
+from starlette.requests import ClientDisconnect
 
 from server.api import schemas as sc
 from server.api.convert import to_events
@@ -37,11 +38,16 @@ async def _body(request: Request, limit: int) -> bytes:
     if declared is not None and declared.isdigit() and int(declared) > limit:
         raise TooLarge(f"the body is {declared} bytes; at most {limit}", field="body")
     chunks, total = [], 0
-    async for chunk in request.stream():
-        total += len(chunk)
-        if total > limit:
-            raise TooLarge(f"the body is over {limit} bytes", field="body")
-        chunks.append(chunk)
+    try:
+        async for chunk in request.stream():
+            total += len(chunk)
+            if total > limit:
+                raise TooLarge(f"the body is over {limit} bytes", field="body")
+            chunks.append(chunk)
+    except ClientDisconnect:  # gone, or cut off by the body limit (which answered 413)
+        raise TooLarge(
+            f"the body is over {limit} bytes, or was not sent whole", field="body"
+        ) from None
     return b"".join(chunks)
 
 

@@ -203,7 +203,7 @@ def plan_from_geojson(geojson: Mapping[str, Any], cell_m: float = CELL_M) -> Flo
     for index, feature in enumerate(geojson.get("features") or ()):
         if not isinstance(feature, Mapping):
             raise ValueError(f"feature {index}: not a GeoJSON feature")
-        kind = (feature.get("properties") or {}).get("kind")
+        kind = _kind(feature)
         if not isinstance(kind, str) or kind not in _WALKABLE_KINDS | _BARRIER_KINDS | _DOOR_KINDS:
             continue
         try:
@@ -244,6 +244,12 @@ def plan_from_geojson(geojson: Mapping[str, Any], cell_m: float = CELL_M) -> Flo
     return FloorPlan(*_raster(area, cell_m), walls=walls)
 
 
+def _kind(feature: Mapping[str, Any]) -> Any:
+    """A feature's ``properties.kind``; None when its properties are not an object."""
+    properties = feature.get("properties")
+    return properties.get("kind") if isinstance(properties, Mapping) else None
+
+
 PLAN_MARGIN_M = 10.0
 """How far outside its plan's walkable extent a sample may lie and still be used (a
 wrong anchor or a typo must not stretch a floor's maps across a city)."""
@@ -257,7 +263,7 @@ def plan_extent(geojson: Mapping[str, Any] | None) -> tuple[float, float, float,
     for feature in (geojson or {}).get("features") or ():
         if not isinstance(feature, Mapping):
             continue
-        if (feature.get("properties") or {}).get("kind") not in _WALKABLE_KINDS:
+        if _kind(feature) not in _WALKABLE_KINDS:
             continue
         try:
             geometry = shapely.geometry.shape(feature["geometry"])

@@ -57,3 +57,18 @@ async def check_auth_failure(rt: Runtime, address: str) -> None:
     if not rt.settings.rate_limits:
         return
     await _take(rt, "authentication", f"address:{address}", rt.settings.rate_auth_failures_per_min)
+
+
+async def refuse_failing_address(rt: Runtime, address: str) -> None:
+    """TooMany, before any credential is looked at, for an address that has failed to
+    authenticate too often of late (its right key too waits out the penalty)."""
+    if not rt.settings.rate_limits:
+        return
+    per_min = rt.settings.rate_auth_failures_per_min
+    wait = await rt.limits.peek(f"authentication:address:{address}", per_min / 60.0, per_min)
+    if wait is not None:
+        raise TooMany(
+            "too many failed authentications from this address; retry later",
+            retry_after_s(wait),
+            field="request",
+        )

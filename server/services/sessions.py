@@ -13,7 +13,9 @@ Each session is also a row in SQL (``SessionRecord``) with the store's epoch it 
 When the store lost its data (a Redis restarted without it: a new epoch), the next call
 of the session rebuilds its record from the row: a fresh engine state that takes the next
 batch's ``seq`` as it comes, answered ``reinitialised: true``. A session missing at the
-epoch it was made in expired or ended, and stays gone.
+epoch it was made in, ended, or idle longer than ``REBUILD_IDLE_FACTOR`` idle timeouts by
+its row's ``last_active_at`` (refreshed by a batch at most every half idle timeout)
+expired, and stays gone.
 """
 
 from __future__ import annotations
@@ -38,18 +40,21 @@ import orjson
 from server.positioning.engines import ENGINES, get_engine
 from server.positioning.engines.base import EngineSpec, SiteMaps
 from server.positioning.events import Event, Fix, ImuEvent, StepEvent
-from server.services import telemetry, traces, uploads
+from server.services import limits, telemetry, traces, uploads
 from server.services.device_offsets import on_common_level
 from server.services.errors import Conflict, Forbidden, Invalid
 from server.services.maps import site_maps
 from server.services.runtime import Runtime
 from server.storage import repositories as repo
 from server.storage.codec import array_to_str, decode_arrays, encode_arrays, str_to_array
-from server.storage.models import SessionRecord
+from server.storage.models import SessionRecord, utcnow
 from server.storage.session_store import SessionExists, StoredSession
 
 logger = logging.getLogger(__name__)
 ENGINE_PREFIX = "engine/"
+# a row's last_active_at lags the last batch by up to half an idle timeout: a session is
+# rebuilt only if that is at most 1.5 idle timeouts ago (never refusing a live one)
+REBUILD_IDLE_FACTOR = 1.5
 SEQ_POLL_S = 0.01
 INLINE_MAX_STEPS = 2  # batches with more steps, or any raw samples, run in a worker thread
 INLINE_MAX_EVENTS = 32
@@ -104,11 +109,13 @@ class SessionState:
     replies: tuple[Reply, ...]
     last_fix: bytes  # JSON of the newest fix, b"" before the first
     rebuilt_seq: int = 0  # the first seq applied after a rebuild (0: never rebuilt)
+    touched_ms: int = 0  # wall clock of the last refresh of the SQL row's last_active_at
 
     def to_bytes(self) -> bytes:
         arrays: dict[str, np.ndarray] = {
             "last_seq": np.array(self.last_seq, dtype=np.int64),
             "rebuilt_seq": np.array(self.rebuilt_seq, dtype=np.int64),
+            "touched_ms": np.array(self.touched_ms, dtype=np.int64),
             "last_fix": np.frombuffer(self.last_fix, dtype=np.uint8),
             "replies/seq": np.array([r.seq for r in self.replies], dtype=np.int64),
             "replies/digest": np.frombuffer(
@@ -146,6 +153,7 @@ class SessionState:
             replies=replies,
             last_fix=a["last_fix"].tobytes(),
             rebuilt_seq=int(a["rebuilt_seq"]) if "rebuilt_seq" in a else 0,
+            touched_ms=int(a["touched_ms"]) if "touched_ms" in a else 0,
         )
 
 
@@ -242,10 +250,14 @@ async def create_session(
     async with rt.transaction() as s:
         await site_maps(s, rt.maps, site_id)
         await repo.create_session_record(s, _record(session_id, meta, epoch))
-    state = SessionState(0, spec.initial_state(spec.params_type()), (), b"")
+    state = SessionState(0, spec.initial_state(spec.params_type()), (), b"", 0, _now_ms())
     ttl = rt.settings.session_idle_s
     await rt.store.create(session_id, meta.to_bytes(), state.to_bytes(), ttl)
     return CreatedSession(session_id, token, site_id, engine, ttl)
+
+
+def _now_ms() -> int:
+    return time.time_ns() // 1_000_000
 
 
 def _record(session_id: str, meta: SessionMeta, epoch: str) -> SessionRecord:
@@ -270,6 +282,9 @@ async def _rebuild(rt: Runtime, session_id: str, token: str) -> bool:
         row = await repo.get_session_record(s, session_id)
         if row is None or row.ended_at is not None or row.epoch == epoch:
             return False
+        idle = (utcnow() - row.last_active_at).total_seconds()
+        if idle > REBUILD_IDLE_FACTOR * rt.settings.session_idle_s:
+            return False  # it expired before the store lost it
         if not hmac.compare_digest(row.token_digest, _digest(token)):
             return False
         meta = SessionMeta(
@@ -281,10 +296,16 @@ async def _rebuild(rt: Runtime, session_id: str, token: str) -> bool:
             row.device_model,
         )
     spec = get_engine(meta.engine)
-    state = SessionState(-1, spec.initial_state(spec.params_type()), (), b"")
+    state = SessionState(-1, spec.initial_state(spec.params_type()), (), b"", 0, _now_ms())
+    # versions start past any the session had (microseconds since the epoch; a session
+    # makes far fewer writes), so no replica's cached copy passes for the rebuilt record
     with contextlib.suppress(SessionExists):  # another replica rebuilt it first
         await rt.store.create(
-            session_id, meta.to_bytes(), state.to_bytes(), rt.settings.session_idle_s
+            session_id,
+            meta.to_bytes(),
+            state.to_bytes(),
+            rt.settings.session_idle_s,
+            version=time.time_ns() // 1000,
         )
     async with rt.transaction() as s:
         await repo.set_session_epoch(s, session_id, epoch)
@@ -348,19 +369,30 @@ async def authorize(rt: Runtime, session_id: str, token: str) -> SessionMeta:
 
 
 async def apply_batch(
-    rt: Runtime, session_id: str, token: str, seq: int, events: Sequence[Event]
+    rt: Runtime,
+    session_id: str,
+    token: str,
+    seq: int,
+    events: Sequence[Event],
+    address: str | None = None,
 ) -> BatchResult:
     """Apply batch ``seq`` once (module docstring). At most ``batch_concurrency`` batches
     are worked on at a time in a process: interleaving many of them on the event loop
     would stretch every one's latency by the others' work (each awaits the store twice);
     a batch waiting for its predecessor, or for its site's maps to be read from SQL (a
-    new map version rebuilds the plans: up to seconds), does not hold a turn either."""
+    new map version rebuilds the plans: up to seconds), does not hold a turn either.
+    With ``address``, the batch counts against the session's and the address's rate
+    limits once the token is known good (``services.limits``)."""
     digest = events_digest(events)
     deadline = time.monotonic() + rt.settings.seq_wait_s
     maps: SiteMaps | None = None
+    charge = address
     while True:
         async with rt.batch_gate:
-            outcome = await _attempt(rt, session_id, token, seq, events, digest, deadline, maps)
+            outcome = await _attempt(
+                rt, session_id, token, seq, events, digest, deadline, maps, charge
+            )
+        charge = None
         if isinstance(outcome, BatchResult):
             return outcome
         if isinstance(outcome, _NeedMaps):
@@ -389,10 +421,14 @@ async def _attempt(
     digest: bytes,
     deadline: float,
     known_maps: SiteMaps | None,
+    charge: str | None = None,
 ) -> BatchResult | _Retry | _NeedMaps:
     """One read-compute-write of the batch; ``known_maps``: the site's maps as the caller
-    read them since the last attempt."""
+    read them since the last attempt; ``charge``: the address to count the batch against
+    (the first attempt only)."""
     version, meta, state = await _load_decoded(rt, session_id, token)
+    if charge is not None:
+        await limits.check_batch(rt, session_id, charge)
     spec = get_engine(meta.engine)
     rebuilt = state.last_seq < 0  # the first batch after a rebuild: its seq is the next one
     if seq <= state.last_seq:
@@ -432,12 +468,15 @@ async def _attempt(
     wire = [fix_to_wire(f, maps, meta.engine) for f in fixes]
     body = orjson.dumps(wire)
     replies = (*state.replies, Reply(seq, digest, body))[-rt.settings.replay_window :]
+    now_ms = _now_ms()
+    touch = now_ms - state.touched_ms > 500 * rt.settings.session_idle_s  # half the timeout
     new_state = SessionState(
         last_seq=seq,
         engine_state=new_engine_state,
         replies=replies,
         last_fix=orjson.dumps(wire[-1]) if wire else state.last_fix,
         rebuilt_seq=seq if rebuilt else state.rebuilt_seq,
+        touched_ms=now_ms if touch else state.touched_ms,
     )
     live = orjson.dumps({"seq": seq, "fixes": wire}) if wire else None
     ok = await rt.store.compare_and_set(
@@ -445,6 +484,9 @@ async def _attempt(
     )
     if ok:
         rt.states.put(session_id, version + 1, meta, new_state)
+        if touch:  # the row says the session is alive, should the store lose it
+            async with rt.transaction() as s:
+                await repo.touch_session_record(s, session_id)
         return BatchResult(seq, False, wire, reinitialised=rebuilt)
     return _Retry.LOST  # another writer got there first: read the new state and try again
 
@@ -459,6 +501,13 @@ def _runs_inline(events: Sequence[Event]) -> bool:
 
 
 def _replay(state: SessionState, seq: int, digest: bytes) -> BatchResult:
+    if seq < state.rebuilt_seq:
+        raise Conflict(
+            f"the session was reinitialised at seq {state.rebuilt_seq} (the server had "
+            f"lost its state); seq {seq} and earlier batches were not applied: go on after "
+            f"seq {state.last_seq}",
+            field="seq",
+        )
     for reply in state.replies:
         if reply.seq == seq:
             if reply.digest != digest:

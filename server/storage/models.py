@@ -250,6 +250,8 @@ class SessionRecord(Base):
     device_model: Mapped[str] = mapped_column(String(128), default="")
     epoch: Mapped[str] = mapped_column(String(64))
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
+    # a batch at most every half idle timeout refreshes it (services.sessions)
+    last_active_at: Mapped[datetime] = mapped_column(default=utcnow, index=True)
     ended_at: Mapped[datetime | None] = mapped_column()
 
 

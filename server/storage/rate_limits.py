@@ -12,12 +12,13 @@ from __future__ import annotations
 
 import math
 import time
+from collections import OrderedDict
 from typing import Protocol
 
 from redis.asyncio import Redis
 
 KEY_PREFIX = "ips:rl:"
-MEMORY_MAX_BUCKETS = 100_000  # past this, full buckets are forgotten (they hold nothing)
+MEMORY_MAX_BUCKETS = 100_000  # past this, the least recently used bucket is forgotten
 
 _TAKE_LUA = """
 local rate = tonumber(ARGV[1])
@@ -36,33 +37,54 @@ return tostring(wait)
 """
 
 
+_PEEK_LUA = """
+local rate = tonumber(ARGV[1])
+local burst = tonumber(ARGV[2])
+local held = redis.call('HMGET', KEYS[1], 'tokens', 'ts')
+if not held[1] then return '0' end
+local clock = redis.call('TIME')
+local now = tonumber(clock[1]) + tonumber(clock[2]) / 1000000
+local tokens = math.min(burst, tonumber(held[1]) + math.max(0, now - tonumber(held[2])) * rate)
+if tokens >= 1 then return '0' end
+return tostring((1 - tokens) / rate)
+"""
+
+
 class RateLimiter(Protocol):
     async def take(self, name: str, per_s: float, burst: int) -> float | None: ...
+
+    async def peek(self, name: str, per_s: float, burst: int) -> float | None:
+        """Like :meth:`take` without taking: the wait when the bucket is empty, else None."""
+        ...
 
     async def close(self) -> None: ...
 
 
 class MemoryRateLimiter:
-    """The buckets of one process (embedded mode: there is only one)."""
+    """The buckets of one process (embedded mode: there is only one), at most
+    ``max_buckets`` of them: past that the least recently used is forgotten (it comes
+    back full, which only ever lets a client through sooner)."""
 
-    def __init__(self) -> None:
-        self._buckets: dict[str, tuple[float, float]] = {}
+    def __init__(self, max_buckets: int = MEMORY_MAX_BUCKETS) -> None:
+        self._buckets: OrderedDict[str, tuple[float, float]] = OrderedDict()
+        self._max = max_buckets
 
     async def take(self, name: str, per_s: float, burst: int) -> float | None:
         now = time.monotonic()
-        tokens, ts = self._buckets.get(name, (float(burst), now))
+        tokens, ts = self._buckets.pop(name, (float(burst), now))
         tokens = min(float(burst), tokens + (now - ts) * per_s)
-        if tokens >= 1.0:
-            self._buckets[name] = (tokens - 1.0, now)
-            if len(self._buckets) > MEMORY_MAX_BUCKETS:
-                self._forget_full(now, per_s, burst)
-            return None
-        self._buckets[name] = (tokens, now)
-        return (1.0 - tokens) / per_s
+        wait = None if tokens >= 1.0 else (1.0 - tokens) / per_s
+        self._buckets[name] = (tokens - 1.0 if wait is None else tokens, now)
+        while len(self._buckets) > self._max:
+            self._buckets.popitem(last=False)
+        return wait
 
-    def _forget_full(self, now: float, per_s: float, burst: int) -> None:
-        refill_s = burst / per_s
-        self._buckets = {k: v for k, v in self._buckets.items() if now - v[1] < refill_s}
+    async def peek(self, name: str, per_s: float, burst: int) -> float | None:
+        if name not in self._buckets:
+            return None
+        tokens, ts = self._buckets[name]
+        tokens = min(float(burst), tokens + (time.monotonic() - ts) * per_s)
+        return None if tokens >= 1.0 else (1.0 - tokens) / per_s
 
     async def close(self) -> None:
         self._buckets.clear()
@@ -72,9 +94,14 @@ class RedisRateLimiter:
     def __init__(self, client: Redis) -> None:
         self._client = client
         self._take = client.register_script(_TAKE_LUA)
+        self._peek = client.register_script(_PEEK_LUA)
 
     async def take(self, name: str, per_s: float, burst: int) -> float | None:
         wait = float(await self._take(keys=[KEY_PREFIX + name], args=[per_s, burst]))
+        return None if wait <= 0 else wait
+
+    async def peek(self, name: str, per_s: float, burst: int) -> float | None:
+        wait = float(await self._peek(keys=[KEY_PREFIX + name], args=[per_s, burst]))
         return None if wait <= 0 else wait
 
     async def close(self) -> None:

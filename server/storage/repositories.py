@@ -532,6 +532,12 @@ async def set_session_epoch(s: AsyncSession, session_id: str, epoch: str) -> Non
     await s.execute(update(SessionRecord).where(SessionRecord.id == session_id).values(epoch=epoch))
 
 
+async def touch_session_record(s: AsyncSession, session_id: str) -> None:
+    await s.execute(
+        update(SessionRecord).where(SessionRecord.id == session_id).values(last_active_at=utcnow())
+    )
+
+
 async def end_session_record(s: AsyncSession, session_id: str) -> None:
     await s.execute(
         update(SessionRecord).where(SessionRecord.id == session_id).values(ended_at=utcnow())

@@ -51,8 +51,12 @@ class StoredSession:
 
 
 class SessionStore(Protocol):
-    async def create(self, session_id: str, meta: bytes, state: bytes, ttl_s: int) -> None:
-        """Store a new record at version 1; raise :class:`SessionExists` if present."""
+    async def create(
+        self, session_id: str, meta: bytes, state: bytes, ttl_s: int, version: int = 1
+    ) -> None:
+        """Store a new record at ``version`` (1 for a new session; a rebuilt one starts
+        past any version it had, so no cached copy of it can pass for current); raise
+        :class:`SessionExists` if present."""
         ...
 
     async def get(self, session_id: str) -> StoredSession | None:
@@ -182,11 +186,15 @@ class MemorySessionStore:
             return None
         return record
 
-    async def create(self, session_id: str, meta: bytes, state: bytes, ttl_s: int) -> None:
+    async def create(
+        self, session_id: str, meta: bytes, state: bytes, ttl_s: int, version: int = 1
+    ) -> None:
         _ttl_ms(ttl_s)
         if self._live(session_id) is not None:
             raise SessionExists(session_id)
-        self._records[session_id] = _Record(1, bytes(meta), bytes(state), self._clock() + ttl_s)
+        self._records[session_id] = _Record(
+            version, bytes(meta), bytes(state), self._clock() + ttl_s
+        )
 
     async def get(self, session_id: str) -> StoredSession | None:
         record = self._live(session_id)
@@ -262,16 +270,13 @@ class MemorySessionStore:
 
 # --- Redis ----------------------------------------------------------------------------------
 
-# KEYS[1] = state key; ARGV = meta, state, ttl_ms. Returns 1 if created, 0 if present.
+# KEYS[1] = state key; ARGV = meta, state, ttl_ms, version. Returns 1 if created, 0 if present.
 _CREATE_LUA = """
 if redis.call('EXISTS', KEYS[1]) == 1 then
   return 0
 end
-redis.call('HSET', KEYS[1], 'ver', 1, 'meta', ARGV[1], 'state', ARGV[2])
+redis.call('HSET', KEYS[1], 'ver', ARGV[4], 'meta', ARGV[1], 'state', ARGV[2])
 redis.call('PEXPIRE', KEYS[1], ARGV[3])
-if ARGV[4] then
-  redis.call('PUBLISH', ARGV[4], ARGV[5])
-end
 return 1
 """
 
@@ -345,9 +350,11 @@ class RedisSessionStore:
         """The pub/sub channel of the session's live messages."""
         return f"{self._prefix}:sess:{{{session_id}}}:live:v1"
 
-    async def create(self, session_id: str, meta: bytes, state: bytes, ttl_s: int) -> None:
+    async def create(
+        self, session_id: str, meta: bytes, state: bytes, ttl_s: int, version: int = 1
+    ) -> None:
         created = await self._create(
-            keys=[self.state_key(session_id)], args=[meta, state, _ttl_ms(ttl_s)]
+            keys=[self.state_key(session_id)], args=[meta, state, _ttl_ms(ttl_s), version]
         )
         if not created:
             raise SessionExists(session_id)

@@ -152,3 +152,20 @@ async def test_bad_key_requests_name_the_field(
     r = await client.post("/v1/keys", json=body, headers=admin)
     assert r.status_code in (404, 422), r.text
     assert r.json()["message"].startswith(f"{field}: ")
+
+
+async def test_a_site_admin_cannot_reach_beyond_its_site(
+    client: httpx.AsyncClient, admin: dict[str, str], site: ToySite
+) -> None:
+    site_admin = await device_headers(client, admin, ("admin",), site.site_id)
+    r = await client.post("/v1/keys", json={"name": "x", "scopes": ["admin"]}, headers=site_admin)
+    assert r.status_code == 403, r.text
+    assert (await client.get("/v1/keys", headers=site_admin)).status_code == 403
+    assert (
+        await client.post("/v1/sites", json={"name": "x"}, headers=site_admin)
+    ).status_code == 403
+    # its own site it runs
+    r = await client.post(
+        f"/v1/buildings/{site.building_id}/floors", json={"level": 7}, headers=site_admin
+    )
+    assert r.status_code == 201, r.text

@@ -201,3 +201,26 @@ async def test_a_survey_must_lie_on_the_floor_plan(
     assert r.json()["message"].startswith("lines.0.end: "), r.json()
     r = await client.post(url, json={"points": [inside], "lines": [line_body(1.0)]}, headers=admin)
     assert r.status_code == 201, r.text
+
+
+async def test_a_plan_with_odd_feature_properties_does_not_break_surveys(
+    client: httpx.AsyncClient, admin: dict[str, str]
+) -> None:
+    site = await build_toy_site(client, admin)
+    floor = site.floor_ids[0]
+    plan = {
+        "type": "FeatureCollection",
+        "features": [
+            {
+                "type": "Feature",
+                "properties": "corridor",
+                "geometry": {"type": "Point", "coordinates": [1.0, 1.0]},
+            }
+        ],
+    }
+    assert (
+        await client.put(f"/v1/floors/{floor}/plan", json=plan, headers=admin)
+    ).status_code < 500
+    body = {"points": [{"x_m": 1.0, "y_m": 1.0, "magnitude_ut": 48.0}]}
+    r = await client.post(f"/v1/floors/{floor}/magnetic-survey", json=body, headers=admin)
+    assert r.status_code == 201, r.text

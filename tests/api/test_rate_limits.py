@@ -102,14 +102,53 @@ async def test_batches_per_session_are_limited(limited_app: FastAPI, admin: dict
     assert r.json()["last_seq"] == LIMIT
 
 
-async def test_failed_authentication_is_limited_per_address(limited: httpx.AsyncClient) -> None:
+async def test_failed_authentication_is_limited_per_address(
+    limited: httpx.AsyncClient, admin: dict[str, str]
+) -> None:
     wrong = {"Authorization": "Bearer wrong-key"}
     answers = [await limited.get("/v1/sites", headers=wrong) for _ in range(LIMIT + 3)]
     assert [r.status_code for r in answers[:LIMIT]] == [401] * LIMIT
     assert all(_refused(r) for r in answers[LIMIT:])
-    # wrong session tokens count as failures too
+    # while barred, nothing from the address is looked at: not a session token, and not
+    # the right key either
     r = await limited.get(f"/v1/sessions/{'0' * 32}", headers=wrong)
     assert _refused(r)
+    assert _refused(await limited.get("/v1/sites", headers=admin))
+
+
+async def test_wrong_session_tokens_count_as_failures(
+    limited: httpx.AsyncClient, site: ToySite
+) -> None:
+    wrong = {"Authorization": "Bearer wrong-token"}
+    answers = [
+        await limited.get(f"/v1/sessions/{'0' * 32}", headers=wrong) for _ in range(LIMIT + 1)
+    ]
+    assert [r.status_code for r in answers[:LIMIT]] == [403] * LIMIT
+    assert _refused(answers[LIMIT])
+
+
+async def test_a_stranger_cannot_spend_a_sessions_batch_allowance(
+    limited_app: FastAPI, admin: dict[str, str]
+) -> None:
+    async with _client(limited_app) as setup:
+        site = await build_toy_site(setup, admin)
+        r = await setup.post("/v1/sessions", json={"site_id": site.site_id}, headers=site.device)
+        sid, token = r.json()["id"], r.json()["token"]
+    async with _client(limited_app) as stranger:
+        for _ in range(LIMIT):
+            r = await stranger.post(
+                f"/v1/sessions/{sid}/batches",
+                json={"seq": 1, "events": []},
+                headers={"Authorization": "Bearer not-the-token"},
+            )
+            assert r.status_code == 403
+    async with _client(limited_app) as phone:
+        r = await phone.post(
+            f"/v1/sessions/{sid}/batches",
+            json={"seq": 1, "events": []},
+            headers={"Authorization": f"Bearer {token}"},
+        )
+    assert r.status_code == 200, r.text
 
 
 async def test_a_bucket_refills_over_time() -> None:
@@ -120,3 +159,13 @@ async def test_a_bucket_refills_over_time() -> None:
     assert 0 < wait <= 0.001
     await asyncio.sleep(0.005)
     assert await limiter.take("b", per_s=1000.0, burst=1) is None
+
+
+async def test_the_memory_limiter_forgets_the_least_recently_used_bucket() -> None:
+    limiter = MemoryRateLimiter(max_buckets=2)
+    for name in ("a", "b"):
+        assert await limiter.take(name, per_s=0.001, burst=1) is None
+    assert await limiter.take("a", per_s=0.001, burst=1) is not None  # a used again, empty
+    assert await limiter.take("c", per_s=0.001, burst=1) is None  # b is forgotten
+    assert await limiter.peek("a", per_s=0.001, burst=1) is not None  # a was kept
+    assert await limiter.take("b", per_s=0.001, burst=1) is None  # b comes back full

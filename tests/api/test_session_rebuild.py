@@ -4,12 +4,15 @@ it) is rebuilt from SQL at its next call and says so; one that expired or ended 
 from __future__ import annotations
 
 import uuid
+from datetime import UTC, datetime, timedelta
 
 import httpx
 import pytest
 from fastapi import FastAPI
+from sqlalchemy import update
 
 from server.services.runtime import Runtime
+from server.storage.models import SessionRecord
 from server.storage.session_store import RedisSessionStore
 from tests.api.test_sessions import open_session, scan, step
 from tests.api.toy_site import ToySite, build_toy_site
@@ -70,6 +73,34 @@ async def test_a_session_lost_with_the_store_is_rebuilt_at_its_next_batch(
     # another token still gets nothing
     wrong = {"Authorization": "Bearer wrong"}
     assert (await client.get(f"/v1/sessions/{sid}", headers=wrong)).status_code == 403
+
+
+async def test_a_batch_before_the_rebuild_is_refused_by_name(
+    client: httpx.AsyncClient, site: ToySite, app: FastAPI
+) -> None:
+    sid, auth = await open_session(client, site)
+    assert (await _batch(client, sid, auth, 1)).status_code == 200
+    await lose_the_store(app.state.runtime, sid)
+    r = await _batch(client, sid, auth, 3)  # seq 2 was in flight when the store was lost
+    assert r.json()["reinitialised"] is True
+    r = await _batch(client, sid, auth, 2)
+    assert r.status_code == 409, r.text
+    assert "reinitialised at seq 3" in r.json()["message"]
+
+
+async def test_a_session_idle_past_its_timeout_is_not_rebuilt(
+    client: httpx.AsyncClient, site: ToySite, app: FastAPI
+) -> None:
+    rt = app.state.runtime
+    sid, auth = await open_session(client, site)
+    assert (await _batch(client, sid, auth, 1)).status_code == 200
+    long_ago = datetime.now(UTC) - timedelta(seconds=2 * rt.settings.session_idle_s)
+    async with rt.transaction() as s:
+        await s.execute(
+            update(SessionRecord).where(SessionRecord.id == sid).values(last_active_at=long_ago)
+        )
+    await lose_the_store(rt, sid)  # it expired, and then the store was lost as well
+    assert (await _batch(client, sid, auth, 2)).status_code == 403
 
 
 async def test_a_session_that_expired_or_ended_is_not_rebuilt(
