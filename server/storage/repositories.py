@@ -529,7 +529,12 @@ async def get_session_record(s: AsyncSession, session_id: str) -> SessionRecord 
 
 
 async def set_session_epoch(s: AsyncSession, session_id: str, epoch: str) -> None:
-    await s.execute(update(SessionRecord).where(SessionRecord.id == session_id).values(epoch=epoch))
+    """The session lives in this epoch now, and was active just now."""
+    await s.execute(
+        update(SessionRecord)
+        .where(SessionRecord.id == session_id)
+        .values(epoch=epoch, last_active_at=utcnow())
+    )
 
 
 async def touch_session_record(s: AsyncSession, session_id: str) -> None:

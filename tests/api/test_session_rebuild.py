@@ -58,9 +58,14 @@ async def test_a_session_lost_with_the_store_is_rebuilt_at_its_next_batch(
         assert r.json()["reinitialised"] is False
     await lose_the_store(app.state.runtime, sid)
 
+    before = datetime.now(UTC)
     r = await _batch(client, sid, auth, 4)  # the phone goes on where it was
     assert r.status_code == 200, r.text
     assert r.json()["reinitialised"] is True
+    async with app.state.runtime.read() as s:
+        row = await s.get(SessionRecord, sid)
+        assert row is not None
+        assert row.last_active_at >= before - timedelta(seconds=1)  # alive as of the rebuild
     assert r.json()["fixes"], "the rebuilt filter starts again from this batch's scan"
     again = await _batch(client, sid, auth, 4)  # a retry of that batch says so too
     assert again.json()["replayed"] is True
