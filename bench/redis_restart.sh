@@ -40,11 +40,13 @@ import json, sys
 s = json.load(open(sys.argv[1]))
 keys = ("users", "sessions", "batches", "steps", "errors", "p50_ms", "p99_ms", "mean_error_m")
 print({k: s.get(k) for k in keys})
+import re
 statuses = {}
 for m in s.get("error_messages", []):
-    code = m.split(": ")[1].split()[0] if ": " in m else "?"
+    found = re.search(r": (\d{3}) ", m)
+    code = found.group(1) if found else "other"
     statuses[code] = statuses.get(code, 0) + 1
-print("errors by status (first messages kept):", statuses)
+print("errors by status (of the first messages kept):", statuses)
 PY
 echo "sessions rebuilt (api log): $(grep -c 'rebuilt: the session store had lost it' "$OUT/api.log" || true)"
 echo "logs in $OUT"
