@@ -152,3 +152,16 @@ async def test_device_model_is_plain_short_text(
     )
     assert r.status_code == 422, r.text
     assert "device_model" in r.json()["message"]
+
+
+async def test_the_bulk_body_size_is_only_for_requests_with_credentials(
+    client: httpx.AsyncClient, app: Any
+) -> None:
+    limit = app.state.runtime.settings.json_max_bytes
+    big = b'{"points": [' + b" " * limit + b"]}"
+    url = f"/v1/buildings/{'0' * 32}/survey"
+    r = await client.post(url, content=big, headers={"content-type": "application/json"})
+    assert_shape(r, 413, "body")  # no key: never parsed
+    wrong = {"content-type": "application/json", "Authorization": "Bearer wrong"}
+    r = await client.post(url, content=big, headers=wrong)
+    assert r.status_code != 413, r.text  # a bulk route takes it from one with credentials

@@ -56,6 +56,7 @@ async def test_a_session_lost_with_the_store_is_rebuilt_at_its_next_batch(
         r = await _batch(client, sid, auth, seq)
         assert r.status_code == 200, r.text
         assert r.json()["reinitialised"] is False
+    old_version = (await app.state.runtime.store.get(sid)).version
     await lose_the_store(app.state.runtime, sid)
 
     before = datetime.now(UTC)
@@ -66,6 +67,8 @@ async def test_a_session_lost_with_the_store_is_rebuilt_at_its_next_batch(
         row = await s.get(SessionRecord, sid)
         assert row is not None
         assert row.last_active_at >= before - timedelta(seconds=1)  # alive as of the rebuild
+    # past any version it had: no replica's cached copy passes for the rebuilt record
+    assert (await app.state.runtime.store.get(sid)).version > old_version + 10**9
     assert r.json()["fixes"], "the rebuilt filter starts again from this batch's scan"
     again = await _batch(client, sid, auth, 4)  # a retry of that batch says so too
     assert again.json()["replayed"] is True
