@@ -15,6 +15,7 @@ from server import worker
 from server.api import (
     admin,
     body_limit,
+    engines,
     errors,
     health,
     keys,
@@ -90,7 +91,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         responses=ERROR_RESPONSES,
     )
     errors.install(app)
-    for module in (health, admin, keys, sessions, live, locate, uploads, quality, metrics):
+    routers = (health, admin, engines, keys, sessions, live, locate, uploads, quality, metrics)
+    for module in routers:
         app.include_router(module.router)
     app.add_middleware(
         body_limit.BodyLimit,

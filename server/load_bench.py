@@ -386,15 +386,15 @@ async def _ceiling(database_url: str, walk: _Walk) -> float:
             ]
         )
     spec = get_engine(walk.engine)
-    engine_params = spec.params_type()
-    states = [spec.initial_state(engine_params) for _ in walks]
+    engine_params = spec.params()
+    states = [spec.start(engine_params) for _ in walks]
     elapsed = 0.0
     steps = 0
     for k in range(CEILING_BATCHES):  # round robin, as interleaved sessions are served
         for i, events in enumerate(walks):
             rng = np.random.default_rng(np.random.SeedSequence(i, spawn_key=(k + 1,)))
             t0 = time.perf_counter()
-            states[i], _ = spec.run(states[i], events[k], maps, engine_params, rng)
+            states[i], _ = spec.step(states[i], events[k], maps, engine_params, rng)
             elapsed += time.perf_counter() - t0
             steps += sum(isinstance(e, StepEvent) for e in events[k])
     return steps / elapsed
@@ -411,7 +411,7 @@ def _best_users(levels: list[Level]) -> int | None:
 
 
 def _particles(engine: str) -> int | None:
-    params = get_engine(engine).params_type()
+    params = get_engine(engine).params()
     particles = getattr(params, "particles", None)
     n = getattr(particles, "n", None)
     return int(n) if n is not None else None

@@ -353,6 +353,12 @@ class SessionCreate(StrictIn):
         "session ends, become one upload (anchored by the floor plan's beacons)",
     )
     device_model: DeviceModel | None = None
+    params: dict[str, Any] | None = Field(
+        None,
+        description="overrides of the engine's parameters for this session, over the "
+        "site's engine settings; nested as the defaults of GET /v1/engines are, e.g. "
+        '{"particles": {"n": 500}}; checked, 422 naming the dotted field',
+    )
 
 
 class SessionCreated(Strict):

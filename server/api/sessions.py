@@ -24,7 +24,12 @@ async def create_session(
         principal.require("contribute", body.site_id)
     await limits.check(rt, "sessions", address, principal.key_id)
     created = await sessions.create_session(
-        rt, body.site_id, body.engine, contribute=body.contribute, device_model=body.device_model
+        rt,
+        body.site_id,
+        body.engine,
+        contribute=body.contribute,
+        device_model=body.device_model,
+        params=body.params,
     )
     telemetry.touch_session(created.id, created.idle_timeout_s)
     return sc.SessionCreated(

@@ -13,9 +13,9 @@ timed code contained. Measured here, in one process and on the same inputs:
   the only part that differs between the two updates.
 * **Filter step** (context): ``particle.step`` -- move with the floor plan's wall test,
   update, resampling when ``N_eff`` is low -- from the clouds of the same walk.
-* **State**: the cloud as the session store keeps it: ``Particles.to_arrays`` then
+* **State**: the cloud as the session store keeps it: ``state_codec.to_arrays`` then
   ``codec.encode_arrays`` (``state_bytes`` is that blob's length, ``encode_us`` the
-  time of both), and back through ``codec.decode_arrays`` and ``Particles.from_arrays``
+  time of both), and back through ``codec.decode_arrays`` and ``state_codec.from_arrays``
   (``decode_us``).
 
 The site is synthetic and fixed: a 60 m x 3 m corridor (the paper's testbed is a 60 m x
@@ -38,6 +38,8 @@ from typing import Any
 import numpy as np
 
 from server.positioning import particle as pf
+from server.positioning import particle_cloud as pc
+from server.positioning import state_codec
 from server.positioning.floorplan import FloorPlan, plan_from_geojson, valid_moves, walkable_at
 from server.positioning.magnetic import MagneticGrid, dtw_distance, grid_from_samples, mmse, sample
 from server.storage.codec import decode_arrays, encode_arrays
@@ -52,8 +54,8 @@ MIN_RUN_S = 0.02  # each timed run lasts at least this long (whole passes over t
 class _Walk:
     """Recorded inputs: per step the cloud before it, the step and the measured field."""
 
-    before: tuple[pf.Particles, ...]  # clouds before ``move``
-    moved: tuple[pf.Particles, ...]  # the same after ``move`` (update inputs)
+    before: tuple[pc.Particles, ...]  # clouds before ``move``
+    moved: tuple[pc.Particles, ...]  # the same after ``move`` (update inputs)
     observed_ut: tuple[float, ...]
     heading_rad: float
 
@@ -93,13 +95,13 @@ def particle_bench(
     """
     if repeat < 1:
         raise ValueError(f"repeat must be at least 1, got {repeat}")
-    params = pf.ParticleParams(n=n_particles, window=window)
+    params = pc.ParticleParams(n=n_particles, window=window)
     plan, grid = _corridor(seed)
 
-    def sample_map(_floor: pf.FloorArray, xy: pf.FloatArray) -> pf.FloatArray:
+    def sample_map(_floor: pc.FloorArray, xy: pf.FloatArray) -> pf.FloatArray:
         return sample(grid, xy)
 
-    def valid_move(_floor: pf.FloorArray, a: pf.FloatArray, b: pf.FloatArray) -> pf.BoolArray:
+    def valid_move(_floor: pc.FloorArray, a: pf.FloatArray, b: pf.FloatArray) -> pf.BoolArray:
         return valid_moves(plan, a, b)
 
     walk = _record_walk(plan, grid, params, seed, sample_map, valid_move)
@@ -107,13 +109,13 @@ def particle_bench(
     updated = [pf.mass_centered_update(q, o, sample_map, params) for q, o in pairs]
     windows = [(p.observed, p.mags) for p in updated]  # full: the walk skipped W steps
 
-    def update(fn: Callable[..., pf.Particles]) -> Callable[[], object]:
+    def update(fn: Callable[..., pc.Particles]) -> Callable[[], object]:
         return lambda: [fn(q, o, sample_map, params) for q, o in pairs]
 
     def distance(fn: Callable[..., object]) -> Callable[[], object]:
         return lambda: [fn(obs, mags) for obs, mags in windows]
 
-    def filter_step(weighting: pf.Weighting) -> Callable[[], object]:
+    def filter_step(weighting: pc.Weighting) -> Callable[[], object]:
         rng = np.random.default_rng([seed, 2])
         steps = list(zip(walk.before, walk.observed_ut, strict=True))
         return lambda: [
@@ -127,13 +129,13 @@ def particle_bench(
     f_mc, f_dtw = _rates([filter_step("mass_centered"), filter_step("dtw")], n, repeat, min_run_s)
 
     state = walk.moved[-1]
-    blob = encode_arrays(state.to_arrays())
+    blob = encode_arrays(state_codec.to_arrays(state))
     encode_s, decode_s = (
         1.0 / rate
         for rate in _rates(
             [
-                lambda: encode_arrays(state.to_arrays()),
-                lambda: pf.Particles.from_arrays(decode_arrays(blob)),
+                lambda: encode_arrays(state_codec.to_arrays(state)),
+                lambda: state_codec.from_arrays(pc.Particles, decode_arrays(blob)),
             ],
             1,
             repeat,
@@ -197,10 +199,10 @@ def _field_ut(xy: pf.FloatArray, rng: np.random.Generator) -> pf.FloatArray:
 def _record_walk(
     plan: FloorPlan,
     grid: MagneticGrid,
-    params: pf.ParticleParams,
+    params: pc.ParticleParams,
     seed: int,
-    sample_map: pf.MapSampler,
-    valid_move: pf.MoveCheck,
+    sample_map: pc.MapSampler,
+    valid_move: pc.MoveCheck,
 ) -> _Walk:
     """Walk the mass-centered filter east along the corridor; keep ``N_INPUTS`` steps
     taken once the windows are full."""

@@ -71,6 +71,7 @@ from server.positioning.mapping.gridding import build_radio_map
 from server.positioning.mapping.labelled import interpolate_track
 from server.positioning.mapping.matrices import readings_matrix
 from server.positioning.metrics import error_report
+from server.positioning.params import Params, assignments
 from server.positioning.step_tracker import TrackerParams
 from server.services.traces import walk_steps
 
@@ -316,32 +317,22 @@ def batches(events: Sequence[Event], batch_ms: int = BATCH_MS) -> list[list[Even
     return out
 
 
-def engine_params(engine: str, overrides: Mapping[str, str] | None = None) -> Any:
-    """The engine's default parameters with some scalar ones replaced, the values given
-    as text (``{"k": "8"}``), for trying variants on a validation split.
+def engine_params(engine: str, overrides: Mapping[str, str] | None = None) -> Params:
+    """The engine's default parameters with some replaced, named with dots for nested
+    ones and given as text (``{"k": "8", "particles.n": "500"}``, each value read as JSON
+    or else as a word), for trying variants on a validation split.
 
     Raises
     ------
+    KeyError
+        For an unknown engine.
     ValueError
-        Naming the parameter, when it does not exist, is not a number or flag, or its
-        value does not parse or is refused by the engine.
+        ``params.ParamError`` naming the dotted parameter that does not exist or whose
+        value the engine refuses.
     """
-    params = get_engine(engine).params_type()
-    changes: dict[str, Any] = {}
-    for name, text in (overrides or {}).items():
-        if name.startswith("_") or not hasattr(params, name):
-            raise ValueError(f"{engine} has no parameter {name!r}")
-        kind = type(getattr(params, name))
-        if kind not in (int, float, bool, str):
-            raise ValueError(f"parameter {name!r} of {engine} is not a number, flag or word")
-        try:
-            changes[name] = text.lower() in ("1", "true", "yes") if kind is bool else kind(text)
-        except ValueError:
-            raise ValueError(f"parameter {name!r}: {text!r} is not a {kind.__name__}") from None
-    try:
-        return replace(params, **changes)
-    except ValueError as e:
-        raise ValueError(f"parameters of {engine}: {e}") from None
+    spec = get_engine(engine)
+    items = [f"{name}={text}" for name, text in (overrides or {}).items()]
+    return spec.params(assignments(items))
 
 
 def replay(
@@ -350,12 +341,12 @@ def replay(
     """Run an engine over a trace batch by batch, as the service would (with its default
     parameters unless ``params`` is given)."""
     spec = get_engine(engine)
-    params = spec.params_type() if params is None else params
-    state = spec.initial_state(params)
+    params = spec.params() if params is None else params
+    state = spec.start(params)
     fixes: list[Fix] = []
     for seq, batch in enumerate(batches(events), start=1):
         rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(seq,)))
-        state, new = spec.run(state, batch, maps, params, rng)
+        state, new = spec.step(state, batch, maps, params, rng)
         fixes += new
     return fixes
 

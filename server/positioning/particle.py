@@ -75,7 +75,7 @@ of the resampled particles, the same thing in expectation) with the weighted cov
 and ``N_eff``.
 
 Numbers are stored as float32 (positions, log weights, magnitudes) and every step reads
-the stored values, so a cloud that went through ``to_arrays`` / ``from_arrays`` between
+the stored values, so a cloud that went through the state codec (``state_codec``) between
 steps continues exactly as one that did not. Moves are checked on the float32 positions
 that are stored. Randomness comes only from the ``rng`` passed in.
 """
@@ -83,222 +83,32 @@ that are stored. Randomness comes only from the ``rng`` passed in.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass, replace
-from typing import Literal, TypeVar
+from dataclasses import replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from server.positioning.magnetic import dtw_distance, mmse
+from server.positioning.particle_cloud import (
+    Estimate,
+    MapSampler,
+    MoveCheck,
+    ParticleParams,
+    Particles,
+    PointCheck,
+    Weighting,
+    from_points,
+    live_rows,
+    normalised,
+    take_rows,
+    unchecked,
+    weights,
+)
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
-FloorArray = NDArray[np.int16]
-
-MoveCheck = Callable[[FloorArray, FloatArray, FloatArray], BoolArray]
-"""``valid_move(floor (n,), a (n, 2), b (n, 2)) -> (n,) bool``: the move is allowed."""
-PointCheck = Callable[[FloorArray, FloatArray], BoolArray]
-"""``valid_point(floor (n,), xy (n, 2)) -> (n,) bool``: a particle may stand there."""
-MapSampler = Callable[[FloorArray, FloatArray], ArrayLike]
-"""``sample_map(floor (n,), xy (n, 2)) -> (n,)`` map magnitude in µT, NaN where unknown."""
-Weighting = Literal["mass_centered", "dtw"]
 
 _INIT_ROUNDS = 32  # redraw rounds in ``initialise`` before giving up
-
-
-@dataclass(frozen=True)
-class ParticleParams:
-    """Parameters of the particle filter (``papers/001_*`` values where the paper has one)."""
-
-    n: int = 3000  # particle count N, papers/001_* section IV-A
-    window: int = 3  # sliding window W in steps, eq (b); section IV-B, Figure 8
-    k: float = 70.0  # award parameter K, eq (c); section IV-B, Figure 9 (cancels, see above)
-    t: float = 0.05  # award threshold T in µT, eq (c); section IV-B, Figure 10
-    # delta of Algorithm 1 line 8 (the paper gives no value): 14 % of a 0.7 m step, above
-    # the +-8 % distance error of Weinberg's step-length model (papers/002_* section 5.2),
-    # since single steps vary more than a walked distance
-    step_sd_m: float = 0.1
-    # Delta of Algorithm 1 line 8 (no value in the paper): the phone heading error used
-    # by step_ekf (r_heading_rad2)
-    heading_sd_rad: float = math.radians(10.0)
-    # resample when N_eff < fraction * N: ref [24] resamples below a threshold N_T, N/2
-    # is the common choice; 1.0 resamples at every step as Algorithm 1 line 13
-    resample_ess_fraction: float = 0.5
-    # disc radius around a WiFi/BLE fix: WiFi alone errs by more than 10 m at 80 %
-    # (papers/001_* Figure 11), so the cloud must reach beyond that
-    init_radius_m: float = 15.0
-
-    def __post_init__(self) -> None:
-        if self.n < 1:
-            raise ValueError(f"n must be at least 1, got {self.n}")
-        if self.window < 1:
-            raise ValueError(f"window must be at least 1, got {self.window}")
-        positive = {"k": self.k, "t": self.t, "init_radius_m": self.init_radius_m}
-        for name, value in positive.items():
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be positive and finite, got {value}")
-        for name, value in (("step_sd_m", self.step_sd_m), ("heading_sd_rad", self.heading_sd_rad)):
-            if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name} must be non-negative and finite, got {value}")
-        if not 0.0 <= self.resample_ess_fraction <= 1.0:
-            raise ValueError(
-                f"resample_ess_fraction must be in [0, 1], got {self.resample_ess_fraction}"
-            )
-
-
-@dataclass(frozen=True)
-class Particles:
-    """A particle cloud; never modified in place (every step returns a new one).
-
-    Attributes
-    ----------
-    xy : ndarray, shape (n, 2), float32
-        Positions (m).
-    floor : ndarray, shape (n,), int16
-        Floor index of each particle.
-    log_w : ndarray, shape (n,), float32
-        Normalised log weights (``logsumexp(log_w) == 0``); ``-inf`` for a dead particle,
-        all ``-inf`` when the cloud died.
-    mags : ndarray, shape (n, W + 1), float32
-        Map magnitudes (µT) at each particle's last ``W + 1`` positions, oldest first;
-        only the last ``count`` columns are meaningful; NaN where the map is unknown.
-    observed : ndarray, shape (W + 1,), float32
-        Observed magnitudes (µT), oldest first; only the last ``count`` are meaningful.
-    count : int
-        Filled slots of the windows, ``0 <= count <= W + 1``.
-    """
-
-    xy: NDArray[np.float32]
-    floor: FloorArray
-    log_w: NDArray[np.float32]
-    mags: NDArray[np.float32]
-    observed: NDArray[np.float32]
-    count: int
-
-    def __post_init__(self) -> None:
-        n = self.log_w.shape[0] if self.log_w.ndim == 1 else -1
-        w = self.observed.shape[0] if self.observed.ndim == 1 else -1
-        expected = {
-            "xy": ((n, 2), np.float32),
-            "floor": ((n,), np.int16),
-            "log_w": ((n,), np.float32),
-            "mags": ((n, w), np.float32),
-            "observed": ((w,), np.float32),
-        }
-        for name, (shape, dtype) in expected.items():
-            array = getattr(self, name)
-            if array.shape != shape or array.dtype != dtype:
-                raise ValueError(
-                    f"{name} must be {np.dtype(dtype).name} of shape {shape}, "
-                    f"got {array.dtype.name} of shape {array.shape}"
-                )
-        if w < 2:
-            raise ValueError(f"the windows need W + 1 >= 2 slots, got {w}")
-        if not 0 <= self.count <= w:
-            raise ValueError(f"count must be in [0, {w}], got {self.count}")
-
-    @property
-    def n(self) -> int:
-        """Number of particles (dead ones included)."""
-        return int(self.log_w.shape[0])
-
-    def to_arrays(self) -> dict[str, np.ndarray]:
-        """Flat typed arrays (``count`` as a 0-d int32); ``from_arrays`` inverts exactly.
-
-        At ``N = 3000``, ``W = 3`` they hold 90,020 bytes: 24,000 (xy) + 6,000 (floor) +
-        12,000 (log_w) + 48,000 (mags) + 16 (observed) + 4 (count).
-        """
-        return {
-            "xy": self.xy.copy(),
-            "floor": self.floor.copy(),
-            "log_w": self.log_w.copy(),
-            "mags": self.mags.copy(),
-            "observed": self.observed.copy(),
-            "count": np.array(self.count, dtype=np.int32),
-        }
-
-    @classmethod
-    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> Particles:
-        """Rebuild a cloud from ``to_arrays`` output.
-
-        Raises
-        ------
-        KeyError
-            When an array is missing.
-        ValueError
-            When an array has the wrong dtype or shape, a position is not finite or a log
-            weight is NaN or ``+inf``.
-        """
-        p = cls(
-            xy=np.array(arrays["xy"]),
-            floor=np.array(arrays["floor"]),
-            log_w=np.array(arrays["log_w"]),
-            mags=np.array(arrays["mags"]),
-            observed=np.array(arrays["observed"]),
-            count=int(arrays["count"]),
-        )
-        if not np.isfinite(p.xy).all():
-            raise ValueError("xy must be finite")
-        if np.isnan(p.log_w).any() or (p.log_w == np.inf).any():
-            raise ValueError("log_w must be finite or -inf")
-        return p
-
-
-@dataclass(frozen=True)
-class Estimate:
-    """Position estimate of a cloud.
-
-    Attributes
-    ----------
-    xy : ndarray, shape (2,), float64
-        Weighted mean position (m).
-    cov : ndarray, shape (2, 2), float64
-        Weighted covariance of the particle positions (m^2).
-    floor : int
-        Floor holding the largest total weight.
-    ess : float
-        Effective sample size ``1 / sum w_i^2``.
-    """
-
-    xy: FloatArray
-    cov: FloatArray
-    floor: int
-    ess: float
-
-
-def from_points(xy: ArrayLike, floor: int, window: int) -> Particles:
-    """A cloud of equally weighted particles at given points, windows empty.
-
-    Parameters
-    ----------
-    xy : array_like, shape (n, 2)
-        Positions (m), ``n >= 1``, finite (e.g. from ``floorplan.random_walkable_points``).
-    floor : int
-        Floor index of every particle.
-    window : int
-        Window ``W`` in steps; the windows hold ``W + 1`` magnitudes.
-
-    Returns
-    -------
-    Particles
-    """
-    pts = np.array(xy, dtype=np.float32)
-    if pts.ndim != 2 or pts.shape[1] != 2 or pts.shape[0] == 0:
-        raise ValueError(f"xy must have shape (n, 2) with n >= 1, got {pts.shape}")
-    if not np.all(np.isfinite(pts)):
-        raise ValueError("xy must be finite")
-    if window < 1:
-        raise ValueError(f"window must be at least 1, got {window}")
-    n = pts.shape[0]
-    return Particles(
-        xy=pts,
-        floor=np.full(n, floor, dtype=np.int16),
-        log_w=np.full(n, -math.log(n), dtype=np.float32),
-        mags=np.full((n, window + 1), np.nan, dtype=np.float32),
-        observed=np.full(window + 1, np.nan, dtype=np.float32),
-        count=0,
-    )
 
 
 def initialise(
@@ -401,15 +211,15 @@ def move(
     n_live = int(np.count_nonzero(finite))
     if n_live == 0:
         return p
-    live = _rows(finite, n_live)
-    length = _take(noise[0], live)
+    live = live_rows(finite, n_live)
+    length = take_rows(noise[0], live)
     length *= params.step_sd_m
     length += length_m
     np.maximum(length, 0.0, out=length)
-    heading = _take(noise[1], live)
+    heading = take_rows(noise[1], live)
     heading *= params.heading_sd_rad
     heading += heading_rad
-    a = _take(p.xy, live).astype(np.float64)
+    a = take_rows(p.xy, live).astype(np.float64)
     # b = a + length (sin, cos)(heading), rounded to the float32 that is stored
     b32 = np.empty((n_live, 2), dtype=np.float32)
     for axis, turn in ((0, np.sin), (1, np.cos)):
@@ -417,12 +227,12 @@ def move(
         step *= length
         step += a[:, axis]
         b32[:, axis] = step
-    ok = np.asarray(valid_move(_take(p.floor, live), a, b32.astype(np.float64)), dtype=bool)
+    ok = np.asarray(valid_move(take_rows(p.floor, live), a, b32.astype(np.float64)), dtype=bool)
     if ok.shape != (n_live,):
         raise ValueError(f"valid_move must return shape ({n_live},), got {ok.shape}")
     log_w = p.log_w.astype(np.float64)
     if n_live == p.n and ok.all():
-        return _cloud(p, xy=b32, log_w=_normalised(log_w))
+        return unchecked(p, xy=b32, log_w=normalised(log_w))
     moved, refused = np.flatnonzero(ok), np.flatnonzero(~ok)  # among the living
     if not isinstance(live, slice):
         moved, refused = live[moved], live[refused]
@@ -430,7 +240,7 @@ def move(
     for axis in (0, 1):  # column by column: scattering whole rows is ~4x slower
         xy[moved, axis] = b32[:, axis][ok]
     log_w[refused] = -np.inf
-    return _cloud(p, xy=xy, log_w=_normalised(log_w))
+    return unchecked(p, xy=xy, log_w=normalised(log_w))
 
 
 def mass_centered_update(
@@ -472,7 +282,7 @@ def effective_sample_size(p: Particles) -> float:
     """``N_eff = 1 / sum w_i^2`` (0 for a dead cloud)."""
     if not alive(p):
         return 0.0
-    w = _weights(p)
+    w = weights(p)
     return float(1.0 / np.dot(w, w))
 
 
@@ -499,7 +309,7 @@ def systematic_resample(p: Particles, rng: np.random.Generator) -> Particles:
     """
     if not alive(p):
         raise ValueError("cannot resample a cloud whose particles are all dead")
-    return _resample(p, _weights(p), rng)
+    return _resample(p, weights(p), rng)
 
 
 def _resample(p: Particles, w: FloatArray, rng: np.random.Generator) -> Particles:
@@ -511,7 +321,7 @@ def _resample(p: Particles, w: FloatArray, rng: np.random.Generator) -> Particle
     # empty interval [cdf[i-1], cdf[i]) and is never chosen
     points = (rng.random() + np.arange(n)) / n
     idx = np.searchsorted(cdf, points, side="right")
-    return _cloud(
+    return unchecked(
         p,
         xy=np.take(p.xy, idx, axis=0),
         floor=p.floor.take(idx),
@@ -530,7 +340,7 @@ def estimate(p: Particles) -> Estimate:
     """
     if not alive(p):
         raise ValueError("a cloud whose particles are all dead has no estimate")
-    w = _weights(p)
+    w = weights(p)
     xy = p.xy.astype(np.float64)
     mean = w @ xy
     d = xy - mean
@@ -582,7 +392,7 @@ def step(
         return p
     if observed_ut is not None:
         p = _weight_update(p, observed_ut, sample_map, params, weighting)
-    w = _weights(p)  # as effective_sample_size and systematic_resample, computed once
+    w = weights(p)  # as effective_sample_size and systematic_resample, computed once
     if 1.0 / np.dot(w, w) < params.resample_ess_fraction * p.n:
         p = _resample(p, w, rng)
     return p
@@ -603,9 +413,9 @@ def _weight_update(
         raise ValueError(f"cloud window {slots - 1} differs from params.window {params.window}")
     finite = np.isfinite(p.log_w)
     n_live = int(np.count_nonzero(finite))
-    live = _rows(finite, n_live)
-    xy = _take(p.xy, live).astype(np.float64)
-    m_live = np.asarray(sample_map(_take(p.floor, live), xy), np.float64)
+    live = live_rows(finite, n_live)
+    xy = take_rows(p.xy, live).astype(np.float64)
+    m_live = np.asarray(sample_map(take_rows(p.floor, live), xy), np.float64)
     if m_live.shape != (n_live,):
         raise ValueError(f"sample_map must return shape ({n_live},), got {m_live.shape}")
     # the windows move one slot to the left; the new magnitudes fill the last column
@@ -620,11 +430,11 @@ def _weight_update(
         mags[live, -1] = m_live
     observed = np.append(p.observed[1:], np.float32(observed_ut))
     count = min(p.count + 1, slots)
-    out = _cloud(p, mags=mags, observed=observed, count=count)
+    out = unchecked(p, mags=mags, observed=observed, count=count)
     if count < 2 or n_live == 0:
         return out
     obs = observed[-count:]
-    cand = _take(mags, live)[:, -count:]
+    cand = take_rows(mags, live)[:, -count:]
     d = mmse(obs, cand) if weighting == "mass_centered" else dtw_distance(obs, cand) / count
     known = np.isfinite(d)
     if not known.any():
@@ -639,64 +449,13 @@ def _weight_update(
         log_w += gain
     else:
         log_w[live] += gain
-    return _cloud(out, log_w=_normalised(log_w))
+    return unchecked(out, log_w=normalised(log_w))
 
 
 def reweight(p: Particles, log_likelihood: ArrayLike) -> Particles:
     """Weights multiplied by a likelihood given as its log per particle, normalised."""
     ll = np.asarray(log_likelihood, dtype=np.float64)
-    return replace(p, log_w=_normalised(p.log_w.astype(np.float64) + ll))
-
-
-def _cloud(p: Particles, **changes: object) -> Particles:
-    """``dataclasses.replace`` without ``__post_init__``'s checks, for the steps' own
-    results (their arrays are right by construction): the checks cost ~10 µs a call,
-    several times a step. Clouds from outside are checked (``Particles``,
-    ``from_arrays``)."""
-    new = object.__new__(Particles)
-    new.__dict__.update(p.__dict__)
-    new.__dict__.update(changes)
-    return new
-
-
-def _normalised(log_w: FloatArray) -> NDArray[np.float32]:
-    """``log_w - logsumexp(log_w)`` as float32; all ``-inf`` stays all ``-inf``.
-
-    The log-sum-exp is written out (shift by the maximum): ``scipy.special.logsumexp``
-    takes 76 µs on 3,000 weights (scipy 1.17, array-API dispatch) against 7 µs here, and
-    a step normalises twice.
-    """
-    finite = np.isfinite(log_w)
-    live = log_w if finite.all() else log_w[finite]
-    if live.size == 0:
-        return np.full(log_w.shape, -np.inf, dtype=np.float32)
-    top = float(live.max())
-    shifted = live - top
-    total = top + math.log(float(np.exp(shifted, out=shifted).sum()))
-    shifted = log_w - total
-    return shifted.astype(np.float32)
-
-
-def _rows(finite: BoolArray, n_live: int) -> slice | NDArray[np.intp]:
-    """The living rows: all of them as a slice (a view, ~30 µs less per array at N = 3000
-    than an index array), else their indices."""
-    return slice(None) if n_live == finite.shape[0] else np.flatnonzero(finite)
-
-
-_A = TypeVar("_A", bound=np.generic)
-
-
-def _take(array: NDArray[_A], rows: slice | NDArray[np.intp]) -> NDArray[_A]:
-    """``array[rows]`` along the first axis; ``np.take`` for an index array (fancy
-    indexing of an (n, 2) array is ~8x slower, numpy 2.4)."""
-    return array[rows] if isinstance(rows, slice) else np.take(array, rows, axis=0)
-
-
-def _weights(p: Particles) -> FloatArray:
-    """Weights of a living cloud in float64, renormalised after the float32 rounding."""
-    w = np.exp(p.log_w.astype(np.float64))
-    w /= w.sum()
-    return w
+    return replace(p, log_w=normalised(p.log_w.astype(np.float64) + ll))
 
 
 def _disc(c: FloatArray, radius: float, m: int, rng: np.random.Generator) -> FloatArray:

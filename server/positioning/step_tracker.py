@@ -26,7 +26,7 @@ yaw); the engines use their changes and learn the offset to the map frame themse
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Literal, NamedTuple
 
@@ -37,6 +37,8 @@ from server.positioning import attitude as att
 from server.positioning import pdr
 from server.positioning.events import BleEvent, Event, ImuEvent, WifiEvent
 from server.positioning.kalman import wrap_angle
+from server.positioning.params import Params, Positive
+from server.positioning.state_codec import shape
 
 FloatArray = NDArray[np.float64]
 
@@ -46,19 +48,13 @@ HISTORY_MS = 3000  # longer than any step can wait for its completing extreme
 
 
 @dataclass(frozen=True)
-class TrackerParams:
+class TrackerParams(Params):
     heading: HeadingSource = "fused"
     steps: pdr.PdrParams = field(default_factory=pdr.PdrParams)
     turns: pdr.TurnParams = field(default_factory=pdr.TurnParams)
     attitude: att.AttitudeParams = field(default_factory=att.AttitudeParams)
     fusion: att.HeadingParams = field(default_factory=att.HeadingParams)
-    step_scale: float = 1.0  # multiplies the step-length model (per-person calibration)
-
-    def __post_init__(self) -> None:
-        if self.heading not in ("attitude", "fused", "rotation"):
-            raise ValueError(f"heading must be attitude, fused or rotation, got {self.heading!r}")
-        if not (math.isfinite(self.step_scale) and self.step_scale > 0):
-            raise ValueError(f"step_scale must be positive, got {self.step_scale}")
+    step_scale: Positive = 1.0  # multiplies the step-length model (per-person calibration)
 
 
 @dataclass(frozen=True)
@@ -83,45 +79,14 @@ class TrackerState:
     turns: pdr.TurnState
     attitude: att.AttitudeState
     fusion: att.HeadingState
-    history: FloatArray  # (m, 2) [t_ms, unwrapped heading] of the last HISTORY_MS
-    north_history: FloatArray  # (m, 2) the same for the north-referenced heading
-    seen_ms: FloatArray  # (5,) newest sample time processed per sensor (-inf: none)
-    field_history: FloatArray  # (m, 2) [t_ms, |B| µT] of the last HISTORY_MS
-
-    def to_arrays(self) -> dict[str, np.ndarray]:
-        out: dict[str, np.ndarray] = {
-            "history": self.history,
-            "north_history": self.north_history,
-            "seen_ms": self.seen_ms,
-            "field_history": self.field_history,
-        }
-        for prefix, part in (
-            ("det.", self.detector.to_arrays()),
-            ("turn.", self.turns.to_arrays()),
-            ("att.", self.attitude.to_arrays()),
-            ("fus.", self.fusion.to_arrays()),
-        ):
-            out.update({prefix + k: v for k, v in part.items()})
-        return out
-
-    @classmethod
-    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> TrackerState:
-        def part(prefix: str) -> dict[str, np.ndarray]:
-            return {k[len(prefix) :]: v for k, v in arrays.items() if k.startswith(prefix)}
-
-        def rows(name: str) -> FloatArray:
-            return np.array(arrays[name], dtype=np.float64).reshape(-1, 2)
-
-        return cls(
-            detector=pdr.DetectorState.from_arrays(part("det.")),
-            turns=pdr.TurnState.from_arrays(part("turn.")),
-            attitude=att.AttitudeState.from_arrays(part("att.")),
-            fusion=att.HeadingState.from_arrays(part("fus.")),
-            history=rows("history"),
-            north_history=rows("north_history"),
-            seen_ms=np.array(arrays["seen_ms"], dtype=np.float64),
-            field_history=rows("field_history"),
-        )
+    # [t_ms, unwrapped heading] of the last HISTORY_MS
+    history: FloatArray = field(metadata=shape(-1, 2))
+    # the same for the north-referenced heading
+    north_history: FloatArray = field(metadata=shape(-1, 2))
+    # newest sample time processed per sensor (-inf: none)
+    seen_ms: FloatArray = field(metadata=shape(5))
+    # [t_ms, |B| µT] of the last HISTORY_MS
+    field_history: FloatArray = field(metadata=shape(-1, 2))
 
 
 def initial_tracker(params: TrackerParams) -> TrackerState:

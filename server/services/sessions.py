@@ -28,7 +28,7 @@ import logging
 import secrets
 import time
 import uuid
-from collections.abc import AsyncIterator, Sequence
+from collections.abc import AsyncIterator, Mapping, Sequence
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
 from typing import Any
@@ -37,124 +37,33 @@ import anyio
 import numpy as np
 import orjson
 
-from server.positioning.engines import ENGINES, get_engine
-from server.positioning.engines.base import EngineSpec, SiteMaps
-from server.positioning.events import Event, Fix, ImuEvent, StepEvent
-from server.services import limits, telemetry, traces, uploads
+from server.positioning.engines import get_engine
+from server.positioning.engines.base import SiteMaps
+from server.positioning.events import Event, ImuEvent, StepEvent
+from server.services import engine_settings, limits, telemetry, traces, uploads
 from server.services.device_offsets import on_common_level
 from server.services.errors import Conflict, Forbidden, Invalid
 from server.services.maps import site_maps
 from server.services.runtime import Runtime
+from server.services.session_records import (
+    Reply,
+    SessionMeta,
+    SessionState,
+    StaleEngineState,
+    events_digest,
+    fix_to_wire,
+)
 from server.storage import repositories as repo
-from server.storage.codec import array_to_str, decode_arrays, encode_arrays, str_to_array
 from server.storage.models import SessionRecord, utcnow
 from server.storage.session_store import SessionExists, StoredSession
 
 logger = logging.getLogger(__name__)
-ENGINE_PREFIX = "engine/"
 # a row's last_active_at lags the last batch by up to half an idle timeout: a session is
 # rebuilt only if that is at most 1.5 idle timeouts ago (never refusing a live one)
 REBUILD_IDLE_FACTOR = 1.5
 SEQ_POLL_S = 0.01
 INLINE_MAX_STEPS = 2  # batches with more steps, or any raw samples, run in a worker thread
 INLINE_MAX_EVENTS = 32
-
-
-@dataclass(frozen=True)
-class SessionMeta:
-    site_id: str
-    engine: str
-    token_digest: str
-    entropy: int
-    contribute: bool = False  # the device offered the walk for map building
-    device_model: str = ""
-
-    def to_bytes(self) -> bytes:
-        return encode_arrays(
-            {
-                "site_id": str_to_array(self.site_id),
-                "engine": str_to_array(self.engine),
-                "token_digest": str_to_array(self.token_digest),
-                "entropy": np.frombuffer(self.entropy.to_bytes(16, "little"), dtype=np.uint8),
-                "contribute": np.array([self.contribute], dtype=np.bool_),
-                "device_model": str_to_array(self.device_model),
-            }
-        )
-
-    @classmethod
-    def from_bytes(cls, data: bytes) -> SessionMeta:
-        a = decode_arrays(data)
-        return cls(
-            site_id=array_to_str(a["site_id"]),
-            engine=array_to_str(a["engine"]),
-            token_digest=array_to_str(a["token_digest"]),
-            entropy=int.from_bytes(a["entropy"].tobytes(), "little"),
-            # sessions created before these fields existed
-            contribute=bool(a["contribute"][0]) if "contribute" in a else False,
-            device_model=array_to_str(a["device_model"]) if "device_model" in a else "",
-        )
-
-
-@dataclass(frozen=True)
-class Reply:
-    seq: int
-    digest: bytes
-    body: bytes  # JSON list of fixes as sent on the wire
-
-
-@dataclass(frozen=True)
-class SessionState:
-    last_seq: int  # -1: rebuilt after the store lost it; the next seq is taken as it comes
-    engine_state: Any
-    replies: tuple[Reply, ...]
-    last_fix: bytes  # JSON of the newest fix, b"" before the first
-    rebuilt_seq: int = 0  # the first seq applied after a rebuild (0: never rebuilt)
-    touched_ms: int = 0  # wall clock of the last refresh of the SQL row's last_active_at
-
-    def to_bytes(self) -> bytes:
-        arrays: dict[str, np.ndarray] = {
-            "last_seq": np.array(self.last_seq, dtype=np.int64),
-            "rebuilt_seq": np.array(self.rebuilt_seq, dtype=np.int64),
-            "touched_ms": np.array(self.touched_ms, dtype=np.int64),
-            "last_fix": np.frombuffer(self.last_fix, dtype=np.uint8),
-            "replies/seq": np.array([r.seq for r in self.replies], dtype=np.int64),
-            "replies/digest": np.frombuffer(
-                b"".join(r.digest for r in self.replies), dtype=np.uint8
-            ),
-            "replies/offsets": np.cumsum([0] + [len(r.body) for r in self.replies]).astype(
-                np.int64
-            ),
-            "replies/body": np.frombuffer(b"".join(r.body for r in self.replies), dtype=np.uint8),
-        }
-        for name, value in self.engine_state.to_arrays().items():
-            arrays[ENGINE_PREFIX + name] = value
-        return encode_arrays(arrays)
-
-    @classmethod
-    def from_bytes(cls, data: bytes, spec: EngineSpec) -> SessionState:
-        a = decode_arrays(data)
-        offsets = a["replies/offsets"].tolist()
-        body = a["replies/body"].tobytes()
-        digests = a["replies/digest"].tobytes()
-        replies = tuple(
-            Reply(
-                seq=int(seq),
-                digest=digests[32 * i : 32 * (i + 1)],
-                body=body[offsets[i] : offsets[i + 1]],
-            )
-            for i, seq in enumerate(a["replies/seq"].tolist())
-        )
-        engine_arrays = {
-            k[len(ENGINE_PREFIX) :]: v for k, v in a.items() if k.startswith(ENGINE_PREFIX)
-        }
-        return cls(
-            last_seq=int(a["last_seq"]),
-            engine_state=spec.from_arrays(engine_arrays),
-            replies=replies,
-            last_fix=a["last_fix"].tobytes(),
-            rebuilt_seq=int(a["rebuilt_seq"]) if "rebuilt_seq" in a else 0,
-            touched_ms=int(a["touched_ms"]) if "touched_ms" in a else 0,
-        )
 
 
 @dataclass(frozen=True)
@@ -188,45 +97,6 @@ def _digest(secret: str) -> str:
     return hashlib.sha256(secret.encode()).hexdigest()
 
 
-def events_digest(events: Sequence[Event]) -> bytes:
-    """A fingerprint of a batch's content, to tell a true retry from a reused ``seq``.
-
-    Sample arrays go in as raw bytes: their ``repr`` elides the middle of long arrays
-    and is slow. A batch without raw samples keeps the digest it always had, so a retry
-    across an upgrade still finds its stored reply.
-    """
-    if not any(isinstance(e, ImuEvent) for e in events):
-        return hashlib.sha256(repr(tuple(events)).encode()).digest()
-    h = hashlib.sha256()
-    for event in events:
-        if isinstance(event, ImuEvent):
-            h.update(repr(("imu", event.t_ms, event.magnetic_calibrated)).encode())
-            for samples in event.sensors().values():
-                h.update(repr(samples.shape).encode())
-                h.update(np.ascontiguousarray(samples, dtype=np.float64).tobytes())
-        else:
-            h.update(repr(event).encode())
-    return h.digest()
-
-
-def fix_to_wire(fix: Fix, maps: SiteMaps, engine: str) -> dict[str, Any]:
-    ref = maps.floors[fix.floor] if 0 <= fix.floor < len(maps.floors) else None
-    return {
-        "t": fix.t_ms,
-        "x_m": fix.x_m,
-        "y_m": fix.y_m,
-        "floor": ref.level if ref else None,
-        "building_id": ref.building_id if ref else None,
-        "floor_id": ref.floor_id if ref else None,
-        "heading_rad": fix.heading_rad,
-        "cov_m2": list(fix.cov),
-        "uncertainty_m": fix.uncertainty_m,
-        "source": fix.source,
-        "engine": engine,
-        "diagnostics": fix.diagnostics,
-    }
-
-
 async def create_session(
     rt: Runtime,
     site_id: str,
@@ -234,26 +104,40 @@ async def create_session(
     *,
     contribute: bool = False,
     device_model: str | None = None,
+    params: Mapping[str, Any] | None = None,
 ) -> CreatedSession:
     """Open a session. With ``contribute`` its batches are kept, and when it ends they
-    become one upload for the map builder (``services.uploads``)."""
-    if engine not in ENGINES:
-        known = ", ".join(sorted(ENGINES))
-        raise Invalid(f"unknown engine {engine!r}; known engines: {known}", field="engine")
-    spec = get_engine(engine)
+    become one upload for the map builder (``services.uploads``). ``params`` override the
+    engine's parameters, over the site's settings (``services.engine_settings``)."""
+    spec = engine_settings.engine_of(engine)
     token = secrets.token_urlsafe(32)
     session_id = uuid.uuid4().hex
-    meta = SessionMeta(
-        site_id, engine, _digest(token), secrets.randbits(128), contribute, device_model or ""
-    )
     epoch = await rt.store.epoch()
     async with rt.transaction() as s:
         await site_maps(s, rt.maps, site_id)
+        overrides = await engine_settings.for_new_session(s, site_id, engine, params)
+        meta = SessionMeta(
+            site_id,
+            engine,
+            _digest(token),
+            secrets.randbits(128),
+            contribute,
+            device_model or "",
+            overrides,
+        )
         await repo.create_session_record(s, _record(session_id, meta, epoch))
-    state = SessionState(0, spec.initial_state(spec.params_type()), (), b"", 0, _now_ms())
+    state = _fresh_state(meta, last_seq=0)
     ttl = rt.settings.session_idle_s
-    await rt.store.create(session_id, meta.to_bytes(), state.to_bytes(), ttl)
+    await rt.store.create(session_id, meta.to_bytes(), state.to_bytes(spec), ttl)
     return CreatedSession(session_id, token, site_id, engine, ttl)
+
+
+def _fresh_state(meta: SessionMeta, last_seq: int) -> SessionState:
+    """A session state with the engine's initial state under the session's parameters
+    (``last_seq`` -1: rebuilt, the next batch's seq is taken as it comes)."""
+    spec = get_engine(meta.engine)
+    start = spec.start(engine_settings.session_params(meta.engine, meta.params))
+    return SessionState(last_seq, start, (), b"", 0, _now_ms())
 
 
 def _now_ms() -> int:
@@ -269,6 +153,7 @@ def _record(session_id: str, meta: SessionMeta, epoch: str) -> SessionRecord:
         entropy=f"{meta.entropy:032x}",
         contribute=meta.contribute,
         device_model=meta.device_model,
+        params=orjson.loads(meta.params),
         epoch=epoch,
     )
 
@@ -294,16 +179,17 @@ async def _rebuild(rt: Runtime, session_id: str, token: str) -> bool:
             int(row.entropy, 16),
             row.contribute,
             row.device_model,
+            engine_settings.canonical(row.params or {}),
         )
     spec = get_engine(meta.engine)
-    state = SessionState(-1, spec.initial_state(spec.params_type()), (), b"", 0, _now_ms())
+    state = _fresh_state(meta, last_seq=-1)
     # versions start past any the session had (microseconds since the epoch; a session
     # makes far fewer writes), so no replica's cached copy passes for the rebuilt record
     with contextlib.suppress(SessionExists):  # another replica rebuilt it first
         await rt.store.create(
             session_id,
             meta.to_bytes(),
-            state.to_bytes(),
+            state.to_bytes(spec),
             rt.settings.session_idle_s,
             version=time.time_ns() // 1000,
         )
@@ -357,7 +243,13 @@ async def _load_decoded(
     else:
         meta = SessionMeta.from_bytes(stored.meta)
         version = stored.version
-        state = SessionState.from_bytes(stored.state, get_engine(meta.engine))
+        try:
+            state = SessionState.from_bytes(stored.state, get_engine(meta.engine))
+        except StaleEngineState:
+            # written by an older server: go on from a fresh engine state, as after a
+            # rebuild (the next batch is answered reinitialised)
+            logger.warning("session %s: engine state of an older layout, restarted", session_id)
+            state = _fresh_state(meta, last_seq=-1)
         rt.states.put(session_id, version, meta, state)
     if not hmac.compare_digest(meta.token_digest, _digest(token)):
         raise _no_session()
@@ -453,9 +345,9 @@ async def _attempt(
             if meta.contribute:  # kept before the batch is acknowledged
                 await repo.keep_session_batch(s, session_id, seq, walk)
     rng = np.random.default_rng(np.random.SeedSequence(meta.entropy, spawn_key=(seq,)))
-    params = spec.params_type()
+    params = engine_settings.session_params(meta.engine, meta.params)
     scans_level = maps.device_offsets.get(meta.device_model)
-    run = telemetry.timed_engine(meta.engine, spec.run)
+    run = telemetry.timed_engine(meta.engine, spec.step)
     args = (state.engine_state, on_common_level(events, scans_level), maps, params, rng)
     try:
         if _runs_inline(events):
@@ -480,7 +372,7 @@ async def _attempt(
     )
     live = orjson.dumps({"seq": seq, "fixes": wire}) if wire else None
     ok = await rt.store.compare_and_set(
-        session_id, version, new_state.to_bytes(), rt.settings.session_idle_s, live
+        session_id, version, new_state.to_bytes(spec), rt.settings.session_idle_s, live
     )
     if ok:
         rt.states.put(session_id, version + 1, meta, new_state)

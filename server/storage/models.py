@@ -1,5 +1,5 @@
 """SQL schema: sites, buildings, floors, emitters, survey points, radio and magnetic map
-versions, uploads and API keys. Ids are 32-character hex UUIDs."""
+versions, uploads, sessions, engine settings and API keys. Ids are 32-character hex UUIDs."""
 
 from __future__ import annotations
 
@@ -248,11 +248,27 @@ class SessionRecord(Base):
     entropy: Mapped[str] = mapped_column(String(32))  # 128 bits, hex
     contribute: Mapped[bool] = mapped_column(default=False)
     device_model: Mapped[str] = mapped_column(String(128), default="")
+    # the engine parameters it runs with, as overrides of the defaults (JSON object)
+    params: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict, server_default="{}")
     epoch: Mapped[str] = mapped_column(String(64))
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
     # a batch at most every half idle timeout refreshes it (services.sessions)
     last_active_at: Mapped[datetime] = mapped_column(default=utcnow, index=True)
     ended_at: Mapped[datetime | None] = mapped_column()
+
+
+class EngineSetting(Base):
+    """A site's engine parameters: overrides of an engine's defaults (a JSON object, as a
+    session's ``params``) that every new session of the site with that engine starts
+    from."""
+
+    __tablename__ = "engine_settings"
+    site_id: Mapped[str] = mapped_column(
+        ForeignKey("sites.id", ondelete="CASCADE"), primary_key=True
+    )
+    engine: Mapped[str] = mapped_column(String(64), primary_key=True)
+    params: Mapped[dict[str, Any]] = mapped_column(JSON)
+    updated_at: Mapped[datetime] = mapped_column(default=utcnow, onupdate=utcnow)
 
 
 class ApiKey(Base):

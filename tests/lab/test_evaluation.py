@@ -15,8 +15,10 @@ from server.cli import app
 from server.datasets.ilc import IlcFloor, IlcSite, IlcTrace, read_site
 from server.datasets.uji import Fingerprints
 from server.lab import evaluation
-from server.positioning.engines import ENGINES, get_engine
+from server.positioning.engines import ENGINES, step_ekf
 from server.positioning.engines.base import FloorRef, SiteMaps
+from server.positioning.engines.pf_magnetic import PfMagneticParams
+from server.positioning.engines.two_stage_ekf import TwoStageParams
 from server.positioning.events import Event, Fix, ImuEvent, RadioReading, StepEvent, WifiEvent
 from server.positioning.floorplan import plan_from_geojson
 from server.positioning.magnetic import MagneticMap, grid_from_samples, known_share
@@ -115,7 +117,7 @@ def test_batches_cut_phone_time() -> None:
 @pytest.fixture
 def imu_engine(monkeypatch: pytest.MonkeyPatch) -> str:
     """An engine that declares it reads raw IMU samples (step_ekf's code under it)."""
-    spec = replace(get_engine("step_ekf"), name="imu_probe", uses=frozenset({"imu", "wifi"}))
+    spec = replace(step_ekf.SPEC, name="imu_probe", uses=frozenset({"imu", "wifi"}))
     monkeypatch.setitem(ENGINES, spec.name, spec)
     return spec.name
 
@@ -235,20 +237,24 @@ def test_evaluate_a_small_site_with_plain_and_xz_traces(tmp_path: Path) -> None:
     assert all("magnetic_coverage" not in f for f in per_floor.values())  # wknn: no field map
 
 
-def test_engine_params_replace_scalars_by_name() -> None:
+def test_engine_params_replace_parameters_by_dotted_name() -> None:
     from server.lab.evaluation import engine_params
 
     params = engine_params("two_stage_ekf", {"k": "8", "partition_radius_m": "5"})
+    assert isinstance(params, TwoStageParams)
     assert (params.k, params.partition_radius_m) == (8, 5.0)
-    assert engine_params("wknn").k == 4
-    with pytest.raises(ValueError, match="no parameter 'nope'"):
+    assert isinstance(params.partition_radius_m, float)
+    assert engine_params("wknn").k == 4  # type: ignore[attr-defined]
+    with pytest.raises(ValueError, match="nope: unknown parameter"):
         engine_params("wknn", {"nope": "1"})
-    with pytest.raises(ValueError, match="'k': 'x' is not a int"):
+    with pytest.raises(ValueError, match="k: must be an integer"):
         engine_params("wknn", {"k": "x"})
-    assert engine_params("pf_magnetic", {"weighting": "dtw"}).weighting == "dtw"
-    with pytest.raises(ValueError, match="'tracker' of two_stage_ekf is not a number"):
+    pf = engine_params("pf_magnetic", {"weighting": "dtw", "particles.n": "500"})
+    assert isinstance(pf, PfMagneticParams)
+    assert (pf.weighting, pf.particles.n) == ("dtw", 500)
+    with pytest.raises(ValueError, match="tracker: must be an object of parameters"):
         engine_params("two_stage_ekf", {"tracker": "x"})
-    with pytest.raises(ValueError, match="k must be at least 1"):
+    with pytest.raises(ValueError, match="k: must be at least 1"):
         engine_params("wknn", {"k": "0"})
 
 

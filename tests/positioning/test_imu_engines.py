@@ -5,6 +5,7 @@ and the anchor calibration."""
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -12,14 +13,16 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from server.positioning import state_codec
 from server.positioning.engines import everywhere_ekf as ev
 from server.positioning.engines import get_engine
 from server.positioning.engines import two_stage_ekf as ts
 from server.positioning.engines.base import Anchor, FloorRef, SiteMaps
-from server.positioning.events import BleEvent, RadioReading, WifiEvent, radio_key
+from server.positioning.engines.pdr_fusion import FilterState, step_motion
+from server.positioning.events import BleEvent, Fix, RadioReading, WifiEvent, radio_key
 from server.positioning.fingerprint import RadioMap
 from server.positioning.kalman import predict
-from server.positioning.step_tracker import Step
+from server.positioning.step_tracker import Scan, Step
 
 T0 = 1_700_000_000_000
 FLOORS = (FloorRef("b", "f0", 0),)
@@ -91,8 +94,8 @@ def test_motion_jacobians_match_finite_differences(
     expected = numeric_jacobian(lambda v: ev.step_motion(v, d, turn)[0], state)
     np.testing.assert_allclose(A, expected, atol=1e-6)
     state = np.array([x, y, d, h])
-    _, F = ts.step_motion(state, turn)
-    expected = numeric_jacobian(lambda v: ts.step_motion(v, turn)[0], state)
+    _, F = step_motion(state, turn)
+    expected = numeric_jacobian(lambda v: step_motion(v, turn)[0], state)
     np.testing.assert_allclose(F, expected, atol=1e-6)
 
 
@@ -120,12 +123,22 @@ def test_ekf_step_equals_a_plain_kalman_filter_when_the_model_is_linear() -> Non
 # ---------------------------------------------------------------- both engines on a walk
 
 
+def apply_items(
+    engine: str, items: Sequence[Step | Scan], maps: SiteMaps
+) -> tuple[FilterState, list[Fix]]:
+    """Steps and scans straight into a PDR fusion engine's filter, on its defaults."""
+    if engine == "everywhere_ekf":
+        ev_params = ev.EverywhereParams()
+        return ev.apply(ev.initial_state(ev_params), items, maps, ev_params)
+    ts_params = ts.TwoStageParams()
+    return ts.apply(ts.initial_state(ts_params), items, maps, ts_params)
+
+
 @pytest.mark.parametrize("engine", ["two_stage_ekf", "everywhere_ekf"])
 def test_engine_follows_a_walk_with_scans(engine: str) -> None:
     """Steps east with the phone's compass and a scan every four steps: the estimate
     stays close to the truth and moves with the steps between scans."""
     spec = get_engine(engine)
-    params = spec.params_type()
     maps = SiteMaps(FLOORS, corridor_map(), "v")
     steps = walk_east(48, 0.7)
     items: list[Step | WifiEvent] = [scan_at(T0, 3.0, 3.0)]
@@ -133,9 +146,7 @@ def test_engine_follows_a_walk_with_scans(engine: str) -> None:
         items.append(step)
         if i % 4 == 0:
             items.append(scan_at(step.t_ms, 3.0 + 0.7 * i, 3.0))
-    state, fixes = spec.initial_state(params), []
-    module = ev if engine == "everywhere_ekf" else ts
-    state, fixes = module.apply(state, items, maps, params)
+    state, fixes = apply_items(engine, items, maps)
     assert fixes[0].source == "wifi"
     errors = [math.hypot(f.x_m - (3.0 + 0.7 * (f.t_ms - T0) / 500), f.y_m - 3.0) for f in fixes]
     assert max(errors[4:]) < 1.5, errors
@@ -143,19 +154,16 @@ def test_engine_follows_a_walk_with_scans(engine: str) -> None:
     assert len(step_fixes) == 48
     assert all(f.heading_rad is not None for f in step_fixes)
     # round trip of the whole state through arrays
-    again = spec.from_arrays(state.to_arrays())
-    for key, value in state.to_arrays().items():
-        np.testing.assert_array_equal(again.to_arrays()[key], value, err_msg=key)
+    again = spec.decode(state_codec.to_arrays(state))
+    for key, value in state_codec.to_arrays(state).items():
+        np.testing.assert_array_equal(state_codec.to_arrays(again)[key], value, err_msg=key)
 
 
 @pytest.mark.parametrize("engine", ["two_stage_ekf", "everywhere_ekf"])
 def test_steps_before_a_known_heading_only_widen_the_uncertainty(engine: str) -> None:
-    spec = get_engine(engine)
-    params = spec.params_type()
     maps = SiteMaps(FLOORS, corridor_map(), "v")
-    module = ev if engine == "everywhere_ekf" else ts
-    items = [scan_at(T0, 10.0, 3.0), *walk_east(4, 0.7, north_rad=math.nan)]
-    _, fixes = module.apply(spec.initial_state(params), items, maps, params)
+    items: list[Step | Scan] = [scan_at(T0, 10.0, 3.0), *walk_east(4, 0.7, north_rad=math.nan)]
+    _, fixes = apply_items(engine, items, maps)
     steps = [f for f in fixes if f.source == "step"]
     assert all(f.heading_rad is None for f in steps)
     assert all(math.hypot(f.x_m - fixes[0].x_m, f.y_m - fixes[0].y_m) < 1e-9 for f in steps)

@@ -23,22 +23,25 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from numpy.typing import NDArray
 
+from server.positioning import state_codec
 from server.positioning.magnetic import dtw_distance, grid_from_samples, sample
 from server.positioning.particle import (
-    MapSampler,
-    ParticleParams,
-    Particles,
-    Weighting,
     alive,
     dtw_update,
     effective_sample_size,
     estimate,
-    from_points,
     initialise,
     mass_centered_update,
     move,
     step,
     systematic_resample,
+)
+from server.positioning.particle_cloud import (
+    MapSampler,
+    ParticleParams,
+    Particles,
+    Weighting,
+    from_points,
 )
 
 FloatArray = NDArray[np.float64]
@@ -125,7 +128,7 @@ def assert_normalised(p: Particles) -> None:
 
 
 def assert_same(p: Particles, q: Particles) -> None:
-    a, b = p.to_arrays(), q.to_arrays()
+    a, b = state_codec.to_arrays(p), state_codec.to_arrays(q)
     assert a.keys() == b.keys()
     for name in a:
         assert a[name].dtype == b[name].dtype, name
@@ -310,27 +313,31 @@ def test_state_round_trip_and_size_at_3000_particles() -> None:
     p = initialise((10.0, 2.0), 1, rng, params, radius_m=5.0, valid_point=door_valid_point)
     p = mass_centered_update(p, 44.0, door_map, params)
     p = step(p, 0.7, 1.0, 45.0, rng, params, door_valid_move, door_map)
-    arrays = p.to_arrays()
-    assert sum(a.nbytes for a in arrays.values()) == 90_020 <= 100_000
-    assert {a.dtype for a in arrays.values()} <= {np.dtype(t) for t in ("f4", "i2", "i4")}
+    arrays = state_codec.to_arrays(p)
+    assert sum(a.nbytes for a in arrays.values()) == 90_024 <= 100_000
+    assert {a.dtype for a in arrays.values()} <= {np.dtype(t) for t in ("f4", "i2", "i8")}
     # through raw bytes, as the state store keeps them
     wire = {k: (a.dtype.str, a.shape, a.tobytes()) for k, a in arrays.items()}
-    back = Particles.from_arrays(
-        {k: np.frombuffer(b, dtype=d).reshape(s) for k, (d, s, b) in wire.items()}
+    back = state_codec.from_arrays(
+        Particles, {k: np.frombuffer(b, dtype=d).reshape(s) for k, (d, s, b) in wire.items()}
     )
     assert_same(back, p)
 
 
 def test_from_arrays_refuses_wrong_shapes() -> None:
-    arrays = cloud([(0.0, 0.0)] * 3).to_arrays()
+    arrays = state_codec.to_arrays(cloud([(0.0, 0.0)] * 3))
     with pytest.raises(ValueError, match="mags"):
-        Particles.from_arrays({**arrays, "mags": np.zeros((3, 4), dtype=np.float64)})
+        state_codec.from_arrays(Particles, {**arrays, "mags": np.zeros((3, 4), dtype=np.float64)})
     with pytest.raises(ValueError, match="log_w"):
-        Particles.from_arrays({**arrays, "log_w": np.array([0.0, np.nan, 0.0], dtype=np.float32)})
+        state_codec.from_arrays(
+            Particles, {**arrays, "log_w": np.array([0.0, np.nan, 0.0], dtype=np.float32)}
+        )
     with pytest.raises(ValueError, match="xy"):
-        Particles.from_arrays({**arrays, "xy": np.full((3, 2), np.inf, dtype=np.float32)})
-    with pytest.raises(KeyError):
-        Particles.from_arrays({k: v for k, v in arrays.items() if k != "count"})
+        state_codec.from_arrays(
+            Particles, {**arrays, "xy": np.full((3, 2), np.inf, dtype=np.float32)}
+        )
+    with pytest.raises(state_codec.StateError, match="count"):
+        state_codec.from_arrays(Particles, {k: v for k, v in arrays.items() if k != "count"})
 
 
 # ---- initialisation -----------------------------------------------------------------------
@@ -388,10 +395,10 @@ def run_operations(
     p = initialise((20.0, 2.0), 0, rng, params, radius_m=4.0, valid_point=door_valid_point)
     clouds = [p]
     if snapshots is not None:
-        snapshots.append(Particles.from_arrays(p.to_arrays()))
+        snapshots.append(state_codec.from_arrays(Particles, state_codec.to_arrays(p)))
     for op in operations:
         if round_trip:
-            p = Particles.from_arrays(p.to_arrays())
+            p = state_codec.from_arrays(Particles, state_codec.to_arrays(p))
         kind = op[0]
         if kind == "move":
             length, heading = op[1], op[2]
@@ -406,7 +413,7 @@ def run_operations(
             p = systematic_resample(p, rng)
         clouds.append(p)
         if snapshots is not None:
-            snapshots.append(Particles.from_arrays(p.to_arrays()))
+            snapshots.append(state_codec.from_arrays(Particles, state_codec.to_arrays(p)))
     return clouds
 
 

@@ -9,6 +9,7 @@ import math
 
 import numpy as np
 
+from server.positioning import state_codec
 from server.positioning.engines import pf_magnetic as pf
 from server.positioning.engines.base import FloorRef, SiteMaps
 from server.positioning.events import Event, MagEvent, RadioReading, StepEvent, WifiEvent, radio_key
@@ -127,10 +128,10 @@ def test_state_round_trip_continues_identically() -> None:
         pf.initial_state(params), [scan(T0, 12.0, 1.5)], maps, params, np.random.default_rng(2)
     )[0]
     direct, a = pf.run(first, events, maps, params, np.random.default_rng(3))
-    again = pf.PfMagneticState.from_arrays(first.to_arrays())
+    again = state_codec.from_arrays(pf.PfMagneticState, state_codec.to_arrays(first))
     _, b = pf.run(again, events, maps, params, np.random.default_rng(3))
     assert [(f.x_m, f.y_m, f.cov) for f in a] == [(f.x_m, f.y_m, f.cov) for f in b]
-    size = sum(v.nbytes for v in direct.to_arrays().values())
+    size = sum(v.nbytes for v in state_codec.to_arrays(direct).values())
     assert size < 120_000  # 3000 particles as float32 plus the step tracker
 
 

@@ -17,7 +17,7 @@ import pytest
 from numpy.typing import NDArray
 
 from client_sim.imu import Block, Gait, ImuTrace, Sensors, blocks, synthesize_walk
-from server.positioning import pdr
+from server.positioning import pdr, state_codec
 from server.positioning.events import Event, ImuEvent, MagEvent, RadioReading, WifiEvent
 from server.positioning.step_tracker import (
     HeadingSource,
@@ -186,9 +186,9 @@ def test_tracker_state_round_trips_mid_walk() -> None:
     state = initial_tracker(params)
     for block in blocks(walk())[:cut]:
         state, _ = track(state, imu_event(block, NO_ROTATION), params)
-    arrays = {k: np.array(v) for k, v in state.to_arrays().items()}
-    restored = TrackerState.from_arrays(arrays)
-    for key, value in restored.to_arrays().items():
+    arrays = {k: np.array(v) for k, v in state_codec.to_arrays(state).items()}
+    restored = state_codec.from_arrays(TrackerState, arrays)
+    for key, value in state_codec.to_arrays(restored).items():
         np.testing.assert_array_equal(value, arrays[key], err_msg=key)
     _, resumed = run(params, state=restored, start=cut)
     assert len(cat(resumed)) > 0

@@ -8,6 +8,7 @@ import math
 import numpy as np
 
 from client_sim.imu import ImuTrace, blocks, synthesize_walk
+from server.positioning import state_codec
 from server.positioning.events import ImuEvent
 from server.positioning.step_tracker import (
     StepBlock,
@@ -81,7 +82,8 @@ def test_a_block_sent_twice_is_used_once() -> None:
     again, repeat = track(state, evs[11], params)
     assert len(repeat) == 0
     np.testing.assert_array_equal(
-        again.fusion.to_arrays()["heading"], state.fusion.to_arrays()["heading"]
+        state_codec.to_arrays(again.fusion)["heading"],
+        state_codec.to_arrays(state.fusion)["heading"],
     )
     _, once = run(evs, params)
     _, twice = run([*evs[:12], evs[11], *evs[12:]], params)
@@ -120,8 +122,8 @@ def test_zero_gravity_samples_gaps_and_wild_gyro_leave_a_finite_state() -> None:
                 int(t[part[0]]), accel=accel[part], gyro=gyro[part], magnetic=magnetic[part]
             )
             state, _ = track(state, e, params)
-        for name, value in state.to_arrays().items():
-            if name in ("seen_ms", "det.machine"):  # -inf / inf mean "none yet" there
+        for name, value in state_codec.to_arrays(state).items():
+            if name in ("seen_ms", "detector.machine"):  # -inf / inf mean "none yet" there
                 continue
             assert np.isfinite(value[~np.isnan(value)]).all(), (source, name)
         assert np.isfinite(state.attitude.D).all()

@@ -13,7 +13,7 @@ from fastapi import FastAPI
 from server.api.convert import to_events
 from server.api.schemas import BatchIn
 from server.positioning.events import Event
-from server.services import sessions
+from server.services import session_records, sessions
 from server.services.maps import MapCache
 from server.services.runtime import Runtime
 from server.services.session_cache import SessionCache
@@ -47,14 +47,14 @@ async def test_alternating_processes_see_each_others_writes(
     base: Runtime = app.state.runtime
     a, b, plain = _process(base, 16), _process(base, 16), _process(base, 0)
     decodes = 0
-    decode = sessions.SessionState.from_bytes
+    decode = session_records.SessionState.from_bytes
 
-    def counting(data: bytes, spec: object) -> sessions.SessionState:
+    def counting(data: bytes, spec: object) -> session_records.SessionState:
         nonlocal decodes
         decodes += 1
         return decode(data, spec)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(sessions.SessionState, "from_bytes", staticmethod(counting))
+    monkeypatch.setattr(session_records.SessionState, "from_bytes", staticmethod(counting))
     alternating = await sessions.create_session(a, site.site_id, "step_ekf")
     reference = await sessions.create_session(plain, site.site_id, "step_ekf")
     order = [a, a, b, a, b, b]

@@ -1,6 +1,7 @@
 """Fusion engines: one module per engine, each a pure ``run(state, events, maps, params, rng)``.
 
-``ENGINES`` maps an engine name (as a session names it) to its ``EngineSpec``.
+``ENGINES`` maps an engine name (as a session names it) to its ``EngineSpec``, seen as
+an ``Engine`` (a state of any type, checked at run time).
 """
 
 from __future__ import annotations
@@ -12,9 +13,9 @@ from server.positioning.engines import (
     two_stage_ekf,
     wknn,
 )
-from server.positioning.engines.base import EngineSpec
+from server.positioning.engines.base import Engine
 
-ENGINES: dict[str, EngineSpec] = {
+ENGINES: dict[str, Engine] = {
     spec.name: spec
     for spec in (
         everywhere_ekf.SPEC,
@@ -26,7 +27,7 @@ ENGINES: dict[str, EngineSpec] = {
 }
 
 
-def get_engine(name: str) -> EngineSpec:
+def get_engine(name: str) -> Engine:
     """The registry entry of engine ``name``.
 
     Raises

@@ -52,25 +52,20 @@ measured and the true direction from the previous anchor, ``r_4 = 0.001``).
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
+from server.positioning.engines import pdr_fusion as pf
 from server.positioning.engines import radio_fusion as rf
-from server.positioning.engines.base import Anchor, EngineSpec, SiteMaps
-from server.positioning.events import BleEvent, Event, Fix, radio_key
+from server.positioning.engines.base import Anchor, SiteMaps
+from server.positioning.events import BleEvent, Fix, radio_key
 from server.positioning.fingerprint import RadioMap, WknnFix, wknn
-from server.positioning.kalman import predict_ekf, update, wrap_angle
-from server.positioning.step_tracker import (
-    Scan,
-    Step,
-    TrackerParams,
-    TrackerState,
-    initial_tracker,
-    timeline,
-)
+from server.positioning.kalman import update, wrap_angle
+from server.positioning.params import AtLeastOne, NonNegative, Positive
+from server.positioning.state_codec import shape
+from server.positioning.step_tracker import Scan, Step, TrackerParams, initial_tracker
 
 FloatArray = NDArray[np.float64]
 
@@ -79,118 +74,44 @@ _H_HEADING = np.array([[0.0, 0.0, 0.0, 1.0]])
 
 
 @dataclass(frozen=True)
-class EverywhereParams(rf.RadioParams):
+class EverywhereParams(pf.StepFusionParams):
+    """Parameters of ``everywhere_ekf``; the position noise per step (0.1 m² rather than
+    papers/002_* eq 22's 0.01) and the restart after 3 gated fixes in a row rather than 6
+    are ``KalmanParams``'s, chosen on both development venues."""
+
     # the phone's rotation-vector heading where it sends one, else Mansour's gyro +
     # compass fusion: on the inner validation splits IPIN P75 15.9 m against 23.0 m,
     # ILC site2 mean 14.5 m against 14.6 m (bench/accuracy.md)
     tracker: TrackerParams = field(default_factory=lambda: TrackerParams(heading="rotation"))
-    aid_distance_db_per_m: float = 1.0  # weight of ξ_Δd (eq 13) against the signal distance
-    aid_heading_db_per_rad: float = 1.0  # weight of ξ_ΔH (eq 14)
-    # position noise per step: 0.1 m² rather than papers/002_* eq 22's 0.01, and 3 gated
-    # fixes in a row before a restart rather than 6; chosen on the inner validation
-    # splits of both ILC site2 and the IPIN logs (bench/accuracy.md, "Choices")
-    q_x_m2: float = 0.1
-    q_y_m2: float = 0.1
-    q_scale: float = 0.0001
-    q_heading_rad2: float = 0.01
-    p0_scale: float = 0.01
-    p0_north_heading_rad2: float = math.radians(20.0) ** 2
-    r_step_scale: float = 0.005  # eq 19
-    r_anchor_heading_rad2: float = 0.001  # eq 21
-    anchor_var_m2: float = 1.0
-    anchor_min_steps: int = 5  # shorter walks between anchors calibrate nothing
-    gate_chi2: float = 13.82  # chi2(2 dof), 99.9 %
-    max_rejects: int = 3  # as in two_stage_ekf
-
-    def __post_init__(self) -> None:
-        self.check_radio()
-        if self.max_rejects < 1 or self.anchor_min_steps < 1:
-            raise ValueError("max_rejects and anchor_min_steps must be at least 1")
-        rf.check_positive(
-            gate_chi2=self.gate_chi2,
-            r_step_scale=self.r_step_scale,
-            r_anchor_heading_rad2=self.r_anchor_heading_rad2,
-            anchor_var_m2=self.anchor_var_m2,
-            p0_north_heading_rad2=self.p0_north_heading_rad2,
-        )
-        if self.aid_distance_db_per_m < 0 or self.aid_heading_db_per_rad < 0:
-            raise ValueError("the aiding weights must not be negative")
+    aid_distance_db_per_m: NonNegative = 1.0  # weight of ξ_Δd (eq 13) against the signal distance
+    aid_heading_db_per_rad: NonNegative = 1.0  # weight of ξ_ΔH (eq 14)
+    q_scale: NonNegative = 0.0001
+    p0_scale: Positive = 0.01
+    r_step_scale: Positive = 0.005  # eq 19
+    r_anchor_heading_rad2: Positive = 0.001  # eq 21
+    anchor_var_m2: Positive = 1.0
+    anchor_min_steps: AtLeastOne = 5  # shorter walks between anchors calibrate nothing
 
     @property
     def process_noise(self) -> FloatArray:
-        return np.diag([self.q_x_m2, self.q_y_m2, self.q_scale, self.q_heading_rad2])
+        return self.noise(self.q_scale)
 
 
-@dataclass(frozen=True)
-class EverywhereState:
-    tracker: TrackerState
-    x: FloatArray  # [x_m, y_m, scale_correction, heading_rad]
-    P: FloatArray
-    floor: int
-    initialized: bool
-    heading_known: bool
-    last_phone_heading: float  # fused heading of the previous step (NaN before any)
-    rejects: int
-    fp: FloatArray  # (2, 2) fingerprint positions at t-2 and t-1, NaN when unknown
+@dataclass(frozen=True, kw_only=True)
+class EverywhereState(pf.FilterState):
+    """``FilterState`` with ``x = [x_m, y_m, scale_correction, heading_rad]``, and what
+    the aided selection and the anchor calibration need."""
+
+    # fingerprint positions at t-2 and t-1, NaN when unknown
+    fp: FloatArray = field(metadata=shape(2, 2))
     walked_m: float  # PDR distance since the last scan
     straight: bool  # every step since the last scan was straight walking
-    anchor: FloatArray  # (3,) [floor, x, y] of the last anchor passed, NaN when none
+    anchor: FloatArray = field(
+        metadata=shape(3)
+    )  # [floor, x, y] of the last anchor passed (NaN: none)
     anchor_steps: int  # steps since it
     anchor_walked_m: float  # uncorrected PDR distance since it
     anchor_straight: bool  # every step since it was straight walking
-    # the floor filter after its last scan (empty: none yet)
-    floor_logp: FloatArray = field(default_factory=lambda: rf.EMPTY)
-    floor_t_ms: int = 0  # time of that scan
-
-    def to_arrays(self) -> dict[str, np.ndarray]:
-        out = {"trk." + k: v for k, v in self.tracker.to_arrays().items()}
-        out.update(
-            x=self.x,
-            P=self.P,
-            floor=np.array(self.floor),
-            initialized=np.array(self.initialized, dtype=np.int8),
-            heading_known=np.array(self.heading_known, dtype=np.int8),
-            last_phone_heading=np.array(self.last_phone_heading),
-            rejects=np.array(self.rejects),
-            fp=self.fp,
-            walked_m=np.array(self.walked_m),
-            straight=np.array(self.straight, dtype=np.int8),
-            anchor=self.anchor,
-            anchor_steps=np.array(self.anchor_steps),
-            anchor_walked_m=np.array(self.anchor_walked_m),
-            anchor_straight=np.array(self.anchor_straight, dtype=np.int8),
-            floor_logp=self.floor_logp,
-            floor_t_ms=np.array(self.floor_t_ms),
-        )
-        return out
-
-    @classmethod
-    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> EverywhereState:
-        tracker = {k[4:]: v for k, v in arrays.items() if k.startswith("trk.")}
-        x = np.array(arrays["x"], dtype=np.float64)
-        P = np.array(arrays["P"], dtype=np.float64)
-        fp = np.array(arrays["fp"], dtype=np.float64)
-        if x.shape != (4,) or P.shape != (4, 4) or fp.shape != (2, 2):
-            raise ValueError("everywhere_ekf state needs x (4,), P (4, 4) and fp (2, 2)")
-        return cls(
-            tracker=TrackerState.from_arrays(tracker),
-            x=x,
-            P=P,
-            floor=int(arrays["floor"]),
-            initialized=bool(arrays["initialized"]),
-            heading_known=bool(arrays["heading_known"]),
-            last_phone_heading=float(arrays["last_phone_heading"]),
-            rejects=int(arrays["rejects"]),
-            fp=fp,
-            walked_m=float(arrays["walked_m"]),
-            straight=bool(arrays["straight"]),
-            anchor=np.array(arrays["anchor"], dtype=np.float64),
-            anchor_steps=int(arrays["anchor_steps"]),
-            anchor_walked_m=float(arrays["anchor_walked_m"]),
-            anchor_straight=bool(arrays["anchor_straight"]),
-            floor_logp=np.array(arrays.get("floor_logp", rf.EMPTY), dtype=np.float64),
-            floor_t_ms=int(arrays.get("floor_t_ms", 0)),
-        )
 
 
 def initial_state(params: EverywhereParams) -> EverywhereState:
@@ -211,10 +132,6 @@ def initial_state(params: EverywhereParams) -> EverywhereState:
         anchor_walked_m=0.0,
         anchor_straight=False,
     )
-
-
-def _fix(state: EverywhereState, t_ms: int, source: str, diagnostics: dict[str, float]) -> Fix:
-    return rf.state_fix(state, t_ms, source, diagnostics)
 
 
 def step_motion(x: FloatArray, length_m: float, turn_rad: float) -> tuple[FloatArray, FloatArray]:
@@ -238,9 +155,7 @@ def step_motion(x: FloatArray, length_m: float, turn_rad: float) -> tuple[FloatA
 def _on_step(
     state: EverywhereState, step: Step, maps: SiteMaps, params: EverywhereParams
 ) -> tuple[EverywhereState, Fix | None]:
-    turn = rf.turn_between(state.last_phone_heading, step.heading_rad)
-    if math.isfinite(step.heading_rad):
-        state = replace(state, last_phone_heading=step.heading_rad)
+    state, turn = pf.turn_of(state, step)
     state = replace(
         state,
         walked_m=state.walked_m + step.length_m * (1.0 + float(state.x[2])),
@@ -251,21 +166,19 @@ def _on_step(
     )
     if not state.initialized:
         return state, None
-    x, P = state.x, state.P
-    if not state.heading_known and math.isfinite(step.north_rad):
-        x, P = rf.heading_from_north(
-            x, P, maps, state.floor, step.north_rad, params.p0_north_heading_rad2
-        )
-        state = replace(state, heading_known=True)
-        turn = 0.0
     d = step.length_m
-    if not state.heading_known:
-        x, P = rf.turn_in_place(x, P, turn, (1.0 + float(x[2])) * d)
-    else:
-        x_pred, A = step_motion(x, d, turn)
-        x, P = predict_ekf(x_pred, P, A, params.process_noise)
-    new = replace(state, x=x, P=P)
-    return new, _fix(new, step.t_ms, "step", {"step_length_m": float((1.0 + x[2]) * d)})
+    new = pf.predict_step(
+        state,
+        step,
+        turn,
+        maps,
+        params,
+        (1.0 + float(state.x[2])) * d,
+        lambda x, turn_rad: step_motion(x, d, turn_rad),
+        params.process_noise,
+    )
+    x = new.x
+    return new, pf.state_fix(new, step.t_ms, "step", {"step_length_m": float((1.0 + x[2]) * d)})
 
 
 def aiding_penalty(
@@ -299,16 +212,16 @@ def _on_scan(
         state, anchor_fix = _on_anchor(state, event, maps, params)
         if anchor_fix is not None:
             return state, anchor_fix
-    start = rf.begin_scan(maps, event, state, params)
+    start = pf.begin_scan(maps, event, state, params)
     if start is None or maps.radio is None:
         return state, None
     m, diagnostics, rejects = start.matched, start.diagnostics, start.rejects
     whole = m.whole
     state = replace(state, floor=whole.floor, floor_logp=m.floor_logp, floor_t_ms=m.t_ms)
     if start.restart:
-        x, P = rf.place(state.x, state.P, m)
+        x, P = pf.place(state.x, state.P, m)
         new = _remember_fp(replace(state, x=x, P=P, initialized=True, rejects=0), *_xy(whole))
-        return new, _fix(new, m.t_ms, m.kind, diagnostics)
+        return new, pf.state_fix(new, m.t_ms, m.kind, diagnostics)
 
     used = m
     aided = state.straight and state.walked_m > 0.0 and not np.isnan(state.fp).any()
@@ -325,7 +238,7 @@ def _on_scan(
         # outside the innovation gate: the fix is not used (begin_scan counts it)
         return replace(state, rejects=rejects), None
     state = _remember_fp(replace(state, x=u.x, P=u.P, rejects=rejects), *_xy(found))
-    return state, _fix(state, m.t_ms, m.kind, diagnostics)
+    return state, pf.state_fix(state, m.t_ms, m.kind, diagnostics)
 
 
 def _xy(found: WknnFix) -> tuple[float, float]:
@@ -412,42 +325,9 @@ def _on_anchor(
         anchor_walked_m=0.0,
         anchor_straight=True,
     )
-    return new, _fix(new, event.t_ms, "anchor", diagnostics)
+    return new, pf.state_fix(new, event.t_ms, "anchor", diagnostics)
 
 
-def run(
-    state: EverywhereState,
-    events: Sequence[Event],
-    maps: SiteMaps,
-    params: EverywhereParams,
-    rng: np.random.Generator,
-) -> tuple[EverywhereState, list[Fix]]:
-    """Process a batch: raw IMU blocks become steps, then steps and scans in time order.
-
-    Step events sent by the phone are ignored: this engine finds its own steps.
-    """
-    del rng  # deterministic
-    tracker, items = timeline(state.tracker, events, params.tracker)
-    return apply(replace(state, tracker=tracker), items, maps, params)
-
-
-def apply(
-    state: EverywhereState, items: Sequence[Step | Scan], maps: SiteMaps, params: EverywhereParams
-) -> tuple[EverywhereState, list[Fix]]:
-    """Steps and scans, in the order given, through the filter."""
-    return rf.apply_items(
-        state,
-        items,
-        lambda st, step: _on_step(st, step, maps, params),
-        lambda st, scan: _on_scan(st, scan, maps, params),
-    )
-
-
-SPEC = EngineSpec(
-    name="everywhere_ekf",
-    params_type=EverywhereParams,
-    initial_state=initial_state,
-    from_arrays=EverywhereState.from_arrays,
-    run=run,
-    uses=frozenset({"imu", "wifi", "ble"}),
-)
+FUSION = pf.StepFusion(_on_step, _on_scan)
+apply = FUSION.apply
+SPEC = FUSION.spec("everywhere_ekf", EverywhereParams, EverywhereState, initial_state)

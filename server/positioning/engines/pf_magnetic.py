@@ -38,16 +38,21 @@ Randomness only through the ``rng`` the service passes per batch.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from typing import Annotated, Literal
 
 import numpy as np
+from annotated_types import Ge, Lt
 from numpy.typing import NDArray
 
 from server.positioning import floorplan, magnetic, particle
+from server.positioning import particle_cloud as pc
+from server.positioning.engines import dispatch
 from server.positioning.engines import radio_fusion as rf
 from server.positioning.engines.base import EngineSpec, SiteMaps
 from server.positioning.events import BleEvent, Event, Fix, MagEvent, StepEvent, WifiEvent
+from server.positioning.params import AtLeastOne, NonNegative, OpenShare, Positive
 from server.positioning.step_tracker import (
     Scan,
     Step,
@@ -65,53 +70,36 @@ MAG_MAX_AGE_MS = 1000  # a mag event this much older than a step does not belong
 
 @dataclass(frozen=True)
 class PfMagneticParams(rf.RadioParams):
-    particles: particle.ParticleParams = field(default_factory=particle.ParticleParams)
+    particles: pc.ParticleParams = field(default_factory=pc.ParticleParams)
     tracker: TrackerParams = field(default_factory=TrackerParams)
     # or "dtw", the baseline of papers/001_* IV-B; "none" (an ablation) leaves the
     # magnetic field out: particles are weighted only by the walls
-    weighting: str = "mass_centered"
-    reinit_distance_m: float = 20.0
-    reinit_scans: int = 3
+    weighting: Literal["mass_centered", "dtw", "none"] = "mass_centered"
+    reinit_distance_m: Positive = 20.0
+    reinit_scans: AtLeastOne = 3
     # not in Shao et al. (WiFi/BLE only starts the cloud there): every later scan also
     # weighs the particles by a Gaussian around its WKNN fix whose variance is the fix's
     # learned variance (fix_error) times ``radio_var_scale`` (0: no radio weighting), with
     # a share ``radio_outlier`` of the likelihood flat, so that one fix on the wrong side
     # of the building cannot empty the cloud
-    radio_var_scale: float = 1.0
-    radio_outlier: float = 0.05
+    radio_var_scale: NonNegative = 1.0
+    radio_outlier: OpenShare = 0.05
     # a cloud that went astray recovers: at each scan whose floor the filter is sure of
     # (floor_prob >= 0.9), this share of the particles is drawn again around the fix (a
     # Gaussian of its variance, on walkable ground), each at the cloud's mean weight;
     # inner validation, P75 with / without: ILC site2 18.6 / 19.5 m, IPIN 18.1 / 18.5 m
-    recover_share: float = 0.02
+    recover_share: Annotated[float, Ge(0), Lt(1)] = 0.02
     # move the cloud to the floor each scan votes for, keeping the particles' positions
     # (as the EKF engines do), rather than waiting for reinit_scans disagreeing scans: on
     # the inner validation split of ILC site2 the mean error fell from 51.1 m to 33.3 m
     # and the floor hit rate rose from 71.8 % to 80.4 %
     follow_scan_floor: bool = True
 
-    def __post_init__(self) -> None:
-        if self.weighting not in ("mass_centered", "dtw", "none"):
-            raise ValueError(
-                f"weighting must be mass_centered, dtw or none, got {self.weighting!r}"
-            )
-        self.check_radio()
-        if self.reinit_scans < 1:
-            raise ValueError("reinit_scans must be at least 1")
-        if not (math.isfinite(self.radio_var_scale) and self.radio_var_scale >= 0):
-            raise ValueError(f"radio_var_scale must be non-negative, got {self.radio_var_scale}")
-        if not 0 <= self.recover_share < 1:
-            raise ValueError(f"recover_share must be in [0, 1), got {self.recover_share}")
-        if not 0 < self.radio_outlier < 1:
-            raise ValueError(f"radio_outlier must be between 0 and 1, got {self.radio_outlier}")
-        if not (math.isfinite(self.reinit_distance_m) and self.reinit_distance_m > 0):
-            raise ValueError(f"reinit_distance_m must be positive, got {self.reinit_distance_m}")
-
 
 @dataclass(frozen=True)
 class PfMagneticState:
     tracker: TrackerState
-    cloud: particle.Particles | None  # None before the first fix and after the cloud died
+    cloud: pc.Particles | None  # None before the first fix and after the cloud died
     disagree: int  # scans in a row that put the phone far from the estimate
     mag_t_ms: float  # time of the last mag event (NaN: none)
     mag_ut: float  # its field strength
@@ -119,36 +107,6 @@ class PfMagneticState:
     # the floor filter after its last scan (empty: none yet)
     floor_logp: FloatArray = field(default_factory=lambda: rf.EMPTY)
     floor_t_ms: int = 0  # time of that scan
-
-    def to_arrays(self) -> dict[str, np.ndarray]:
-        out = {"trk." + k: v for k, v in self.tracker.to_arrays().items()}
-        if self.cloud is not None:
-            out.update({"pf." + k: v for k, v in self.cloud.to_arrays().items()})
-        out.update(
-            disagree=np.array(self.disagree),
-            mag=np.array([self.mag_t_ms, self.mag_ut, self.heading_rad]),
-            floor_logp=self.floor_logp,
-            floor_t_ms=np.array(self.floor_t_ms),
-        )
-        return out
-
-    @classmethod
-    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> PfMagneticState:
-        def part(prefix: str) -> dict[str, np.ndarray]:
-            return {k[len(prefix) :]: v for k, v in arrays.items() if k.startswith(prefix)}
-
-        cloud = part("pf.")
-        mag = np.asarray(arrays["mag"], dtype=np.float64)
-        return cls(
-            tracker=TrackerState.from_arrays(part("trk.")),
-            cloud=particle.Particles.from_arrays(cloud) if cloud else None,
-            disagree=int(arrays["disagree"]),
-            mag_t_ms=float(mag[0]),
-            mag_ut=float(mag[1]),
-            heading_rad=float(mag[2]),
-            floor_logp=np.array(arrays.get("floor_logp", rf.EMPTY), dtype=np.float64),
-            floor_t_ms=int(arrays.get("floor_t_ms", 0)),
-        )
 
 
 def initial_state(params: PfMagneticParams) -> PfMagneticState:
@@ -173,7 +131,7 @@ def _one_floor(floors: NDArray[np.int16]) -> int | None:
     return None
 
 
-def _valid_move(maps: SiteMaps) -> particle.MoveCheck:
+def _valid_move(maps: SiteMaps) -> pc.MoveCheck:
     def plan_of(f: int) -> floorplan.FloorPlan | None:
         return maps.plans[f] if 0 <= f < len(maps.plans) else None
 
@@ -194,7 +152,7 @@ def _valid_move(maps: SiteMaps) -> particle.MoveCheck:
     return check
 
 
-def _valid_point(maps: SiteMaps) -> particle.PointCheck:
+def _valid_point(maps: SiteMaps) -> pc.PointCheck:
     def check(floors: NDArray[np.int16], xy: FloatArray) -> BoolArray:
         ok: BoolArray = np.asarray(np.isfinite(xy).all(axis=1), dtype=bool)
         for f in np.unique(floors):
@@ -207,7 +165,7 @@ def _valid_point(maps: SiteMaps) -> particle.PointCheck:
     return check
 
 
-def _sample_map(maps: SiteMaps) -> particle.MapSampler:
+def _sample_map(maps: SiteMaps) -> pc.MapSampler:
     grids = maps.magnetic.grids if maps.magnetic is not None else ()
 
     def grid_of(f: int) -> magnetic.MagneticGrid | None:
@@ -233,7 +191,7 @@ def _sample_map(maps: SiteMaps) -> particle.MapSampler:
 
 
 def _fix(
-    cloud: particle.Particles, t_ms: int, heading: float, source: str, diag: dict[str, float]
+    cloud: pc.Particles, t_ms: int, heading: float, source: str, diag: dict[str, float]
 ) -> Fix:
     est = particle.estimate(cloud)
     c = est.cov
@@ -252,14 +210,17 @@ def _fix(
 
 def _on_step(
     state: PfMagneticState,
-    t_ms: int,
-    length_m: float,
-    north_rad: float,
-    magnitude_ut: float,
+    step: Step,
     maps: SiteMaps,
     params: PfMagneticParams,
     rng: np.random.Generator,
 ) -> tuple[PfMagneticState, Fix | None]:
+    t_ms, length_m, north_rad, magnitude_ut = (
+        step.t_ms,
+        step.length_m,
+        step.north_rad,
+        step.magnitude_ut,
+    )
     cloud = state.cloud
     if cloud is None or not math.isfinite(north_rad) or not math.isfinite(length_m):
         return state, None
@@ -330,7 +291,7 @@ def _on_scan(
     return new, _fix(cloud, event.t_ms, state.heading_rad, kind, diag)
 
 
-def _to_floor(cloud: particle.Particles, floor: int, maps: SiteMaps) -> particle.Particles:
+def _to_floor(cloud: pc.Particles, floor: int, maps: SiteMaps) -> pc.Particles:
     """Every particle onto ``floor`` at its position; those not on walkable ground there die."""
     if bool(np.all(cloud.floor == floor)):
         return cloud
@@ -341,8 +302,11 @@ def _to_floor(cloud: particle.Particles, floor: int, maps: SiteMaps) -> particle
 
 
 def _radio_weights(
-    cloud: particle.Particles, m: rf.Matched, params: PfMagneticParams, rng: np.random.Generator
-) -> particle.Particles:
+    cloud: pc.Particles,
+    m: rf.Matched,
+    params: PfMagneticParams,
+    rng: np.random.Generator,
+) -> pc.Particles:
     """Particles weighed by the scan's fix: a Gaussian of the fix's variance (scaled by
     ``radio_var_scale``) mixed with a flat share ``radio_outlier``; a particle on another
     floor than the fix's (the cloud is moved there unless ``follow_scan_floor`` is off)
@@ -363,12 +327,12 @@ def _radio_weights(
 
 
 def _recover(
-    cloud: particle.Particles,
+    cloud: pc.Particles,
     m: rf.Matched,
     share: float,
     maps: SiteMaps,
     rng: np.random.Generator,
-) -> particle.Particles:
+) -> pc.Particles:
     """A share of the particles, picked at random, drawn again around the fix (see
     ``PfMagneticParams.recover_share``); draws off walkable ground keep their particle."""
     n_new = round(share * cloud.n)
@@ -417,47 +381,42 @@ def run(
     """Process a batch: raw IMU blocks become steps; phone steps, mag events and scans
     are taken as they come, all in time order."""
     tracker, items = timeline(state.tracker, events, params.tracker)
-    state = replace(state, tracker=tracker)
     others = [e for e in events if isinstance(e, StepEvent | MagEvent)]
-    merged: list[tuple[int, int, Step | Scan | StepEvent | MagEvent]] = [
-        (item.t_ms, 1 if isinstance(item, Step) else 2, item) for item in items
+    # at equal times: the field first, then the step it belongs to, then the scan
+    timed: list[Step | Scan | StepEvent | MagEvent] = [*items, *others]
+    ordered = dispatch.in_time_order(timed, rank=_rank)
+
+    def on_step(st: PfMagneticState, step: Step) -> tuple[PfMagneticState, Fix | None]:
+        return _on_step(st, step, maps, params, rng)
+
+    routes = [
+        dispatch.on(MagEvent, _on_mag),
+        dispatch.on(StepEvent, lambda st, e: on_step(st, _phone_step(st, e))),
+        dispatch.on(Step, on_step),
+        dispatch.on(WifiEvent, lambda st, e: _on_scan(st, e, maps, params, rng)),
+        dispatch.on(BleEvent, lambda st, e: _on_scan(st, e, maps, params, rng)),
     ]
-    merged += [(e.t_ms, 0 if isinstance(e, MagEvent) else 1, e) for e in others]
-    merged.sort(key=lambda m: (m[0], m[1]))
-    fixes: list[Fix] = []
-    for _, _, item in merged:
-        fix: Fix | None = None
-        if isinstance(item, MagEvent):
-            strength = item.magnitude_ut
-            if strength is None and item.field_ut is not None:
-                strength = math.hypot(*item.field_ut)
-            state = replace(state, mag_t_ms=float(item.t_ms), mag_ut=float(strength or math.nan))
-            continue
-        if isinstance(item, StepEvent):
-            item = _phone_step(state, item)
-        if isinstance(item, Step):
-            state, fix = _on_step(
-                state,
-                item.t_ms,
-                item.length_m,
-                item.north_rad,
-                item.magnitude_ut,
-                maps,
-                params,
-                rng,
-            )
-        elif isinstance(item, WifiEvent | BleEvent):
-            state, fix = _on_scan(state, item, maps, params, rng)
-        if fix is not None:
-            fixes.append(fix)
-    return state, fixes
+    return dispatch.walk(replace(state, tracker=tracker), ordered, routes)
+
+
+def _rank(item: Step | Scan | StepEvent | MagEvent) -> int:
+    if isinstance(item, MagEvent):
+        return 0
+    return 1 if isinstance(item, Step | StepEvent) else 2
+
+
+def _on_mag(state: PfMagneticState, event: MagEvent) -> tuple[PfMagneticState, Fix | None]:
+    strength = event.magnitude_ut
+    if strength is None and event.field_ut is not None:
+        strength = math.hypot(*event.field_ut)
+    return replace(state, mag_t_ms=float(event.t_ms), mag_ut=float(strength or math.nan)), None
 
 
 SPEC = EngineSpec(
     name="pf_magnetic",
     params_type=PfMagneticParams,
+    state_type=PfMagneticState,
     initial_state=initial_state,
-    from_arrays=PfMagneticState.from_arrays,
     run=run,
     uses=frozenset({"imu", "step", "mag", "wifi", "ble"}),
 )

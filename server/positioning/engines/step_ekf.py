@@ -52,17 +52,21 @@ step sets psi to that step's heading (variance ``p0_heading_rad2``) before its p
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
+from server.positioning.engines import dispatch
+from server.positioning.engines import pdr_fusion as pf
 from server.positioning.engines import radio_fusion as rf
 from server.positioning.engines.base import EngineSpec, SiteMaps
 from server.positioning.events import BleEvent, Event, Fix, StepEvent, WifiEvent
 from server.positioning.fingerprint import WknnFix
 from server.positioning.kalman import predict_ekf, update, wrap_angle
+from server.positioning.params import NonNegative, Positive
+from server.positioning.state_codec import shape
 
 FloatArray = NDArray[np.float64]
 
@@ -71,52 +75,27 @@ _H_STEP = np.array([[0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
 
 
 @dataclass(frozen=True)
-class StepEkfParams(rf.RadioParams):
-    """Parameters of the ``step_ekf`` engine (paper defaults where the paper gives one)."""
+class StepEkfParams(pf.KalmanParams):
+    """Parameters of the ``step_ekf`` engine (paper defaults where the paper gives one);
+    the position noise, gate and restart are ``KalmanParams``'s (as in two_stage_ekf:
+    inner validation IPIN P75 14.7 against 16.7 m with 0.1 m² rather than 0.01, ILC site2
+    mean 14.3 against 14.2 m; bench/accuracy.md)."""
 
-    # process noise on x and y per step: 0.1 m² rather than papers/002_* eq 22's 0.01, as
-    # in two_stage_ekf (inner validation: IPIN P75 14.7 against 16.7 m, ILC site2 mean
-    # 14.3 against 14.2 m; bench/accuracy.md)
-    q_x_m2: float = 0.1
-    q_y_m2: float = 0.1
-    q_step_m2: float = 0.0001  # process noise on S per step, papers/002_* eq 22
-    q_heading_rad2: float = 0.01  # process noise on psi per step, papers/002_* eq 22
-    p0_step_m2: float = 0.01  # initial variance of S, papers/002_* eq 20
-    p0_heading_rad2: float = 0.01  # initial variance of a known psi, papers/002_* eq 20
-    p0_heading_unknown_rad2: float = math.pi**2  # initial variance of psi when unknown
-    initial_step_m: float = 0.7  # initial S (papers/002_* eq 19 starts at 0.6 m)
-    r_step_m2: float = 0.01  # variance of the phone's step length (replaces eq 25 R2)
-    r_heading_rad2: float = math.radians(10.0) ** 2  # phone heading variance (replaces eq 25)
-    gate_chi2: float = 13.82  # innovation gate on WiFi/BLE positions: chi2(2 dof), 99.9 %
-    max_rejects: int = 3  # consecutive gated fixes before re-initialising at the fix
-
-    def __post_init__(self) -> None:
-        self.check_radio()
-        if self.max_rejects < 1:
-            raise ValueError(f"max_rejects must be at least 1, got {self.max_rejects}")
-        variances = {
-            "q_x_m2": self.q_x_m2,
-            "q_y_m2": self.q_y_m2,
-            "q_step_m2": self.q_step_m2,
-            "q_heading_rad2": self.q_heading_rad2,
-            "p0_step_m2": self.p0_step_m2,
-            "p0_heading_rad2": self.p0_heading_rad2,
-            "p0_heading_unknown_rad2": self.p0_heading_unknown_rad2,
-            "r_step_m2": self.r_step_m2,
-            "r_heading_rad2": self.r_heading_rad2,
-            "gate_chi2": self.gate_chi2,
-        }
-        for name, value in variances.items():
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be positive and finite, got {value}")
+    q_step_m2: NonNegative = 0.0001  # process noise on S per step, papers/002_* eq 22
+    p0_step_m2: Positive = 0.01  # initial variance of S, papers/002_* eq 20
+    p0_heading_rad2: Positive = 0.01  # initial variance of a known psi, papers/002_* eq 20
+    p0_heading_unknown_rad2: Positive = math.pi**2  # initial variance of psi when unknown
+    initial_step_m: Positive = 0.7  # initial S (papers/002_* eq 19 starts at 0.6 m)
+    r_step_m2: Positive = 0.01  # variance of the phone's step length (replaces eq 25 R2)
+    r_heading_rad2: Positive = math.radians(10.0) ** 2  # phone heading variance (replaces eq 25)
 
     @property
     def process_noise(self) -> FloatArray:
         """Process noise covariance per step, shape (4, 4) (``papers/002_*`` eq 22)."""
-        return np.diag([self.q_x_m2, self.q_y_m2, self.q_step_m2, self.q_heading_rad2])
+        return self.noise(self.q_step_m2)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class StepEkfState:
     """State of one ``step_ekf`` session.
 
@@ -139,8 +118,8 @@ class StepEkfState:
         Consecutive WiFi/BLE positions rejected by the gate.
     """
 
-    x: FloatArray
-    P: FloatArray
+    x: FloatArray = field(metadata=shape(4))
+    P: FloatArray = field(metadata=shape(4, 4))
     floor: int
     initialized: bool
     last_t_ms: int
@@ -149,47 +128,6 @@ class StepEkfState:
     # the floor filter after its last scan (empty: none yet)
     floor_logp: FloatArray = field(default_factory=lambda: rf.EMPTY)
     floor_t_ms: int = 0  # time of that scan
-
-    def to_arrays(self) -> dict[str, np.ndarray]:
-        """Flat numeric arrays (scalars as 0-d arrays); ``from_arrays`` inverts exactly."""
-        return {
-            "x": np.array(self.x, dtype=np.float64),
-            "P": np.array(self.P, dtype=np.float64),
-            "floor": np.array(self.floor, dtype=np.int64),
-            "initialized": np.array(self.initialized, dtype=np.int8),
-            "last_t_ms": np.array(self.last_t_ms, dtype=np.int64),
-            "last_step_heading_rad": np.array(self.last_step_heading_rad, dtype=np.float64),
-            "rejects": np.array(self.rejects, dtype=np.int64),
-            "floor_logp": np.array(self.floor_logp, dtype=np.float64),
-            "floor_t_ms": np.array(self.floor_t_ms, dtype=np.int64),
-        }
-
-    @classmethod
-    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> StepEkfState:
-        """Rebuild a state from ``to_arrays`` output.
-
-        Raises
-        ------
-        KeyError
-            When an array is missing.
-        ValueError
-            When ``x`` or ``P`` has the wrong shape.
-        """
-        x = np.array(arrays["x"], dtype=np.float64)
-        P = np.array(arrays["P"], dtype=np.float64)
-        if x.shape != (4,) or P.shape != (4, 4):
-            raise ValueError(f"step_ekf state needs x (4,) and P (4, 4), got {x.shape}, {P.shape}")
-        return cls(
-            x=x,
-            P=P,
-            floor=int(arrays["floor"]),
-            initialized=bool(arrays["initialized"]),
-            last_t_ms=int(arrays["last_t_ms"]),
-            last_step_heading_rad=float(arrays["last_step_heading_rad"]),
-            rejects=int(arrays["rejects"]),
-            floor_logp=np.array(arrays.get("floor_logp", rf.EMPTY), dtype=np.float64),
-            floor_t_ms=int(arrays.get("floor_t_ms", 0)),
-        )
 
 
 def initial_state(params: StepEkfParams) -> StepEkfState:
@@ -272,17 +210,7 @@ def _on_step(
     else:
         turn = float(wrap_angle(heading - state.last_step_heading_rad))
 
-    step, psi = x[2], x[3] + turn
-    s, c = math.sin(psi), math.cos(psi)
-    F = np.array(
-        [
-            [1.0, 0.0, s, step * c],
-            [0.0, 1.0, c, -step * s],
-            [0.0, 0.0, 1.0, 0.0],
-            [0.0, 0.0, 0.0, 1.0],
-        ]
-    )
-    x_pred = np.array([x[0] + step * s, x[1] + step * c, step, wrap_angle(psi)])
+    x_pred, F = pf.step_motion(x, turn)
     x, P = predict_ekf(x_pred, P, F, params.process_noise)
 
     u = update(
@@ -362,25 +290,19 @@ def run(
         One per step (once initialised) and one per accepted or re-initialising scan.
     """
     del rng  # engines share one signature; this one draws no random numbers
-    fixes: list[Fix] = []
-    for event in sorted(events, key=lambda e: e.t_ms):
-        fix: Fix | None = None
-        if isinstance(event, StepEvent):
-            state, fix = _on_step(state, event, params)
-        elif isinstance(event, WifiEvent):
-            state, fix = _on_scan(state, event, "wifi", maps, params)
-        elif isinstance(event, BleEvent):
-            state, fix = _on_scan(state, event, "ble", maps, params)
-        if fix is not None:
-            fixes.append(fix)
-    return state, fixes
+    routes = [
+        dispatch.on(StepEvent, lambda st, e: _on_step(st, e, params)),
+        dispatch.on(WifiEvent, lambda st, e: _on_scan(st, e, "wifi", maps, params)),
+        dispatch.on(BleEvent, lambda st, e: _on_scan(st, e, "ble", maps, params)),
+    ]
+    return dispatch.walk(state, dispatch.in_time_order(events), routes)
 
 
 SPEC = EngineSpec(
     name="step_ekf",
     params_type=StepEkfParams,
+    state_type=StepEkfState,
     initial_state=initial_state,
-    from_arrays=StepEkfState.from_arrays,
     run=run,
     uses=frozenset({"step", "wifi", "ble"}),
 )

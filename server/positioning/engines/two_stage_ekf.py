@@ -46,26 +46,22 @@ innovation gate are not used; ``max_rejects`` of them in a row restart the filte
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from typing import Annotated
 
 import numpy as np
+from annotated_types import Ge
 from numpy.typing import NDArray
 
 from server.positioning import pdr
+from server.positioning.engines import pdr_fusion as pf
 from server.positioning.engines import radio_fusion as rf
-from server.positioning.engines.base import EngineSpec, SiteMaps
-from server.positioning.events import Event, Fix
+from server.positioning.engines.base import SiteMaps
+from server.positioning.events import Fix
 from server.positioning.fingerprint import wknn
-from server.positioning.kalman import predict_ekf, update, wrap_angle
-from server.positioning.step_tracker import (
-    Scan,
-    Step,
-    TrackerParams,
-    TrackerState,
-    initial_tracker,
-    timeline,
-)
+from server.positioning.kalman import update, wrap_angle
+from server.positioning.params import NonNegative, Positive
+from server.positioning.step_tracker import Scan, Step, TrackerParams, initial_tracker
 
 FloatArray = NDArray[np.float64]
 
@@ -85,101 +81,37 @@ def _cui_tracker() -> TrackerParams:
 
 
 @dataclass(frozen=True)
-class TwoStageParams(rf.RadioParams):
+class TwoStageParams(pf.StepFusionParams):
+    """Parameters of ``two_stage_ekf``; the position noise per step is 0.1 m² rather than
+    papers/002_* eq 22's 0.01, and 3 gated fixes in a row restart rather than 6
+    (``KalmanParams``, chosen on both development venues)."""
+
     tracker: TrackerParams = field(default_factory=_cui_tracker)
-    partition_radius_m: float = 2.5  # papers/002_* section 4.1
-    # position noise per step: 0.1 m² rather than papers/002_* eq 22's 0.01, and 3 gated
-    # fixes in a row before a restart rather than 6; chosen on the inner validation
-    # splits of both ILC site2 and the IPIN logs (bench/accuracy.md, "Choices")
-    q_x_m2: float = 0.1
-    q_y_m2: float = 0.1
-    q_step_m2: float = 0.0001
-    q_heading_rad2: float = 0.01
-    initial_step_m: float = 0.6  # papers/002_* eq 19
-    p0_step_m2: float = 0.01  # papers/002_* eq 20
-    r_step_m2: float = 0.01  # variance of the Weinberg length as a measurement of S
-    r_wifi_heading_rad2: float = math.radians(20.0) ** 2
-    p0_north_heading_rad2: float = math.radians(20.0) ** 2  # psi from the phone's compass
-    heading_fixes: int = 4  # papers/002_* section 4.2
+    partition_radius_m: Positive = 2.5  # papers/002_* section 4.1
+    q_step_m2: NonNegative = 0.0001  # papers/002_* eq 22
+    initial_step_m: Positive = 0.6  # papers/002_* eq 19
+    p0_step_m2: Positive = 0.01  # papers/002_* eq 20
+    r_step_m2: Positive = 0.01  # variance of the Weinberg length as a measurement of S
+    r_wifi_heading_rad2: Positive = math.radians(20.0) ** 2
+    heading_fixes: Annotated[int, Ge(2)] = 4  # papers/002_* section 4.2
     # the WiFi heading only starts a heading the phone does not give; updating a known
     # one with it made the inner validation splits worse on both venues (IPIN P75 16.6
     # against 22.7 m without the updates, ILC site2 16.4 against 16.6 m; bench/accuracy.md)
     wifi_heading_update: bool = False
-    min_heading_span_m: float = 3.0
-    gate_chi2: float = 13.82  # chi2(2 dof), 99.9 %
-    max_rejects: int = 3  # whole-map fixes outside the gate in a row before restarting
-
-    def __post_init__(self) -> None:
-        self.check_radio()
-        if self.max_rejects < 1 or self.heading_fixes < 2:
-            raise ValueError("max_rejects must be >= 1 and heading_fixes >= 2")
-        rf.check_positive(
-            partition_radius_m=self.partition_radius_m,
-            gate_chi2=self.gate_chi2,
-            r_step_m2=self.r_step_m2,
-            r_wifi_heading_rad2=self.r_wifi_heading_rad2,
-            p0_north_heading_rad2=self.p0_north_heading_rad2,
-        )
+    min_heading_span_m: NonNegative = 3.0
 
     @property
     def process_noise(self) -> FloatArray:
-        return np.diag([self.q_x_m2, self.q_y_m2, self.q_step_m2, self.q_heading_rad2])
+        return self.noise(self.q_step_m2)
 
 
-@dataclass(frozen=True)
-class TwoStageState:
-    tracker: TrackerState
-    x: FloatArray  # [x_m, y_m, step_m, heading_rad]
-    P: FloatArray
-    floor: int
-    initialized: bool
-    heading_known: bool
-    last_phone_heading: float  # source heading of the previous step (NaN before any)
-    rejects: int
+@dataclass(frozen=True, kw_only=True)
+class TwoStageState(pf.FilterState):
+    """``FilterState`` with ``x = [x_m, y_m, step_m, heading_rad]``, and what the WiFi
+    heading needs."""
+
     fixes: FloatArray  # (heading_fixes, 3) [t_ms, x, y] of recent WKNN positions, NaN-padded
     turn_t_ms: float  # time of the last step that was not straight walking
-    # the floor filter after its last scan (empty: none yet)
-    floor_logp: FloatArray = field(default_factory=lambda: rf.EMPTY)
-    floor_t_ms: int = 0  # time of that scan
-
-    def to_arrays(self) -> dict[str, np.ndarray]:
-        out = {"trk." + k: v for k, v in self.tracker.to_arrays().items()}
-        out.update(
-            x=self.x,
-            P=self.P,
-            floor=np.array(self.floor),
-            initialized=np.array(self.initialized, dtype=np.int8),
-            heading_known=np.array(self.heading_known, dtype=np.int8),
-            last_phone_heading=np.array(self.last_phone_heading),
-            rejects=np.array(self.rejects),
-            fixes=self.fixes,
-            turn_t_ms=np.array(self.turn_t_ms),
-            floor_logp=self.floor_logp,
-            floor_t_ms=np.array(self.floor_t_ms),
-        )
-        return out
-
-    @classmethod
-    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> TwoStageState:
-        tracker = {k[4:]: v for k, v in arrays.items() if k.startswith("trk.")}
-        x = np.array(arrays["x"], dtype=np.float64)
-        P = np.array(arrays["P"], dtype=np.float64)
-        if x.shape != (4,) or P.shape != (4, 4):
-            raise ValueError("two_stage_ekf state needs x (4,) and P (4, 4)")
-        return cls(
-            tracker=TrackerState.from_arrays(tracker),
-            x=x,
-            P=P,
-            floor=int(arrays["floor"]),
-            initialized=bool(arrays["initialized"]),
-            heading_known=bool(arrays["heading_known"]),
-            last_phone_heading=float(arrays["last_phone_heading"]),
-            rejects=int(arrays["rejects"]),
-            fixes=np.array(arrays["fixes"], dtype=np.float64),
-            turn_t_ms=float(arrays["turn_t_ms"]),
-            floor_logp=np.array(arrays.get("floor_logp", rf.EMPTY), dtype=np.float64),
-            floor_t_ms=int(arrays.get("floor_t_ms", 0)),
-        )
 
 
 def initial_state(params: TwoStageParams) -> TwoStageState:
@@ -197,53 +129,21 @@ def initial_state(params: TwoStageParams) -> TwoStageState:
     )
 
 
-def _fix(state: TwoStageState, t_ms: int, source: str, diagnostics: dict[str, float]) -> Fix:
-    return rf.state_fix(state, t_ms, source, diagnostics)
-
-
-def step_motion(x: FloatArray, turn_rad: float) -> tuple[FloatArray, FloatArray]:
-    """Eq 21 for one step after a turn of ``turn_rad``: the predicted state and the
-    Jacobian of the motion model."""
-    length, psi = x[2], x[3] + turn_rad
-    s, c = math.sin(psi), math.cos(psi)
-    F = np.array(
-        [
-            [1.0, 0.0, s, length * c],
-            [0.0, 1.0, c, -length * s],
-            [0.0, 0.0, 1.0, 0.0],
-            [0.0, 0.0, 0.0, 1.0],
-        ]
-    )
-    x_pred = np.array([x[0] + length * s, x[1] + length * c, length, wrap_angle(psi)])
-    return x_pred, F
-
-
 def _on_step(
     state: TwoStageState, step: Step, maps: SiteMaps, params: TwoStageParams
 ) -> tuple[TwoStageState, Fix | None]:
-    turn = rf.turn_between(state.last_phone_heading, step.heading_rad)
-    if math.isfinite(step.heading_rad):
-        state = replace(state, last_phone_heading=step.heading_rad)
+    state, turn = pf.turn_of(state, step)
     if not step.straight:
         state = replace(state, turn_t_ms=float(step.t_ms))
     if not state.initialized:
         return state, None
-    x, P = state.x, state.P
-    if not state.heading_known and math.isfinite(step.north_rad):
-        # the phone knows north: start psi from it, in the building's frame
-        x, P = rf.heading_from_north(
-            x, P, maps, state.floor, step.north_rad, params.p0_north_heading_rad2
-        )
-        state = replace(state, heading_known=True)
-        turn = 0.0
-    if not state.heading_known:
-        x, P = rf.turn_in_place(x, P, turn, float(x[2]))
-    else:
-        x_pred, F = step_motion(x, turn)
-        x, P = predict_ekf(x_pred, P, F, params.process_noise)
-    u = update(x, P, z=[step.length_m], H=_H_STEP, R=np.array([[params.r_step_m2]]))
+    length = float(state.x[2])
+    state = pf.predict_step(
+        state, step, turn, maps, params, length, pf.step_motion, params.process_noise
+    )
+    u = update(state.x, state.P, z=[step.length_m], H=_H_STEP, R=np.array([[params.r_step_m2]]))
     new = replace(state, x=u.x, P=u.P)
-    return new, _fix(new, step.t_ms, "step", {"step_length_m": float(u.x[2])})
+    return new, pf.state_fix(new, step.t_ms, "step", {"step_length_m": float(u.x[2])})
 
 
 def _partition(maps: SiteMaps, x: FloatArray, radius_m: float) -> NDArray[np.bool_]:
@@ -280,17 +180,17 @@ def _remember(state: TwoStageState, t_ms: int, x_m: float, y_m: float) -> TwoSta
 def _on_scan(
     state: TwoStageState, event: Scan, maps: SiteMaps, params: TwoStageParams
 ) -> tuple[TwoStageState, Fix | None]:
-    start = rf.begin_scan(maps, event, state, params)
+    start = pf.begin_scan(maps, event, state, params)
     if start is None or maps.radio is None:
         return state, None
     m, diagnostics, rejects = start.matched, start.diagnostics, start.rejects
     whole = m.whole
     state = replace(state, floor=whole.floor, floor_logp=m.floor_logp, floor_t_ms=m.t_ms)
     if start.restart:
-        x, P = rf.place(state.x, state.P, m)
+        x, P = pf.place(state.x, state.P, m)
         new = replace(state, x=x, P=P, initialized=True, rejects=0)
         new = _remember(new, m.t_ms, whole.x_m, whole.y_m)
-        return new, _fix(new, m.t_ms, m.kind, diagnostics)
+        return new, pf.state_fix(new, m.t_ms, m.kind, diagnostics)
 
     near = _partition(maps, state.x, params.partition_radius_m)
     near &= maps.radio.rp_floor == whole.floor
@@ -308,7 +208,7 @@ def _on_scan(
     if heading is not None:
         diagnostics["wifi_heading_rad"] = heading
         if not state.heading_known:
-            x, P = rf.set_heading(state.x, state.P, heading, params.r_wifi_heading_rad2)
+            x, P = pf.set_heading(state.x, state.P, heading, params.r_wifi_heading_rad2)
             state = replace(state, x=x, P=P, heading_known=True)
         elif params.wifi_heading_update:
             h = update(
@@ -322,42 +222,9 @@ def _on_scan(
             x = h.x
             x[3] = wrap_angle(x[3])
             state = replace(state, x=x, P=h.P)
-    return state, _fix(state, m.t_ms, m.kind, diagnostics)
+    return state, pf.state_fix(state, m.t_ms, m.kind, diagnostics)
 
 
-def run(
-    state: TwoStageState,
-    events: Sequence[Event],
-    maps: SiteMaps,
-    params: TwoStageParams,
-    rng: np.random.Generator,
-) -> tuple[TwoStageState, list[Fix]]:
-    """Process a batch: raw IMU blocks become steps, then steps and scans in time order.
-
-    Step events sent by the phone are ignored: this engine finds its own steps.
-    """
-    del rng  # deterministic
-    tracker, items = timeline(state.tracker, events, params.tracker)
-    return apply(replace(state, tracker=tracker), items, maps, params)
-
-
-def apply(
-    state: TwoStageState, items: Sequence[Step | Scan], maps: SiteMaps, params: TwoStageParams
-) -> tuple[TwoStageState, list[Fix]]:
-    """Steps and scans, in the order given, through the filter."""
-    return rf.apply_items(
-        state,
-        items,
-        lambda st, step: _on_step(st, step, maps, params),
-        lambda st, scan: _on_scan(st, scan, maps, params),
-    )
-
-
-SPEC = EngineSpec(
-    name="two_stage_ekf",
-    params_type=TwoStageParams,
-    initial_state=initial_state,
-    from_arrays=TwoStageState.from_arrays,
-    run=run,
-    uses=frozenset({"imu", "wifi", "ble"}),
-)
+FUSION = pf.StepFusion(_on_step, _on_scan)
+apply = FUSION.apply
+SPEC = FUSION.spec("two_stage_ekf", TwoStageParams, TwoStageState, initial_state)

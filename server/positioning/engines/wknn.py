@@ -19,12 +19,13 @@ magnetometer events are ignored, so fixes carry no heading.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
+from server.positioning.engines import dispatch
 from server.positioning.engines import radio_fusion as rf
 from server.positioning.engines.base import EngineSpec, SiteMaps
 from server.positioning.events import BleEvent, Event, Fix, WifiEvent
@@ -33,9 +34,6 @@ from server.positioning.events import BleEvent, Event, Fix, WifiEvent
 @dataclass(frozen=True)
 class WknnParams(rf.RadioParams):
     """Parameters of the ``wknn`` engine: those every scan-matching engine shares."""
-
-    def __post_init__(self) -> None:
-        self.check_radio()
 
 
 @dataclass(frozen=True)
@@ -57,33 +55,6 @@ class WknnState:
     last_t_ms: int = 0
     floor_logp: NDArray[np.float64] = field(default_factory=lambda: rf.EMPTY)  # floor filter
     floor_t_ms: int = 0  # time of that scan
-
-    def to_arrays(self) -> dict[str, np.ndarray]:
-        """Flat numeric arrays (0-d int64); ``from_arrays`` inverts exactly."""
-        return {
-            "floor": np.array(self.floor, dtype=np.int64),
-            "n_fixes": np.array(self.n_fixes, dtype=np.int64),
-            "last_t_ms": np.array(self.last_t_ms, dtype=np.int64),
-            "floor_logp": np.array(self.floor_logp, dtype=np.float64),
-            "floor_t_ms": np.array(self.floor_t_ms, dtype=np.int64),
-        }
-
-    @classmethod
-    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> WknnState:
-        """Rebuild a state from ``to_arrays`` output.
-
-        Raises
-        ------
-        KeyError
-            When an array is missing.
-        """
-        return cls(
-            floor=int(arrays["floor"]),
-            n_fixes=int(arrays["n_fixes"]),
-            last_t_ms=int(arrays["last_t_ms"]),
-            floor_logp=np.array(arrays.get("floor_logp", rf.EMPTY), dtype=np.float64),
-            floor_t_ms=int(arrays.get("floor_t_ms", 0)),
-        )
 
 
 def initial_state(params: WknnParams) -> WknnState:
@@ -152,21 +123,19 @@ def run(
         One per WiFi or BLE scan that matched the map, in time order.
     """
     del rng  # engines share one signature; this one draws no random numbers
-    fixes: list[Fix] = []
-    for event in sorted(events, key=lambda e: e.t_ms):
-        if isinstance(event, WifiEvent | BleEvent):
-            state, fix = _locate(event, state, maps, params)
-            if fix is not None:
-                fixes.append(fix)
-    new = state
-    return new, fixes
+
+    def locate(st: WknnState, event: WifiEvent | BleEvent) -> tuple[WknnState, Fix | None]:
+        return _locate(event, st, maps, params)
+
+    routes = [dispatch.on(WifiEvent, locate), dispatch.on(BleEvent, locate)]
+    return dispatch.walk(state, dispatch.in_time_order(events), routes)
 
 
 SPEC = EngineSpec(
     name="wknn",
     params_type=WknnParams,
+    state_type=WknnState,
     initial_state=initial_state,
-    from_arrays=WknnState.from_arrays,
     run=run,
     uses=frozenset({"wifi", "ble"}),
 )

@@ -1,0 +1,174 @@
+"""A session's record in the session store: its immutable meta and its state blob, and
+the digest and wire form of the batch replies it keeps.
+
+Both are named-array containers (``storage.codec``). The state blob holds the engine
+state under ``engine/`` (``state_codec``, layout ``state_codec.LAYOUT``), the last applied
+``seq``, the replies of the last few batches and the last fix. An engine state written
+under another layout is not decoded: :class:`StaleEngineState` says so, and the session
+goes on from a fresh engine state (``services.sessions``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from server.positioning import state_codec
+from server.positioning.engines.base import Engine, SiteMaps
+from server.positioning.events import Event, Fix, ImuEvent
+from server.storage.codec import array_to_str, decode_arrays, encode_arrays, str_to_array
+
+ENGINE_PREFIX = "engine/"
+
+
+class StaleEngineState(ValueError):
+    """An engine state of another layout than this server writes."""
+
+
+@dataclass(frozen=True)
+class SessionMeta:
+    site_id: str
+    engine: str
+    token_digest: str
+    entropy: int
+    contribute: bool = False  # the device offered the walk for map building
+    device_model: str = ""
+    params: bytes = b"{}"  # engine parameter overrides, JSON (services.engine_settings)
+
+    def to_bytes(self) -> bytes:
+        return encode_arrays(
+            {
+                "site_id": str_to_array(self.site_id),
+                "engine": str_to_array(self.engine),
+                "token_digest": str_to_array(self.token_digest),
+                "entropy": np.frombuffer(self.entropy.to_bytes(16, "little"), dtype=np.uint8),
+                "contribute": np.array([self.contribute], dtype=np.bool_),
+                "device_model": str_to_array(self.device_model),
+                "params": np.frombuffer(self.params, dtype=np.uint8),
+            }
+        )
+
+    @classmethod
+    def from_bytes(cls, data: bytes) -> SessionMeta:
+        a = decode_arrays(data)
+        return cls(
+            site_id=array_to_str(a["site_id"]),
+            engine=array_to_str(a["engine"]),
+            token_digest=array_to_str(a["token_digest"]),
+            entropy=int.from_bytes(a["entropy"].tobytes(), "little"),
+            # sessions created before these fields existed
+            contribute=bool(a["contribute"][0]) if "contribute" in a else False,
+            device_model=array_to_str(a["device_model"]) if "device_model" in a else "",
+            params=a["params"].tobytes() if "params" in a else b"{}",
+        )
+
+
+@dataclass(frozen=True)
+class Reply:
+    seq: int
+    digest: bytes
+    body: bytes  # JSON list of fixes as sent on the wire
+
+
+@dataclass(frozen=True)
+class SessionState:
+    last_seq: int  # -1: rebuilt after the store lost it; the next seq is taken as it comes
+    engine_state: object
+    replies: tuple[Reply, ...]
+    last_fix: bytes  # JSON of the newest fix, b"" before the first
+    rebuilt_seq: int = 0  # the first seq applied after a rebuild (0: never rebuilt)
+    touched_ms: int = 0  # wall clock of the last refresh of the SQL row's last_active_at
+
+    def to_bytes(self, engine: Engine) -> bytes:
+        arrays: dict[str, np.ndarray] = {
+            "engine_layout": np.array(state_codec.LAYOUT, dtype=np.int64),
+            "last_seq": np.array(self.last_seq, dtype=np.int64),
+            "rebuilt_seq": np.array(self.rebuilt_seq, dtype=np.int64),
+            "touched_ms": np.array(self.touched_ms, dtype=np.int64),
+            "last_fix": np.frombuffer(self.last_fix, dtype=np.uint8),
+            "replies/seq": np.array([r.seq for r in self.replies], dtype=np.int64),
+            "replies/digest": np.frombuffer(
+                b"".join(r.digest for r in self.replies), dtype=np.uint8
+            ),
+            "replies/offsets": np.cumsum([0] + [len(r.body) for r in self.replies]).astype(
+                np.int64
+            ),
+            "replies/body": np.frombuffer(b"".join(r.body for r in self.replies), dtype=np.uint8),
+        }
+        for name, value in engine.encode(self.engine_state).items():
+            arrays[ENGINE_PREFIX + name] = value
+        return encode_arrays(arrays)
+
+    @classmethod
+    def from_bytes(cls, data: bytes, engine: Engine) -> SessionState:
+        """Raises :class:`StaleEngineState` for an engine state of another layout (the
+        rest of the record is read as ``stale.record``)."""
+        a = decode_arrays(data)
+        offsets = a["replies/offsets"].tolist()
+        body = a["replies/body"].tobytes()
+        digests = a["replies/digest"].tobytes()
+        replies = tuple(
+            Reply(
+                seq=int(seq),
+                digest=digests[32 * i : 32 * (i + 1)],
+                body=body[offsets[i] : offsets[i + 1]],
+            )
+            for i, seq in enumerate(a["replies/seq"].tolist())
+        )
+        engine_arrays = {
+            k[len(ENGINE_PREFIX) :]: v for k, v in a.items() if k.startswith(ENGINE_PREFIX)
+        }
+        layout = int(a["engine_layout"]) if "engine_layout" in a else 1
+        if layout != state_codec.LAYOUT:
+            raise StaleEngineState(f"engine state of layout {layout}, not {state_codec.LAYOUT}")
+        return cls(
+            last_seq=int(a["last_seq"]),
+            engine_state=engine.decode(engine_arrays),
+            replies=replies,
+            last_fix=a["last_fix"].tobytes(),
+            rebuilt_seq=int(a["rebuilt_seq"]) if "rebuilt_seq" in a else 0,
+            touched_ms=int(a["touched_ms"]) if "touched_ms" in a else 0,
+        )
+
+
+def events_digest(events: Sequence[Event]) -> bytes:
+    """A fingerprint of a batch's content, to tell a true retry from a reused ``seq``.
+
+    Sample arrays go in as raw bytes: their ``repr`` elides the middle of long arrays
+    and is slow. A batch without raw samples keeps the digest it always had, so a retry
+    across an upgrade still finds its stored reply.
+    """
+    if not any(isinstance(e, ImuEvent) for e in events):
+        return hashlib.sha256(repr(tuple(events)).encode()).digest()
+    h = hashlib.sha256()
+    for event in events:
+        if isinstance(event, ImuEvent):
+            h.update(repr(("imu", event.t_ms, event.magnetic_calibrated)).encode())
+            for samples in event.sensors().values():
+                h.update(repr(samples.shape).encode())
+                h.update(np.ascontiguousarray(samples, dtype=np.float64).tobytes())
+        else:
+            h.update(repr(event).encode())
+    return h.digest()
+
+
+def fix_to_wire(fix: Fix, maps: SiteMaps, engine: str) -> dict[str, Any]:
+    ref = maps.floors[fix.floor] if 0 <= fix.floor < len(maps.floors) else None
+    return {
+        "t": fix.t_ms,
+        "x_m": fix.x_m,
+        "y_m": fix.y_m,
+        "floor": ref.level if ref else None,
+        "building_id": ref.building_id if ref else None,
+        "floor_id": ref.floor_id if ref else None,
+        "heading_rad": fix.heading_rad,
+        "cov_m2": list(fix.cov),
+        "uncertainty_m": fix.uncertainty_m,
+        "source": fix.source,
+        "engine": engine,
+        "diagnostics": fix.diagnostics,
+    }
