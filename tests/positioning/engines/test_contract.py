@@ -17,7 +17,7 @@ from server.positioning.engines.base import Engine
 from server.positioning.events import Event, Fix, ImuEvent
 from server.positioning.params import ParamError, as_dict
 from server.storage.codec import decode_arrays, encode_arrays
-from tests.positioning.test_pf_magnetic import T0, scan, site_maps, walk
+from tests.positioning.engines.test_pf_magnetic import T0, scan, site_maps, walk
 
 MAPS = site_maps()
 
