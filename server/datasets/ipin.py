@@ -27,8 +27,8 @@ with ``%``. Lines read here (times in seconds):
 =========  =============================================================================
 
 Other types (``LIGH``, ``SOUN``, ``PROX``, ...) are skipped and counted per type. Every
-log becomes the trace model of the ILC reader (``server.datasets.ilc.IlcTrace``), so the
-evaluation and the engines read both datasets alike.
+log becomes a ``server.datasets.walk.Walk``, as an ILC trace does, so the evaluation and
+the engines read both datasets alike.
 
 Time base. AppTimestamp is the app's clock, common to all lines, in seconds since the app
 started; times here are that clock in integer milliseconds. No epoch offset is added: the
@@ -90,8 +90,9 @@ import numpy as np
 import pymap3d
 from numpy.typing import ArrayLike, NDArray
 
-from server.datasets.ilc import IlcFloor, IlcSite, IlcTrace
-from server.datasets.records import keep_strongest, open_text, readings
+from server.datasets.ilc import IlcFloor, IlcSite
+from server.datasets.records import ParseReport, file_id, keep_strongest, open_text, readings
+from server.datasets.walk import Walk
 from server.positioning.events import BLE_WINDOW_MS, BleEvent, WifiEvent, window_ble
 
 VENUE_LEVELS = (-2, -1, 0)
@@ -236,15 +237,18 @@ class IBeaconId:
 
 @dataclass(frozen=True, eq=False)
 class IpinLog:
-    """One GetSensorData log as a trace, with what only IPIN logs carry.
+    """One GetSensorData log as a walk, with what only IPIN logs carry.
 
     Attributes
     ----------
-    trace : IlcTrace
-        The log in the ILC trace model: ``waypoint_*`` from POSI lines in the venue frame
+    trace : Walk
+        The log as a walk: ``waypoint_*`` from POSI lines in the venue frame
         (``waypoint_floor`` their levels; ``floor`` the level of the first as text, ``""``
         without POSI), ``wifi``, ``ble``, the motion streams (``rotation`` from AHRS
-        Quat(2..4)), ``pressure`` and ``gnss`` (hdop NaN); ``site_id`` is None.
+        Quat(2..4)), ``pressure`` and ``gnss`` (hdop NaN).
+    report : ParseReport
+        Lines that could not be read (``bad_lines``) and lines of types not read, per
+        type (``skipped_types``).
     trial, repetition : int or None
         From the file name (``...Trial01_repetition02...``); None when it has neither.
     phone : str
@@ -265,7 +269,8 @@ class IpinLog:
         Sensor streams that kept their app times (see the module docstring).
     """
 
-    trace: IlcTrace
+    trace: Walk
+    report: ParseReport
     trial: int | None
     repetition: int | None
     phone: str
@@ -281,20 +286,13 @@ class IpinLog:
     @property
     def bad_lines(self) -> int:
         """Lines dropped because they could not be read."""
-        return self.trace.bad_lines
+        return self.report.bad_lines
 
 
 def log_name_ids(path: Path) -> tuple[int, int] | None:
     """``(trial, repetition)`` from a log's file name, or None."""
     match = _LOG_NAME.search(path.name)
     return (int(match.group(1)), int(match.group(2))) if match else None
-
-
-def _log_id(path: Path) -> str:
-    name = path.name
-    for suffix in (".xz", ".txt"):
-        name = name.removesuffix(suffix)
-    return name
 
 
 def _finite(*values: float) -> bool:
@@ -439,10 +437,9 @@ class _LogParser:
         times = [waypoint_t, gnss[:, 0], *(a[:, 0] for a in streams.values())]
         times += [np.array([e.t_ms for e in wifi]), np.array([e.t_ms for e in ble_rows])]
         t_all = np.concatenate([np.asarray(t, dtype=np.float64) for t in times])
-        trace = IlcTrace(
-            path_id=_log_id(path),
+        trace = Walk(
+            path_id=file_id(path),
             floor=str(int(waypoint_floor[0])) if waypoint_floor.size else "",
-            site_id=None,
             waypoint_t_ms=waypoint_t,
             waypoint_xy_m=frame.to_local(posi[:, 2], posi[:, 3]),
             wifi=wifi,
@@ -452,10 +449,6 @@ class _LogParser:
             magnetic=streams["magnetic"],
             rotation=streams["rotation"],
             uncalibrated=frozenset(),
-            bad_lines=self.bad_lines,
-            joined_lines=0,
-            stale_wifi_readings=0,
-            skipped_types=MappingProxyType(dict(sorted(self.skipped.items()))),
             t_first_ms=int(t_all.min()) if t_all.size else 0,
             t_last_ms=int(t_all.max()) if t_all.size else 0,
             gnss=gnss,
@@ -464,8 +457,13 @@ class _LogParser:
         )
         ids = log_name_ids(path)
         phone = " ".join(self.header[k] for k in ("Manufacturer", "Model") if k in self.header)
+        report = ParseReport(
+            bad_lines=self.bad_lines,
+            skipped_types=MappingProxyType(dict(sorted(self.skipped.items()))),
+        )
         return IpinLog(
             trace=trace,
+            report=report,
             trial=ids[0] if ids else None,
             repetition=ids[1] if ids else None,
             phone=phone,
@@ -566,7 +564,7 @@ class LogFile:
     @property
     def log_id(self) -> str:
         """File name without ``.txt`` / ``.txt.xz``."""
-        return _log_id(self.path)
+        return file_id(self.path)
 
 
 @dataclass(frozen=True, slots=True)

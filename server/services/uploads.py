@@ -39,7 +39,9 @@ import numpy as np
 from numpy.typing import NDArray
 from sqlalchemy.ext.asyncio import AsyncSession
 
-from server.datasets.ilc import IlcTrace, TraceFormatError, floor_level, parse_trace_text
+from server.datasets.ilc import floor_level
+from server.datasets.ilc_trace import TraceFormatError, parse_trace_text
+from server.datasets.walk import Walk
 from server.positioning.anchors import anchors_from_plan
 from server.positioning.events import WifiEvent
 from server.positioning.fingerprint import MISSING_DBM
@@ -89,7 +91,7 @@ class Contribution:
     report: dict[str, Any] = field(default_factory=dict)
 
 
-def parse_payload(content_type: str, payload: bytes, path_id: str) -> IlcTrace:
+def parse_payload(content_type: str, payload: bytes, path_id: str) -> Walk:
     """The trace an upload carries; :class:`Invalid` naming the line when it cannot be read."""
     if content_type == traces.CONTENT_TYPE:
         try:
@@ -393,7 +395,7 @@ def contribution(
 
 
 def _selected(
-    trace: IlcTrace, times: NDArray[np.float64], report: dict[str, Any], not_used: list[str]
+    trace: Walk, times: NDArray[np.float64], report: dict[str, Any], not_used: list[str]
 ) -> NDArray[np.bool_]:
     """Which sample times fall in spans of steady walking (``papers/003_*`` IV-A,
     ``mapping.selection``); the reasons for the rest go into the report."""
@@ -413,7 +415,7 @@ def _selected(
     return inside
 
 
-def _with_passes(trace: IlcTrace, beacons: Sequence[Beacon], geo: GeoReference | None) -> IlcTrace:
+def _with_passes(trace: Walk, beacons: Sequence[Beacon], geo: GeoReference | None) -> Walk:
     """The trace with its passes by known beacons and anchor APs, and its good satellite
     fixes, added to its waypoints (``papers/003_*`` IV-B and IV-E3: where the smoothed RSS
     of one of them peaks at or above its threshold, the walker was at its place; a fix
@@ -454,7 +456,7 @@ def _with_passes(trace: IlcTrace, beacons: Sequence[Beacon], geo: GeoReference |
     )
 
 
-def _between_fast_anchors(trace: IlcTrace, times: NDArray[np.float64]) -> NDArray[np.bool_]:
+def _between_fast_anchors(trace: Walk, times: NDArray[np.float64]) -> NDArray[np.bool_]:
     """Which ``times`` fall between two consecutive anchors that a walker could not go
     between at ``MAX_WALK_MPS`` (a wrong anchor, or one from another building)."""
     t = trace.waypoint_t_ms.astype(np.float64)
@@ -466,7 +468,7 @@ def _between_fast_anchors(trace: IlcTrace, times: NDArray[np.float64]) -> NDArra
 
 
 def _place(
-    trace: IlcTrace, times: NDArray[np.float64], report: dict[str, Any]
+    trace: Walk, times: NDArray[np.float64], report: dict[str, Any]
 ) -> tuple[NDArray[np.float64], NDArray[np.bool_], list[str]]:
     """Positions of samples at ``times``: by the walker's steps between the anchors
     (``mapping.placement``), or at constant speed between them when the trace has no

@@ -1,7 +1,8 @@
 """Where the recorded datasets live: ``../shared/data/`` next to the project root.
 
 The data is not part of the repository; a test that needs a dataset folder that is not
-there is skipped with the path it looked for.
+there is skipped with the path it looked for. ``raw_trace`` is the ILC sample trace the
+reader and walk tests share.
 """
 
 from __future__ import annotations
@@ -10,7 +11,10 @@ from pathlib import Path
 
 import pytest
 
+from server.datasets.ilc_trace import IlcWalk, read_trace
+
 DATA_DIR = Path(__file__).resolve().parents[2].parent / "shared" / "data"
+SAMPLE_ID = "5dd5206850e04e0006f56460"  # ILC site2/F4, also uncompressed in sample_raw/
 
 
 def dataset_dir(name: str) -> Path:
@@ -39,3 +43,18 @@ def longterm_dir() -> Path:
 @pytest.fixture(scope="session")
 def ipin_dir() -> Path:
     return dataset_dir("ipin2023-track3-dev")
+
+
+@pytest.fixture(scope="module")
+def raw_path(ilc_dir: Path) -> Path:
+    return ilc_dir / "sample_raw" / f"{SAMPLE_ID}.txt"
+
+
+@pytest.fixture(scope="module")
+def raw_lines(raw_path: Path) -> list[str]:
+    return raw_path.read_text(encoding="utf-8").splitlines()
+
+
+@pytest.fixture(scope="module")
+def raw_trace(raw_path: Path) -> IlcWalk:
+    return read_trace(raw_path)

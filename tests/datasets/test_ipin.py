@@ -76,9 +76,10 @@ def test_counts_match_the_file(lines: list[list[str]], log: IpinLog) -> None:
     gnss = [tuple(f[2:5]) for f in rows(lines, "GNSS")]
     assert trace.gnss.shape == (len(set(gnss)), 5) == (count["GNSS"] - log.gnss_repeats, 5)
     assert np.isnan(trace.gnss[:, 4]).all()
-    assert dict(trace.skipped_types) == {"LIGH": count["LIGH"], "SOUN": count["SOUN"]}
-    assert trace.bad_lines == 0
-    assert dict(log.line_counts) == {k: v for k, v in count.items() if k not in trace.skipped_types}
+    assert dict(log.report.skipped_types) == {"LIGH": count["LIGH"], "SOUN": count["SOUN"]}
+    assert log.report.bad_lines == 0
+    skipped = log.report.skipped_types
+    assert dict(log.line_counts) == {k: v for k, v in count.items() if k not in skipped}
 
 
 def test_ble_rows_keyed_by_mac(lines: list[list[str]], log_path: Path, venue: IpinVenue) -> None:
@@ -237,7 +238,7 @@ def _check_good(log: IpinLog) -> None:
     assert log.gnss_repeats == 1
     assert trace.waypoint_t_ms.tolist() == [3000, 9000]
     assert trace.waypoint_floor.tolist() == [0, -1]
-    assert dict(trace.skipped_types) == {"LIGH": 1}
+    assert dict(log.report.skipped_types) == {"LIGH": 1}
     assert (log.trial, log.repetition) == (None, None)
 
 

@@ -35,7 +35,7 @@ def test_a_walk_is_placed_by_its_steps_and_inertial_selection_thins_it() -> None
 def test_a_pass_by_an_anchor_ap_becomes_one_more_anchor() -> None:
     """IV-E3: where the walk's RSS of an anchor AP peaks at or above its P0, the walker was
     at the AP; that pass joins the waypoints as an anchor."""
-    from server.datasets.ilc import parse_trace_text
+    from server.datasets.ilc_trace import parse_trace_text
     from server.positioning.mapping.labelled import interpolate_track
     from server.services.uploads import AnchorContext, Beacon
 
