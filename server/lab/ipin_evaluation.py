@@ -30,7 +30,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from server.datasets.ipin import IpinLog, IpinVenue, read_log, read_venue
+from server.datasets.ipin import IpinVenue, read_venue
+from server.datasets.ipin_log import IpinLog, read_log
 from server.datasets.walk import Walk
 from server.lab.evaluation import (
     LabelledField,
