@@ -45,9 +45,9 @@ from server.services.device_offsets import on_common_level
 from server.services.errors import Conflict, Forbidden, Invalid
 from server.services.maps import site_maps
 from server.services.runtime import Runtime
-from server.storage import repositories as repo
 from server.storage.codec import array_to_str, decode_arrays, encode_arrays, str_to_array
 from server.storage.models import SessionRecord, utcnow
+from server.storage.repositories import sessions as repo
 from server.storage.session_store import SessionExists, StoredSession
 
 logger = logging.getLogger(__name__)

@@ -22,8 +22,9 @@ from server.positioning.floorplan import plan_extent
 from server.positioning.mapping.anchors import GeoReference
 from server.positioning.mapping.wifi_anchors import anchor_nodes
 from server.services.maps import stored_radio_map
-from server.storage import repositories as repo
 from server.storage.models import Upload
+from server.storage.repositories import maps as map_repo
+from server.storage.repositories import sites as site_repo
 
 
 @dataclass(frozen=True)
@@ -57,7 +58,7 @@ async def upload_building_id(s: AsyncSession, upload: Upload) -> str | None:
     when the site has several, or none)."""
     if upload.building_id is not None:
         return upload.building_id
-    buildings = await repo.list_buildings(s, upload.site_id)
+    buildings = await site_repo.list_buildings(s, upload.site_id)
     return buildings[0].id if len(buildings) == 1 else None
 
 
@@ -67,7 +68,7 @@ async def anchor_context(s: AsyncSession, upload: Upload) -> AnchorContext:
     geo-reference; nothing when the site has several buildings and the upload names
     none."""
     building_id = await upload_building_id(s, upload)
-    building = await repo.get_building(s, building_id) if building_id else None
+    building = await site_repo.get_building(s, building_id) if building_id else None
     if building is None:
         return AnchorContext()
     geo = None
@@ -75,19 +76,19 @@ async def anchor_context(s: AsyncSession, upload: Upload) -> AnchorContext:
         geo = GeoReference(building.origin_lat, building.origin_lon, building.rotation_rad)
     extents = {
         f.level: extent
-        for f in await repo.list_floors(s, building.id)
+        for f in await site_repo.list_floors(s, building.id)
         if (extent := plan_extent(f.plan_geojson)) is not None
     }
     return AnchorContext(await _beacons(s, building.id), geo, extents)
 
 
 async def _beacons(s: AsyncSession, building_id: str) -> list[Beacon]:
-    floors = await repo.list_floors(s, building_id)
+    floors = await site_repo.list_floors(s, building_id)
     found = []
     for floor in floors:
         for a in anchors_from_plan(floor.plan_geojson, 0):
             found.append(Beacon(a.emitter.split(":", 1)[1], (a.x_m, a.y_m), floor.level))
-    current = await repo.latest_radio_map(s, building_id)
+    current = await map_repo.latest_radio_map(s, building_id)
     if current is not None:
         found += await _wifi_anchors(s, building_id, current.id, {f.id: f.level for f in floors})
     return found
@@ -108,7 +109,7 @@ async def _wifi_anchors(
         cached[1] == map_id or time.monotonic() - cached[0] < WIFI_ANCHOR_REFRESH_S
     ):
         return cached[2]
-    stored = await repo.load_radio_map(s, map_id, MISSING_DBM)
+    stored = await map_repo.load_radio_map(s, map_id, MISSING_DBM)
     order = sorted(levels)
     radio = stored_radio_map(stored, {f: i for i, f in enumerate(order)})
     nodes = await anyio.to_thread.run_sync(anchor_nodes, radio)

@@ -35,8 +35,9 @@ from server.services.maps import add_survey
 from server.services.upload_anchors import upload_building_id
 from server.services.upload_contribution import Contribution
 from server.services.upload_payloads import parse_payload
-from server.storage import repositories as repo
 from server.storage.models import Floor, Upload
+from server.storage.repositories import sites as site_repo
+from server.storage.repositories import uploads as upload_repo
 
 QUEUED, PROCESSING, DONE, REJECTED, FAILED = "queued", "processing", "done", "rejected", "failed"
 SETTLED = frozenset({DONE, REJECTED, FAILED})
@@ -58,7 +59,7 @@ async def create_upload(s: AsyncSession, new: NewUpload) -> tuple[Upload, bool]:
     """Validate and store an upload as ``queued``; with a known idempotency key, the upload
     stored under it (``False``: nothing new was created)."""
     if new.idempotency_key is not None:
-        existing = await repo.find_upload_by_key(s, new.idempotency_key)
+        existing = await upload_repo.find_upload_by_key(s, new.idempotency_key)
         if existing is not None:
             if existing.payload != new.payload or existing.site_id != new.site_id:
                 raise Conflict(
@@ -66,17 +67,17 @@ async def create_upload(s: AsyncSession, new: NewUpload) -> tuple[Upload, bool]:
                     field="idempotency-key",
                 )
             return existing, False
-    if await repo.get_site(s, new.site_id) is None:
+    if await site_repo.get_site(s, new.site_id) is None:
         raise NotFound(f"site {new.site_id} not found", field="site_id")
     if new.building_id is not None:
-        building = await repo.get_building(s, new.building_id)
+        building = await site_repo.get_building(s, new.building_id)
         if building is None or building.site_id != new.site_id:
             raise NotFound(
                 f"building {new.building_id} not found in this site", field="building_id"
             )
     # reading a long trace takes seconds: off the event loop
     await anyio.to_thread.run_sync(parse_payload, new.content_type, new.payload, "upload")
-    row = await repo.create_upload(
+    row = await upload_repo.create_upload(
         s,
         site_id=new.site_id,
         building_id=new.building_id,
@@ -91,7 +92,7 @@ async def create_upload(s: AsyncSession, new: NewUpload) -> tuple[Upload, bool]:
 
 
 async def get_upload(s: AsyncSession, upload_id: str) -> Upload:
-    row = await repo.get_upload(s, upload_id)
+    row = await upload_repo.get_upload(s, upload_id)
     if row is None:
         raise NotFound(f"upload {upload_id} not found", field="upload_id")
     return row
@@ -102,13 +103,13 @@ async def stranded_ids(s: AsyncSession, idle_s: float) -> list[str]:
     queue entry may be gone (a restarted in-process queue, a Redis that lost its data), so
     the worker queues them again. A duplicate entry is harmless (see the module docstring)."""
     since = datetime.now(UTC) - timedelta(seconds=idle_s)
-    return await repo.upload_ids(s, [QUEUED, PROCESSING], since)
+    return await upload_repo.upload_ids(s, [QUEUED, PROCESSING], since)
 
 
 async def begin_attempt(s: AsyncSession, upload_id: str) -> Upload | None:
     """Count an attempt and mark the upload ``processing``; None when there is nothing to
     do (unknown, already settled, or out of attempts: then it is settled ``failed``)."""
-    row = await repo.lock_upload(s, upload_id)
+    row = await upload_repo.lock_upload(s, upload_id)
     if row is None or row.status in SETTLED:
         return None
     if row.attempts >= MAX_ATTEMPTS:
@@ -122,7 +123,7 @@ async def begin_attempt(s: AsyncSession, upload_id: str) -> Upload | None:
 async def record_failure(s: AsyncSession, upload_id: str, error: str) -> bool:
     """After an attempt raised: settle ``failed`` when it was the last one (True), else
     leave it for the next delivery."""
-    row = await repo.lock_upload(s, upload_id)
+    row = await upload_repo.lock_upload(s, upload_id)
     if row is None or row.status in SETTLED:
         return True
     row.report = {**(row.report or {}), "last_error": error}
@@ -144,7 +145,7 @@ def _settle_failed(row: Upload, error: str) -> None:
 async def settle(s: AsyncSession, upload_id: str, result: Contribution) -> bool:
     """Fold a contribution into the maps and mark the upload ``done`` (or ``rejected``) in
     the caller's transaction; False when the upload was settled meanwhile (nothing done)."""
-    row = await repo.lock_upload(s, upload_id)
+    row = await upload_repo.lock_upload(s, upload_id)
     if row is None or row.status in SETTLED:
         return False
     report = {**(row.report or {}), **result.report}
@@ -158,7 +159,7 @@ async def settle(s: AsyncSession, upload_id: str, result: Contribution) -> bool:
         return True
     building_id = target.building_id
     if result.magnetic is not None:  # first: it may refuse the walk before anything is written
-        await repo.lock_building(s, building_id)
+        await site_repo.lock_building(s, building_id)
         try:
             version = await fold_sources(s, target.id, [result.magnetic], source="upload")
         except Invalid as exc:
@@ -180,7 +181,7 @@ async def _target_floor(s: AsyncSession, row: Upload, result: Contribution) -> F
     if building_id is None:
         return "the site has several buildings (or none): give building_id"
     level = result.floor_level if result.floor_level is not None else 0
-    floor = await repo.find_floor(s, building_id, level)
+    floor = await site_repo.find_floor(s, building_id, level)
     if floor is None:
         return f"floor level {level} does not exist in the building"
     return floor
