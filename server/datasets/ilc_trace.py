@@ -99,17 +99,16 @@ _STREAMS = ("accel", "gyro", "magnetic", "rotation")
 
 @dataclass(frozen=True, eq=False, kw_only=True)
 class IlcWalk(Walk):
-    """One path file as read: the walk it records, with what only the file says.
+    """One path file as read: the walk it records, its header's site and the reader's report.
 
-    The readings are those of ``Walk``: readings keyed by lower-case BSSID (WiFi) and by
-    the beacon's MAC in lower case (``"<uuid>:<major>:<minor>"`` when a row has no MAC);
-    a motion stream with no calibrated record comes from the uncalibrated one with its
-    bias estimate subtracted (what Android's calibrated value is) and is named in
-    ``uncalibrated``. On site2 the two are logged at the same times; the magnetometer
-    stand-in is nearly always the calibrated value, the accelerometer and gyroscope ones
-    often hold a neighbouring sample (correlation 0.8-0.99 with the calibrated stream):
-    close, not identical. ILC files carry no satellite fixes, barometer or per-waypoint
-    floors.
+    WiFi readings are keyed by lower-case BSSID, BLE ones by the beacon's MAC in lower case
+    (``"<uuid>:<major>:<minor>"`` when a row has no MAC). A motion stream with no
+    calibrated record comes from the uncalibrated one with its bias estimate subtracted
+    (what Android's calibrated value is) and is named in ``uncalibrated``. On site2 the
+    two are logged at the same times; the magnetometer stand-in is nearly always the
+    calibrated value, the accelerometer and gyroscope ones often hold a neighbouring sample
+    (correlation 0.8-0.99 with the calibrated stream): close, not identical. ILC files
+    carry no satellite fixes, barometer or per-waypoint floors.
 
     Attributes
     ----------
