@@ -20,7 +20,7 @@ from functools import partial
 
 import anyio
 
-from server.services import uploads
+from server.services import upload_anchors, upload_contribution, uploads
 from server.services.runtime import Runtime
 from server.storage.upload_queue import Delivery, MemoryUploadQueue
 
@@ -53,10 +53,10 @@ async def handle(rt: Runtime, delivery: Delivery) -> None:
         return
     try:
         async with rt.transaction() as s:  # after the attempt is counted: its failures count
-            context = await uploads.anchor_context(s, upload)
+            context = await upload_anchors.anchor_context(s, upload)
         result = await anyio.to_thread.run_sync(
             partial(
-                uploads.contribution,
+                upload_contribution.contribution,
                 upload,
                 context,
                 inertial_selection=rt.settings.upload_inertial_selection,

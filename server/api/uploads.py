@@ -25,6 +25,7 @@ from server.api.convert import to_events
 from server.api.deps import IdPath, MapsWriter, RuntimeDep, SqlDep, Viewer, client_address
 from server.services import limits, traces, uploads
 from server.services.errors import Invalid, TooLarge
+from server.services.upload_payloads import ILC_TEXT
 
 router = APIRouter(prefix="/v1", tags=["uploads"])
 log = logging.getLogger("indoorpos.api.uploads")
@@ -117,7 +118,7 @@ async def create_upload(
     payload = await _body(request, limit)
     if media in XZ_TYPES or (content_encoding or "").strip().lower() == "xz":
         payload = await anyio.to_thread.run_sync(_decompress, payload, limit)
-        media = uploads.ILC_TEXT if media in XZ_TYPES else media
+        media = ILC_TEXT if media in XZ_TYPES else media
     if media == "application/json":
         payload = await anyio.to_thread.run_sync(_events_trace, payload)
         media = traces.CONTENT_TYPE

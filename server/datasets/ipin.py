@@ -1,4 +1,4 @@
-"""IPIN 2023 Track 3 (smartphone, off-site) GetSensorData logs and their venue.
+"""The IPIN 2023 Track 3 (smartphone, off-site) venue: its logs, beacons and landmarks.
 
 Layout of a venue (as under ``../shared/data/ipin2023-track3-dev/``; data: Torres-Sospedra
 et al., Zenodo 2023, doi:10.5281/zenodo.8362205)::
@@ -7,552 +7,35 @@ et al., Zenodo 2023, doi:10.5281/zenodo.8362205)::
     <venue>/BLE_Locations.csv     bleID, Lat, Lon, floor: the installed iBeacons
     <venue>/references.csv        pointID, Lat, Lon: landmarks of the venue
 
-A log is ``;``-separated text, one reading per line, the type first; header lines start
-with ``%``. Lines read here (times in seconds):
-
-=========  =============================================================================
-``ACCE``   AppTimestamp; SensorTimestamp; x; y; z (m/s², gravity included); accuracy
-``GYRO``   AppTimestamp; SensorTimestamp; x; y; z (rad/s); accuracy
-``MAGN``   AppTimestamp; SensorTimestamp; x; y; z (µT); accuracy
-``AHRS``   AppTimestamp; SensorTimestamp; pitch; roll; yaw (deg); Quat(2); Quat(3);
-           Quat(4); accuracy. Quat(2..4) are the x, y, z of Android's rotation vector
-           (``getQuaternionFromVector``: they reproduce the logged angles)
-``PRES``   AppTimestamp; SensorTimestamp; pressure (mbar = hPa); accuracy
-``WIFI``   AppTimestamp; SensorTimestamp; SSID; BSSID; frequency (MHz); RSS (dBm)
-``BLE4``   AppTimestamp; ``iBeacon``; MAC; RSS (dBm); power; major; minor; UUID (or
-           ``Eddystone``; MAC; RSS; ...)
-``GNSS``   AppTimestamp; fix time (Unix s); lat; lon (deg); altitude; bearing;
-           accuracy (m); speed; satellites in view; in use
-``POSI``   AppTimestamp; counter; lat; lon (deg); floor (level); building: ground truth
-=========  =============================================================================
-
-Other types (``LIGH``, ``SOUN``, ``PROX``, ...) are skipped and counted per type. Every
-log becomes the trace model of the ILC reader (``server.datasets.ilc.IlcTrace``), so the
-evaluation and the engines read both datasets alike.
-
-Time base. AppTimestamp is the app's clock, common to all lines, in seconds since the app
-started; times here are that clock in integer milliseconds. No epoch offset is added: the
-header's "Date of creation" is the phone's wall clock at one-second resolution, and that
-clock is off (the first GNSS fix's own time minus creation time minus its AppTimestamp is
-+19 s on every SM-A520F log but one, -221 s on every SM-G930F log). AppTimestamp is when
-the app read a sample, at 0.1 ms resolution: at 100 Hz two gyroscope samples can share a
-millisecond (22 of 23,048 in Trial01 repetition01). The motion streams (ACCE, GYRO, MAGN,
-AHRS) and PRES therefore take their SensorTimestamp (the phone's sensor clock, strictly
-increasing, the header's advice for integrating inertial data) moved onto the app clock
-by the stream's median of ``AppTimestamp - SensorTimestamp``; on the 24 dev logs that
-offset drifts by at most 2.3 ms over a log for motion samples (44 ms for PRES), and a
-moved time is at most 132 ms from its AppTimestamp (app read latency). The first samples
-of a log can thus be some ms before 0 (down to -37 ms). A stream whose moved times are not strictly
-increasing or lie more than ``SENSOR_CLOCK_TOLERANCE_MS`` from its app times keeps its
-app times (``IpinLog.app_clock_streams`` names it; none of the dev logs has one).
-
-WiFi scans: the rows of one scan are consecutive and share their AppTimestamp (their
-SensorTimestamps differ by at most 3 ms on the dev logs; none is a cached older result),
-so one ``WifiEvent`` per AppTimestamp, readings keyed by lower-case BSSID; a BSSID listed
-twice in a scan keeps its strongest reading. BLE: one row per advertisement, keyed by the
-lower-case MAC (the beacon's identity; the iBeacon UUID, major and minor are kept in
-``IpinLog.beacons``); rows are grouped into scans as the ILC reader does
-(``events.window_ble``, ``ble_window_ms``), or one event per row time with
-``ble_window_ms=None``. GNSS: nearly every fix is logged twice (same fix time and values, a
-few ms apart); the repeat is dropped.
-
-Positions: latitude/longitude go to the venue's local frame (x east, y north, metres), the
-East-North plane tangent to the WGS-84 ellipsoid at the venue origin
-(``pymap3d.geodetic2enu``, height 0: at 350 m above the ellipsoid the scale differs by
-5e-5, 6 mm over the venue). The origin is the south-west corner of the bounding box of
-``references.csv`` (``venue_frame``), so every log of a venue shares one frame and the
-walked area has positive coordinates (all 34 POSI landmarks of the dev logs lie inside
-that box). A floor's extent is the box of the landmarks and beacons with a margin of
-``VENUE_MARGIN_M``.
+A venue is listed here, its logs are not read: ``ipin_log.read_log`` reads one, in the
+venue's frame (``ipin_frame.venue_frame``). A floor's extent is the box of the landmarks
+and beacons with a margin of ``VENUE_MARGIN_M``.
 
 Beacons: ``BLE_Locations.csv`` names beacons ``BLE1`` ... ``BLE6``; the logs name them by
 MAC (``BE:AC:20:23:00:01`` ... ``:06``, minor 1 ... 6), and the numbers do not match by
 place (on the dev logs the 20 strongest readings of ``:02`` centre 3 m from BLE3, those
 of ``:03`` 1 m from BLE2), so no beacon of the file is tied to a MAC here.
-
-The reader never fails on the content of a log: a line with the wrong number of fields,
-a value that is not a finite number or a type that is not four capitals is dropped and
-counted in ``bad_lines``; an ``.xz`` file that ends early keeps what was read and counts
-one more bad line.
 """
 
 from __future__ import annotations
 
-import csv
-import math
-import re
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from types import MappingProxyType
 
 import numpy as np
-import pymap3d
-from numpy.typing import ArrayLike, NDArray
 
-from server.datasets.ilc import IlcFloor, IlcSite, IlcTrace
-from server.datasets.records import keep_strongest, open_text, readings
-from server.positioning.events import BLE_WINDOW_MS, BleEvent, WifiEvent, window_ble
+from server.datasets.ilc import IlcFloor, IlcSite
+from server.datasets.ipin_frame import LocalFrame, read_csv, references, venue_frame
+from server.datasets.ipin_log import log_name_ids
+from server.datasets.records import file_id
 
 VENUE_LEVELS = (-2, -1, 0)
 """Floors of the IPIN 2023 venue (Museum Industriekultur, Nuremberg): 0, -1 and -2."""
 
 VENUE_MARGIN_M = 5.0
 """Margin around the landmarks and beacons that makes a floor's extent."""
-
-SENSOR_CLOCK_TOLERANCE_MS = 500
-"""Largest gap between a sample's SensorTimestamp moved onto the app clock and its
-AppTimestamp for a stream to keep sensor times (the dev logs: at most 132 ms)."""
-
-_LOG_NAME = re.compile(r"Trial(\d+)_repetition(\d+)", re.IGNORECASE)
-_TYPE = re.compile(r"^[A-Z0-9]{4}$")
-
-# fields per line, the type included
-_N_FIELDS_MOTION = 7
-_N_FIELDS_AHRS = 10
-_N_FIELDS_PRES = 5
-_N_FIELDS_WIFI = 7
-_N_FIELDS_IBEACON = 9
-_N_FIELDS_EDDYSTONE_MIN = 5
-_N_FIELDS_GNSS = 11
-_N_FIELDS_POSI = 7
-
-_SENSOR_STREAMS = {"ACCE": "accel", "GYRO": "gyro", "MAGN": "magnetic", "AHRS": "rotation"}
-_STREAMS = ("accel", "gyro", "magnetic", "rotation", "pressure")
-
-
-# ---------------------------------------------------------------------------- the frame
-
-
-@dataclass(frozen=True)
-class LocalFrame:
-    """A local East-North frame tangent to the WGS-84 ellipsoid at an origin.
-
-    Attributes
-    ----------
-    origin_lat_deg, origin_lon_deg : float
-        Geodetic origin (degrees).
-    origin_h_m : float
-        Ellipsoidal height of the origin; points are taken at this height too.
-    """
-
-    origin_lat_deg: float
-    origin_lon_deg: float
-    origin_h_m: float = 0.0
-
-    def __post_init__(self) -> None:
-        if not (math.isfinite(self.origin_lat_deg) and -90.0 < self.origin_lat_deg < 90.0):
-            raise ValueError(f"origin_lat_deg must be in (-90, 90), got {self.origin_lat_deg}")
-        if not (math.isfinite(self.origin_lon_deg) and -180.0 <= self.origin_lon_deg <= 180.0):
-            raise ValueError(f"origin_lon_deg must be in [-180, 180], got {self.origin_lon_deg}")
-
-    def to_local(self, lat_deg: ArrayLike, lon_deg: ArrayLike) -> NDArray[np.float64]:
-        """WGS-84 latitude/longitude to local metres.
-
-        Parameters
-        ----------
-        lat_deg, lon_deg : array_like, shape (n,)
-
-        Returns
-        -------
-        ndarray, shape (n, 2), float64
-            ``(x east, y north)`` in metres.
-        """
-        lat = np.asarray(lat_deg, dtype=np.float64).reshape(-1)
-        lon = np.asarray(lon_deg, dtype=np.float64).reshape(-1)
-        if lat.shape != lon.shape:
-            raise ValueError(f"lon_deg must have shape {lat.shape}, got {lon.shape}")
-        if lat.size == 0:
-            return np.empty((0, 2))
-        east, north, _ = pymap3d.geodetic2enu(
-            lat, lon, self.origin_h_m, self.origin_lat_deg, self.origin_lon_deg, self.origin_h_m
-        )
-        return np.column_stack([np.asarray(east, np.float64), np.asarray(north, np.float64)])
-
-    def to_geodetic(self, xy_m: ArrayLike) -> NDArray[np.float64]:
-        """Local metres back to WGS-84 (the inverse of ``to_local``).
-
-        Parameters
-        ----------
-        xy_m : array_like, shape (n, 2)
-
-        Returns
-        -------
-        ndarray, shape (n, 2), float64
-            ``(lat_deg, lon_deg)``.
-        """
-        xy = np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
-        if xy.shape[0] == 0:
-            return np.empty((0, 2))
-        lat, lon, _ = pymap3d.enu2geodetic(
-            xy[:, 0],
-            xy[:, 1],
-            np.zeros(xy.shape[0]),
-            self.origin_lat_deg,
-            self.origin_lon_deg,
-            self.origin_h_m,
-        )
-        return np.column_stack([np.asarray(lat, np.float64), np.asarray(lon, np.float64)])
-
-
-def _read_csv(path: Path) -> list[dict[str, str]]:
-    with path.open(encoding="utf-8", newline="") as f:
-        return [{k.strip(): (v or "").strip() for k, v in row.items()} for row in csv.DictReader(f)]
-
-
-def _references(venue_dir: Path) -> dict[str, tuple[float, float]]:
-    rows = _read_csv(venue_dir / "references.csv")
-    return {r["pointID"]: (float(r["Lat"]), float(r["Lon"])) for r in rows}
-
-
-def venue_frame(venue_dir: Path) -> LocalFrame:
-    """The local frame of a venue: origin at the south-west corner of the bounding box of
-    its ``references.csv`` landmarks, height 0.
-
-    Raises
-    ------
-    OSError
-        When ``references.csv`` cannot be read.
-    ValueError
-        When it holds no landmark or a value that is not a number.
-    """
-    points = np.array(list(_references(venue_dir).values()), dtype=np.float64).reshape(-1, 2)
-    if points.shape[0] == 0 or not np.isfinite(points).all():
-        raise ValueError(f"{venue_dir / 'references.csv'}: no landmarks")
-    return LocalFrame(float(points[:, 0].min()), float(points[:, 1].min()))
-
-
-# ---------------------------------------------------------------------------- one log
-
-
-@dataclass(frozen=True, slots=True)
-class IBeaconId:
-    """What an iBeacon advertises besides its MAC."""
-
-    uuid: str
-    major: int
-    minor: int
-
-
-@dataclass(frozen=True, eq=False)
-class IpinLog:
-    """One GetSensorData log as a trace, with what only IPIN logs carry.
-
-    Attributes
-    ----------
-    trace : IlcTrace
-        The log in the ILC trace model: ``waypoint_*`` from POSI lines in the venue frame
-        (``waypoint_floor`` their levels; ``floor`` the level of the first as text, ``""``
-        without POSI), ``wifi``, ``ble``, the motion streams (``rotation`` from AHRS
-        Quat(2..4)), ``pressure`` and ``gnss`` (hdop NaN); ``site_id`` is None.
-    trial, repetition : int or None
-        From the file name (``...Trial01_repetition02...``); None when it has neither.
-    phone : str
-        Manufacturer and model from the header (``""`` when absent).
-    created : str or None
-        The header's "Date of creation", as written.
-    waypoint_lat_lon_deg : ndarray, shape (n_wp, 2), float64
-        POSI positions as logged, in the order of ``trace.waypoint_t_ms``.
-    waypoint_counter, waypoint_building : ndarray, shape (n_wp,), int64
-        POSI counter and building id, same order.
-    beacons : Mapping of str to IBeaconId
-        iBeacon ids by lower-case MAC (the first seen for each MAC).
-    line_counts : Mapping of str to int
-        Lines read per type (``"ACCE"``, ..., ``"POSI"``); a GNSS repeat counts here.
-    gnss_repeats : int
-        GNSS lines dropped as a repeat of the fix before them.
-    app_clock_streams : frozenset of str
-        Sensor streams that kept their app times (see the module docstring).
-    """
-
-    trace: IlcTrace
-    trial: int | None
-    repetition: int | None
-    phone: str
-    created: str | None
-    waypoint_lat_lon_deg: NDArray[np.float64]
-    waypoint_counter: NDArray[np.int64]
-    waypoint_building: NDArray[np.int64]
-    beacons: Mapping[str, IBeaconId]
-    line_counts: Mapping[str, int]
-    gnss_repeats: int
-    app_clock_streams: frozenset[str]
-
-    @property
-    def bad_lines(self) -> int:
-        """Lines dropped because they could not be read."""
-        return self.trace.bad_lines
-
-
-def log_name_ids(path: Path) -> tuple[int, int] | None:
-    """``(trial, repetition)`` from a log's file name, or None."""
-    match = _LOG_NAME.search(path.name)
-    return (int(match.group(1)), int(match.group(2))) if match else None
-
-
-def _log_id(path: Path) -> str:
-    name = path.name
-    for suffix in (".xz", ".txt"):
-        name = name.removesuffix(suffix)
-    return name
-
-
-def _finite(*values: float) -> bool:
-    return all(map(math.isfinite, values))
-
-
-class _LogParser:
-    """Accumulates the lines of one log; ``log`` builds the arrays at the end."""
-
-    def __init__(self) -> None:
-        self.header: dict[str, str] = {}
-        # [app_s, sensor_s, values...] per stream
-        self.sensors: dict[str, list[tuple[float, ...]]] = {s: [] for s in _STREAMS}
-        self.wifi: dict[int, dict[str, float]] = {}
-        self.ble: dict[int, dict[str, float]] = {}
-        self.beacons: dict[str, IBeaconId] = {}
-        self.gnss: list[tuple[float, float, float, float, float]] = []
-        self.gnss_repeats = 0
-        self.posi: list[tuple[float, float, float, float, float, float]] = []
-        self.counts: dict[str, int] = {}
-        self.skipped: dict[str, int] = {}
-        self.bad_lines = 0
-        self._last_gnss: tuple[float, ...] | None = None
-
-    def feed(self, lines: Iterable[str]) -> None:
-        for raw in lines:
-            line = raw.strip()
-            if not line:
-                continue
-            if line[0] == "%":
-                self._header(line)
-                continue
-            f = line.split(";")
-            if len(f) > 1 and f[-1] == "":  # a trailing ';'
-                f.pop()
-            kind = f[0]
-            try:
-                self._record(kind, f)
-            except (ValueError, IndexError):
-                self.bad_lines += 1
-                continue
-
-    def _header(self, line: str) -> None:
-        key, sep, value = line[1:].partition(":")
-        if sep and key.strip() and value.strip():
-            self.header.setdefault(key.strip(), value.strip())
-
-    def _record(self, kind: str, f: list[str]) -> None:
-        n = len(f)
-        if kind in _SENSOR_STREAMS:
-            if kind == "MAGN" and n == _N_FIELDS_MOTION + 1 and f[4] == "":
-                del f[4]  # the header's 'Mag_X(uT);;Mag_Y(uT)'
-                n -= 1
-            width = _N_FIELDS_AHRS if kind == "AHRS" else _N_FIELDS_MOTION
-            if n != width:
-                raise ValueError(kind)
-            xyz = (6, 7, 8) if kind == "AHRS" else (3, 4, 5)
-            row = (float(f[1]), float(f[2]), *(float(f[i]) for i in xyz))
-            if not _finite(*row):
-                raise ValueError(kind)
-            self.sensors[_SENSOR_STREAMS[kind]].append(row)
-        elif kind == "PRES":
-            if n != _N_FIELDS_PRES:
-                raise ValueError(kind)
-            row = (float(f[1]), float(f[2]), float(f[3]))
-            if not _finite(*row):
-                raise ValueError(kind)
-            self.sensors["pressure"].append(row)
-        elif kind == "WIFI":
-            if n != _N_FIELDS_WIFI or not f[4]:
-                raise ValueError(kind)
-            t_s, frequency, rssi = float(f[1]), float(f[5]), float(f[6])
-            if not _finite(t_s, frequency, rssi):
-                raise ValueError(kind)
-            keep_strongest(self.wifi.setdefault(_ms(t_s), {}), f[4].lower(), rssi)
-        elif kind == "BLE4":
-            self._ble(f)
-        elif kind == "GNSS":
-            if n != _N_FIELDS_GNSS:
-                raise ValueError(kind)
-            t_s, fix_s, lat, lon, accuracy = (float(f[i]) for i in (1, 2, 3, 4, 7))
-            if not _finite(t_s, fix_s, lat, lon, accuracy):
-                raise ValueError(kind)
-            fix = (fix_s, lat, lon, accuracy)
-            if fix == self._last_gnss:
-                self.gnss_repeats += 1
-            else:
-                self.gnss.append((t_s, lat, lon, accuracy, math.nan))
-                self._last_gnss = fix
-        elif kind == "POSI":
-            if n != _N_FIELDS_POSI:
-                raise ValueError(kind)
-            row = (float(f[1]), int(f[2]), float(f[3]), float(f[4]), int(f[5]), int(f[6]))
-            if not _finite(*row):
-                raise ValueError(kind)
-            self.posi.append(row)
-        elif _TYPE.match(kind):
-            self.skipped[kind] = self.skipped.get(kind, 0) + 1
-            return
-        else:
-            raise ValueError(kind)
-        self.counts[kind] = self.counts.get(kind, 0) + 1
-
-    def _ble(self, f: list[str]) -> None:
-        n = len(f)
-        if f[2] == "iBeacon":
-            if n != _N_FIELDS_IBEACON:
-                raise ValueError("BLE4")
-            beacon = IBeaconId(f[8].lower(), int(f[6]), int(f[7]))
-        elif f[2] == "Eddystone" and n >= _N_FIELDS_EDDYSTONE_MIN:
-            beacon = None
-        else:
-            raise ValueError("BLE4")
-        t_s, rssi = float(f[1]), float(f[4])
-        if not f[3] or not _finite(t_s, rssi):
-            raise ValueError("BLE4")
-        mac = f[3].lower()
-        keep_strongest(self.ble.setdefault(_ms(t_s), {}), mac, rssi)
-        if beacon is not None:
-            self.beacons.setdefault(mac, beacon)
-
-    def log(self, path: Path, frame: LocalFrame, ble_window_ms: int | None) -> IpinLog:
-        streams: dict[str, NDArray[np.float64]] = {}
-        app_clock: set[str] = set()
-        for name in _STREAMS:
-            width = 2 if name == "pressure" else 4
-            rows = np.asarray(self.sensors[name], dtype=np.float64).reshape(-1, width + 1)
-            streams[name], on_app_clock = _on_app_clock(rows)
-            if on_app_clock:
-                app_clock.add(name)
-        wifi = tuple(WifiEvent(t, readings(self.wifi[t])) for t in sorted(self.wifi))
-        ble_rows = [BleEvent(t, readings(self.ble[t])) for t in sorted(self.ble)]
-        ble = tuple(ble_rows if ble_window_ms is None else window_ble(ble_rows, ble_window_ms))
-
-        posi = np.asarray(self.posi, dtype=np.float64).reshape(-1, 6)
-        posi = posi[np.argsort(posi[:, 0], kind="stable")]
-        waypoint_t = _ms_array(posi[:, 0])
-        waypoint_floor = posi[:, 4].astype(np.int64)
-        gnss = np.asarray(self.gnss, dtype=np.float64).reshape(-1, 5)
-        gnss[:, 0] = _ms_array(gnss[:, 0])
-
-        times = [waypoint_t, gnss[:, 0], *(a[:, 0] for a in streams.values())]
-        times += [np.array([e.t_ms for e in wifi]), np.array([e.t_ms for e in ble_rows])]
-        t_all = np.concatenate([np.asarray(t, dtype=np.float64) for t in times])
-        trace = IlcTrace(
-            path_id=_log_id(path),
-            floor=str(int(waypoint_floor[0])) if waypoint_floor.size else "",
-            site_id=None,
-            waypoint_t_ms=waypoint_t,
-            waypoint_xy_m=frame.to_local(posi[:, 2], posi[:, 3]),
-            wifi=wifi,
-            ble=ble,
-            accel=streams["accel"],
-            gyro=streams["gyro"],
-            magnetic=streams["magnetic"],
-            rotation=streams["rotation"],
-            uncalibrated=frozenset(),
-            bad_lines=self.bad_lines,
-            joined_lines=0,
-            stale_wifi_readings=0,
-            skipped_types=MappingProxyType(dict(sorted(self.skipped.items()))),
-            t_first_ms=int(t_all.min()) if t_all.size else 0,
-            t_last_ms=int(t_all.max()) if t_all.size else 0,
-            gnss=gnss,
-            pressure=streams["pressure"],
-            waypoint_floor=waypoint_floor,
-        )
-        ids = log_name_ids(path)
-        phone = " ".join(self.header[k] for k in ("Manufacturer", "Model") if k in self.header)
-        return IpinLog(
-            trace=trace,
-            trial=ids[0] if ids else None,
-            repetition=ids[1] if ids else None,
-            phone=phone,
-            created=self.header.get("Date of creation"),
-            waypoint_lat_lon_deg=np.ascontiguousarray(posi[:, 2:4]),
-            waypoint_counter=posi[:, 1].astype(np.int64),
-            waypoint_building=posi[:, 5].astype(np.int64),
-            beacons=MappingProxyType(dict(self.beacons)),
-            line_counts=MappingProxyType(dict(sorted(self.counts.items()))),
-            gnss_repeats=self.gnss_repeats,
-            app_clock_streams=frozenset(app_clock),
-        )
-
-
-def _ms(t_s: float) -> int:
-    return round(t_s * 1000.0)
-
-
-def _ms_array(t_s: NDArray[np.float64]) -> NDArray[np.int64]:
-    return np.rint(t_s * 1000.0).astype(np.int64)
-
-
-def _on_app_clock(rows: NDArray[np.float64]) -> tuple[NDArray[np.float64], bool]:
-    """``[app_s, sensor_s, values...]`` rows as ``[t_ms, values...]`` sorted by time.
-
-    Times are the sensor clock moved onto the app clock by the median offset, in integer
-    ms; when those are not strictly increasing or stray from the app times by more than
-    ``SENSOR_CLOCK_TOLERANCE_MS``, the app times (the flag then is True).
-    """
-    app_ms = _ms_array(rows[:, 0])
-    if rows.shape[0] == 0:
-        return np.empty((0, rows.shape[1] - 1)), False
-    offset_s = float(np.median(rows[:, 0] - rows[:, 1]))
-    order = np.argsort(rows[:, 1], kind="stable")
-    sensor_ms = _ms_array(rows[order, 1] + offset_s)
-    stray = np.abs(sensor_ms - app_ms[order]).max()
-    if np.all(np.diff(sensor_ms) > 0) and stray <= SENSOR_CLOCK_TOLERANCE_MS:
-        return np.column_stack([sensor_ms.astype(np.float64), rows[order, 2:]]), False
-    order = np.argsort(app_ms, kind="stable")
-    return np.column_stack([app_ms[order].astype(np.float64), rows[order, 2:]]), True
-
-
-def read_log(
-    path: Path, frame: LocalFrame | None = None, *, ble_window_ms: int | None = BLE_WINDOW_MS
-) -> IpinLog:
-    """Read one GetSensorData log (``.txt`` or ``.txt.xz``).
-
-    Parameters
-    ----------
-    path : Path
-        The log file.
-    frame : LocalFrame, optional
-        The venue frame for POSI positions; by default ``venue_frame`` of the folder
-        holding ``references.csv``: the log's folder or the one above it (``logs/``).
-    ble_window_ms : int or None
-        Span of the BLE scans rows are grouped into (``events.window_ble``); None gives
-        one event per row time.
-
-    Returns
-    -------
-    IpinLog
-        Never raises on the content of the file (see the module docstring).
-
-    Raises
-    ------
-    OSError
-        When the file cannot be opened; ``lzma.LZMAError`` when an ``.xz`` file is not xz.
-    ValueError
-        With no ``frame`` and no ``references.csv`` beside the log or above it.
-    """
-    if frame is None:
-        venue = next(
-            (d for d in (path.parent, path.parent.parent) if (d / "references.csv").is_file()),
-            None,
-        )
-        if venue is None:
-            raise ValueError(f"{path}: no references.csv beside or above it; pass a frame")
-        frame = venue_frame(venue)
-    parser = _LogParser()
-    try:
-        parser.feed(open_text(path))
-    except EOFError:  # compressed stream cut short: keep what was read
-        parser.bad_lines += 1
-    return parser.log(path, frame, ble_window_ms)
-
-
-# ---------------------------------------------------------------------------- the venue
 
 
 @dataclass(frozen=True, slots=True)
@@ -566,7 +49,7 @@ class LogFile:
     @property
     def log_id(self) -> str:
         """File name without ``.txt`` / ``.txt.xz``."""
-        return _log_id(self.path)
+        return file_id(self.path)
 
 
 @dataclass(frozen=True, slots=True)
@@ -643,11 +126,9 @@ def read_venue(path: Path, levels: Iterable[int] = VENUE_LEVELS) -> IpinVenue:
         number. ``OSError`` when a CSV file or ``logs/`` is missing.
     """
     frame = venue_frame(path)
-    references = _references(path)
-    ref_xy = frame.to_local(
-        [p[0] for p in references.values()], [p[1] for p in references.values()]
-    )
-    rows = _read_csv(path / "BLE_Locations.csv")
+    landmarks = references(path)
+    ref_xy = frame.to_local([p[0] for p in landmarks.values()], [p[1] for p in landmarks.values()])
+    rows = read_csv(path / "BLE_Locations.csv")
     ble_xy = frame.to_local([float(r["Lat"]) for r in rows], [float(r["Lon"]) for r in rows])
     beacons = tuple(
         Beacon(r["bleID"], int(r["floor"]), float(r["Lat"]), float(r["Lon"]), float(x), float(y))
@@ -675,6 +156,6 @@ def read_venue(path: Path, levels: Iterable[int] = VENUE_LEVELS) -> IpinVenue:
         logs=tuple(logs),
         beacons=beacons,
         references_xy_m=MappingProxyType(
-            {k: (float(x), float(y)) for k, (x, y) in zip(references, ref_xy.tolist(), strict=True)}
+            {k: (float(x), float(y)) for k, (x, y) in zip(landmarks, ref_xy.tolist(), strict=True)}
         ),
     )

@@ -28,8 +28,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from server.datasets.ilc import IlcSite, IlcTrace, read_site, read_trace
+from server.datasets.ilc import IlcSite, read_site
+from server.datasets.ilc_trace import read_trace
 from server.datasets.uji import Fingerprints
+from server.datasets.walk import Walk as IlcTrace
 from server.positioning import fix_error
 from server.positioning.engines import get_engine
 from server.positioning.engines.base import FloorRef, SiteMaps

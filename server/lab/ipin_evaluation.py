@@ -30,8 +30,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from server.datasets.ilc import IlcTrace
-from server.datasets.ipin import IpinLog, IpinVenue, read_log, read_venue
+from server.datasets.ipin import IpinVenue, read_venue
+from server.datasets.ipin_log import IpinLog, read_log
+from server.datasets.walk import Walk
 from server.lab.evaluation import (
     LabelledField,
     LabelledScans,
@@ -67,7 +68,7 @@ class IpinEvaluation:
     summary: dict[str, Any]
 
 
-def floor_parts(trace: IlcTrace, venue: IpinVenue) -> Iterator[tuple[int, IlcTrace]]:
+def floor_parts(trace: Walk, venue: IpinVenue) -> Iterator[tuple[int, Walk]]:
     """The trace cut at its floor changes: per maximal run of consecutive waypoints on one
     floor of the venue, that floor's index and the trace with only those waypoints (what
     lies between two waypoints on different floors, the stairs, is then in no part).

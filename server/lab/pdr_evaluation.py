@@ -29,7 +29,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from server.datasets.ilc import IlcTrace, read_site, read_trace
+from server.datasets.ilc import read_site
+from server.datasets.ilc_trace import read_trace
+from server.datasets.walk import Walk
 from server.lab.evaluation import split_site
 from server.positioning import pdr
 from server.positioning.pdr import Detector, LengthModel
@@ -62,7 +64,7 @@ class TraceSteps:
         return float(self.length_m.sum())
 
 
-def trace_steps(trace: IlcTrace, params: TrackerParams) -> TraceSteps | None:
+def trace_steps(trace: Walk, params: TrackerParams) -> TraceSteps | None:
     """The tracker run over a trace (``traces.anchored_steps``); None when it has under two
     waypoints or walks less than ``traces.MIN_ANCHORED_PATH_M``."""
     steps = anchored_steps(trace, params)

@@ -26,8 +26,9 @@ from sqlalchemy.ext.asyncio import AsyncSession
 
 from server.config import Settings
 from server.services.errors import Forbidden, Invalid, NotFound
-from server.storage import repositories as repo
 from server.storage.models import ApiKey
+from server.storage.repositories import api_keys as key_repo
+from server.storage.repositories import sites as site_repo
 
 KEY_PREFIX = "ipk_"
 SCOPES = ("admin", "maps:write", "viewer", "device", "contribute")
@@ -77,7 +78,7 @@ async def authenticate(s: AsyncSession, settings: Settings, key: str) -> Princip
     configured = settings.admin_key.get_secret_value() if settings.admin_key else None
     if configured and hmac.compare_digest(configured.encode(), key.encode()):
         return Principal(None, frozenset({"admin"}), None)
-    row = await repo.find_api_key(s, digest(key))
+    row = await key_repo.find_api_key(s, digest(key))
     if row is None:
         return None
     return Principal(row.id, frozenset(row.scopes.split()), row.site_id)
@@ -88,19 +89,21 @@ async def create_key(
 ) -> tuple[ApiKey, str]:
     """Create a key; returns (row, key). Only the digest is stored: the key is shown once."""
     wanted = check_scopes(scopes)
-    if site_id is not None and await repo.get_site(s, site_id) is None:
+    if site_id is not None and await site_repo.get_site(s, site_id) is None:
         raise NotFound(f"site {site_id} not found", field="site_id")
     key = new_secret(KEY_PREFIX)
-    row = await repo.create_api_key(s, name, digest(key), " ".join(sorted(wanted)), site_id=site_id)
+    row = await key_repo.create_api_key(
+        s, name, digest(key), " ".join(sorted(wanted)), site_id=site_id
+    )
     return row, key
 
 
 async def list_keys(s: AsyncSession, include_revoked: bool = False) -> Sequence[ApiKey]:
-    return await repo.list_api_keys(s, include_revoked=include_revoked)
+    return await key_repo.list_api_keys(s, include_revoked=include_revoked)
 
 
 async def _live_key(s: AsyncSession, key_id: str) -> ApiKey:
-    row = await repo.get_api_key(s, key_id)
+    row = await key_repo.get_api_key(s, key_id)
     if row is None or row.revoked_at is not None:
         raise NotFound(f"no live key {key_id}", field="key_id")
     return row
@@ -109,7 +112,7 @@ async def _live_key(s: AsyncSession, key_id: str) -> ApiKey:
 async def revoke_key(s: AsyncSession, key_id: str) -> ApiKey:
     """Revoke a key: it stops working at once (its row stays, for the record)."""
     row = await _live_key(s, key_id)
-    await repo.revoke_api_key(s, row)
+    await key_repo.revoke_api_key(s, row)
     return row
 
 
@@ -117,5 +120,5 @@ async def rotate_key(s: AsyncSession, key_id: str) -> tuple[ApiKey, str]:
     """Give a key a new secret (same id, scopes and site); the old secret stops working."""
     row = await _live_key(s, key_id)
     key = new_secret(KEY_PREFIX)
-    await repo.rotate_api_key(s, row, digest(key))
+    await key_repo.rotate_api_key(s, row, digest(key))
     return row, key

@@ -21,7 +21,7 @@ from sqlalchemy.ext.asyncio import AsyncSession
 
 from server.positioning.events import BleEvent, Event, RadioReading, WifiEvent, radio_key
 from server.positioning.mapping.device_offsets import DeviceOffset, cell_ids, estimate_offsets
-from server.storage import repositories as repo
+from server.storage.repositories import surveys as survey_repo
 
 SURVEYED = "(surveyed)"  # device of points surveyed through the admin API
 UNKNOWN = "(unknown)"  # device of uploads that did not name their model
@@ -30,7 +30,7 @@ CELL_M = 1.0  # co-located: the same 1 m cell of a floor (chosen on UJI training
 
 async def building_offsets(s: AsyncSession, building_id: str) -> dict[str, DeviceOffset]:
     """Offsets of the device models that contributed to the building's maps."""
-    rows = await repo.survey_readings_with_devices(s, building_id)
+    rows = await survey_repo.survey_readings_with_devices(s, building_id)
     if not rows:
         return {}
     floors = {f: i for i, f in enumerate(sorted({r[2] for r in rows}))}

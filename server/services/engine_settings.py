@@ -24,7 +24,7 @@ from server.positioning.engines.base import Engine
 from server.positioning.params import ParamError, Params, as_dict, merge
 from server.services.errors import Invalid, NotFound
 from server.services.sites import get_site
-from server.storage import engine_settings as repo
+from server.storage.repositories import engine_settings as repo
 
 
 @dataclass(frozen=True)

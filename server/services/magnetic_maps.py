@@ -26,8 +26,9 @@ from server.positioning.magnetic import (
     samples_along_line,
 )
 from server.services.errors import Invalid, NotFound
-from server.storage import repositories as repo
 from server.storage.models import Floor, MagneticMapVersion
+from server.storage.repositories import maps as map_repo
+from server.storage.repositories import sites as site_repo
 
 
 @dataclass(frozen=True)
@@ -98,17 +99,17 @@ async def fold_sources(
     """Grid the sources and store them merged with the floor's current grid as its next
     version. The caller holds the building lock. Invalid (about ``field``) when the grid
     would be larger than ``magnetic.MAX_GRID_CELLS``, before it is allocated."""
-    current = await repo.latest_magnetic_map(s, floor_id)
+    current = await map_repo.latest_magnetic_map(s, floor_id)
 
     def build() -> MagneticGrid:
         grid = grid_from_sources(sources)
-        return merge_grids(repo.magnetic_grid(current), grid) if current else grid
+        return merge_grids(map_repo.magnetic_grid(current), grid) if current else grid
 
     try:
         grid = await anyio.to_thread.run_sync(build)
     except GridTooLarge as exc:
         raise Invalid(str(exc), field=field) from None
-    return await repo.save_magnetic_map(s, floor_id, grid, source=source)
+    return await map_repo.save_magnetic_map(s, floor_id, grid, source=source)
 
 
 def check_within_plan(
@@ -140,32 +141,32 @@ async def add_magnetic_survey(
     points: Sequence[MagneticPointData],
     lines: Sequence[MagneticLineData],
 ) -> MagneticMapVersion:
-    floor = await repo.get_floor(s, floor_id)
+    floor = await site_repo.get_floor(s, floor_id)
     if floor is None:
         raise NotFound(f"floor {floor_id} not found", field="floor_id")
     check_within_plan(floor, points, lines)
     sources = survey_sources(points, lines)
-    await repo.lock_building(s, floor.building_id)
+    await site_repo.lock_building(s, floor.building_id)
     return await fold_sources(s, floor_id, sources, field="points" if not lines else "lines")
 
 
 async def list_magnetic_maps(s: AsyncSession, floor_id: str) -> Sequence[MagneticMapVersion]:
-    if await repo.get_floor(s, floor_id) is None:
+    if await site_repo.get_floor(s, floor_id) is None:
         raise NotFound(f"floor {floor_id} not found", field="floor_id")
-    return await repo.list_magnetic_maps(s, floor_id)
+    return await map_repo.list_magnetic_maps(s, floor_id)
 
 
 async def activate_magnetic_map(s: AsyncSession, floor_id: str, version: int) -> MagneticMapVersion:
     """Make a version the floor's current magnetic map again (see
     ``maps.activate_radio_map``)."""
-    floor = await repo.get_floor(s, floor_id)
+    floor = await site_repo.get_floor(s, floor_id)
     if floor is None:
         raise NotFound(f"floor {floor_id} not found", field="floor_id")
-    await repo.lock_building(s, floor.building_id)
-    row = await repo.get_magnetic_map_version(s, floor_id, version)
+    await site_repo.lock_building(s, floor.building_id)
+    row = await map_repo.get_magnetic_map_version(s, floor_id, version)
     if row is None:
         raise NotFound(f"magnetic map version {version} not found", field="version")
-    row.activated_at = await repo.next_activation(
+    row.activated_at = await map_repo.next_activation(
         s, MagneticMapVersion, MagneticMapVersion.floor_id, floor_id
     )
     return row

@@ -47,9 +47,11 @@ from server.positioning.magnetic import known_share
 from server.positioning.mapping.signatures import identify_fixed_aps
 from server.positioning.pathloss import fit_emitter
 from server.services.errors import NotFound
-from server.storage import repositories as repo
 from server.storage.models import MagneticMapVersion
-from server.storage.repositories import RadioMapArrays
+from server.storage.repositories import maps as map_repo
+from server.storage.repositories import sites as site_repo
+from server.storage.repositories import surveys as survey_repo
+from server.storage.repositories.maps import RadioMapArrays
 
 RADIO_CELL_M = 1.0  # radio coverage and freshness are counted over 1 m cells
 DAY_S = 86_400.0
@@ -159,15 +161,15 @@ async def floor_map_quality(
 ) -> MapQuality:
     """How good the floor's current maps are (module docstring)."""
     params = params or QualityParams()
-    floor = await repo.get_floor(s, floor_id)
+    floor = await site_repo.get_floor(s, floor_id)
     if floor is None:
         raise NotFound(f"floor {floor_id} not found", field="floor_id")
-    radio_row = await repo.latest_radio_map(s, floor.building_id)
-    radio = await repo.load_radio_map(s, radio_row.id, MISSING_DBM) if radio_row else None
-    magnetic_row = await repo.latest_magnetic_map(s, floor_id)
+    radio_row = await map_repo.latest_radio_map(s, floor.building_id)
+    radio = await map_repo.load_radio_map(s, radio_row.id, MISSING_DBM) if radio_row else None
+    magnetic_row = await map_repo.latest_magnetic_map(s, floor_id)
     points = [
         _Point(p.x_m, p.y_m, p.t_ms, p.created_at, p.upload_id, p.readings)
-        for p in await repo.list_survey_points(s, floor.building_id)
+        for p in await survey_repo.list_survey_points(s, floor.building_id)
         if p.floor_id == floor_id
     ]
     plan_geojson = floor.plan_geojson
@@ -197,7 +199,7 @@ def _summarise(
     now: datetime,
 ) -> tuple[Coverage, RadioCells, MagneticCells, Freshness, Emitters]:
     """The figures of the module docstring (CPU work: run it in a thread)."""
-    grid = repo.magnetic_grid(magnetic_row) if magnetic_row is not None else None
+    grid = map_repo.magnetic_grid(magnetic_row) if magnetic_row is not None else None
     radio_plan = _plan(plan_geojson, RADIO_CELL_M)
     # the magnetic plan on the grid's own cells: a 0.5 m cell counts when its centre does
     magnetic_plan = _plan(plan_geojson, grid.cell_m) if grid is not None else None

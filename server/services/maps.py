@@ -27,8 +27,10 @@ from server.positioning.mapping.matrices import merge_radio_maps, readings_matri
 from server.services.device_offsets import building_offsets
 from server.services.errors import Invalid, NotFound
 from server.services.magnetic_maps import fold_sources
-from server.storage import repositories as repo
 from server.storage.models import RadioMapVersion
+from server.storage.repositories import maps as map_repo
+from server.storage.repositories import sites as site_repo
+from server.storage.repositories import surveys as survey_repo
 
 # A dense survey (points every metre or two) keeps its resolution with 1 m cells; points
 # closer than that are merged into one reference point at their mean position.
@@ -102,14 +104,14 @@ def _plan(geojson: dict[str, Any] | None) -> FloorPlan | None:
 
 
 async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None) -> SiteMaps:
-    floors = await repo.list_site_floors(s, site_id)
+    floors = await site_repo.list_site_floors(s, site_id)
     refs = tuple(FloorRef(b.id, f.id, f.level, b.rotation_rad) for f, b in floors)
     building_ids = list(dict.fromkeys(b.id for _, b in floors))
-    latest = [m for b in building_ids if (m := await repo.latest_radio_map(s, b)) is not None]
+    latest = [m for b in building_ids if (m := await map_repo.latest_radio_map(s, b)) is not None]
     anchors = tuple(
         a for i, (f, _) in enumerate(floors) for a in anchors_from_plan(f.plan_geojson, i)
     )
-    magnetic = [await repo.latest_magnetic_map(s, f.floor_id) for f in refs]
+    magnetic = [await map_repo.latest_magnetic_map(s, f.floor_id) for f in refs]
     # a new plan changes walls and anchors without a new radio map
     stored = [f.plan_geojson for f, _ in floors]
     version = "|".join(
@@ -123,13 +125,13 @@ async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None
     # rasterising a mall floor takes a good part of a second: not on the event loop
     plans = await anyio.to_thread.run_sync(lambda: tuple(_plan(p) for p in stored))
     grids = await anyio.to_thread.run_sync(
-        lambda: tuple(repo.magnetic_grid(m) if m else None for m in magnetic)
+        lambda: tuple(map_repo.magnetic_grid(m) if m else None for m in magnetic)
     )
     floor_index = {f.floor_id: i for i, f in enumerate(refs)}
     parts = []
     for row in latest:
         parts.append(
-            stored_radio_map(await repo.load_radio_map(s, row.id, MISSING_DBM), floor_index)
+            stored_radio_map(await map_repo.load_radio_map(s, row.id, MISSING_DBM), floor_index)
         )
     merged = merge_radio_maps(parts)
     radio = in_place_order(merged) if merged is not None else None
@@ -149,7 +151,7 @@ async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None
     )
 
 
-def stored_radio_map(stored: repo.RadioMapArrays, floor_index: Mapping[str, int]) -> RadioMap:
+def stored_radio_map(stored: map_repo.RadioMapArrays, floor_index: Mapping[str, int]) -> RadioMap:
     """A stored version as the engines and the folding read it, floors by index."""
     return RadioMap(
         rp_xy=stored.rp_xy,
@@ -166,7 +168,7 @@ def stored_radio_map(stored: repo.RadioMapArrays, floor_index: Mapping[str, int]
 
 
 async def site_maps(s: AsyncSession, cache: MapCache, site_id: str) -> SiteMaps:
-    if await repo.get_site(s, site_id) is None:
+    if await site_repo.get_site(s, site_id) is None:
         raise NotFound(f"site {site_id} not found", field="site_id")
     return await cache.get(s, site_id)
 
@@ -181,17 +183,17 @@ async def add_survey(
     survey point it has (see ``gridding.build_radio_map`` for the gridding rules). Points
     from an upload remember it (``upload_id``)."""
     # one rebuild per building at a time: each sees every point the previous one stored
-    building = await repo.lock_building(s, building_id)
+    building = await site_repo.lock_building(s, building_id)
     if building is None:
         raise NotFound(f"building {building_id} not found", field="building_id")
-    floor_by_level = {f.level: f for f in await repo.list_floors(s, building_id)}
+    floor_by_level = {f.level: f for f in await site_repo.list_floors(s, building_id)}
     for i, p in enumerate(points):
         if p.floor_level not in floor_by_level:
             raise Invalid(
                 f"floor level {p.floor_level} does not exist in building {building_id}",
                 field=f"points.{i}.floor",
             )
-    await repo.add_survey_points(
+    await survey_repo.add_survey_points(
         s,
         [
             {
@@ -230,9 +232,9 @@ async def add_survey(
 
 
 async def list_radio_maps(s: AsyncSession, building_id: str) -> Sequence[RadioMapVersion]:
-    if await repo.get_building(s, building_id) is None:
+    if await site_repo.get_building(s, building_id) is None:
         raise NotFound(f"building {building_id} not found", field="building_id")
-    return await repo.list_radio_maps(s, building_id)
+    return await map_repo.list_radio_maps(s, building_id)
 
 
 async def fold_survey(
@@ -258,10 +260,12 @@ async def fold_survey(
     emitters, rssi = readings_matrix(scans)
     xy = np.array([(p.x_m, p.y_m) for p in with_readings], dtype=np.float64).reshape(-1, 2)
     floor = np.array([floor_index[floor_ids[p.floor_level]] for p in with_readings], dtype=np.int64)
-    current = await repo.latest_radio_map(s, building_id)
+    current = await map_repo.latest_radio_map(s, building_id)
     base = None
     if current is not None:
-        base = stored_radio_map(await repo.load_radio_map(s, current.id, MISSING_DBM), floor_index)
+        base = stored_radio_map(
+            await map_repo.load_radio_map(s, current.id, MISSING_DBM), floor_index
+        )
 
     def build() -> RadioMap:
         new = build_radio_map(xy, floor, rssi, emitters, cell_m=SURVEY_CELL_M)
@@ -269,8 +273,8 @@ async def fold_survey(
 
     radio = await anyio.to_thread.run_sync(build)
     kinds_keys = [tuple(key.split(":", 1)) for key in radio.emitters]
-    ids = await repo.ensure_emitters(s, building_id, [(k, v) for k, v in kinds_keys])
-    return await repo.save_radio_map(
+    ids = await map_repo.ensure_emitters(s, building_id, [(k, v) for k, v in kinds_keys])
+    return await map_repo.save_radio_map(
         s,
         building_id,
         cell_m=SURVEY_CELL_M,
@@ -286,12 +290,12 @@ async def activate_radio_map(s: AsyncSession, building_id: str, version: int) ->
     """Make an earlier (or later) version the building's current radio map again: sessions
     use it from their next map refresh, and later surveys and uploads fold into it (so
     what came after it is left out from then on)."""
-    if await repo.lock_building(s, building_id) is None:
+    if await site_repo.lock_building(s, building_id) is None:
         raise NotFound(f"building {building_id} not found", field="building_id")
-    row = await repo.get_radio_map_version(s, building_id, version)
+    row = await map_repo.get_radio_map_version(s, building_id, version)
     if row is None:
         raise NotFound(f"radio map version {version} not found", field="version")
-    row.activated_at = await repo.next_activation(
+    row.activated_at = await map_repo.next_activation(
         s, RadioMapVersion, RadioMapVersion.building_id, building_id
     )
     return row

@@ -53,8 +53,8 @@ from server.services.session_records import (
     events_digest,
     fix_to_wire,
 )
-from server.storage import repositories as repo
 from server.storage.models import SessionRecord, utcnow
+from server.storage.repositories import sessions as repo
 from server.storage.session_store import SessionExists, StoredSession
 
 logger = logging.getLogger(__name__)

@@ -1,11 +1,11 @@
 """Recorded walks in one shape: built from our own events, joined, stored as bytes.
 
-The map builder reads a walk as an ``IlcTrace`` (scans, raw motion samples, the known
-positions as waypoints), whatever it came as: an ILC 2.0 path file, or our own events
+The map builder reads a walk as a ``datasets.walk.Walk`` (scans, raw motion samples, the
+known positions as waypoints), whatever it came as: an ILC 2.0 path file, or our own events
 (a JSON upload, the batches of a session offered for map building). This module makes
-that trace from events (``trace_from_events``), joins traces cut into pieces
+that walk from events (``trace_from_events``), joins walks cut into pieces
 (``join_traces``), finds its steps (``walk_steps``, ``anchored_steps``) and encodes a
-trace as one array container (``encode_trace`` / ``decode_trace``, ``storage.codec``:
+walk as one array container (``encode_trace`` / ``decode_trace``, ``storage.codec``:
 nothing pickled, a corrupt blob raises ``CodecError``).
 
 From events: scans keep their readings; IMU blocks are concatenated per sensor (the
@@ -20,13 +20,12 @@ magnetometer is uncalibrated marks the whole walk's magnetometer so.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from types import MappingProxyType
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from server.datasets.ilc import IlcTrace
+from server.datasets.walk import Walk
 from server.positioning.events import (
     BleEvent,
     Event,
@@ -64,16 +63,15 @@ def _trace(
     sensors: dict[str, NDArray[np.float64]],
     uncalibrated: frozenset[str],
     gnss: NDArray[np.float64],
-) -> IlcTrace:
+) -> Walk:
     times = [anchors[:, 0], gnss[:, 0], *(a[:, 0] for a in sensors.values())]
     scan_t = [e.t_ms for e in wifi] + [e.t_ms for e in ble]
     times.append(np.array(scan_t, dtype=np.float64))
     t_all = np.concatenate(times)
     order = np.argsort(anchors[:, 0], kind="stable")
-    return IlcTrace(
+    return Walk(
         path_id=path_id,
         floor=floor,
-        site_id=None,
         waypoint_t_ms=anchors[order, 0].astype(np.int64),
         waypoint_xy_m=np.ascontiguousarray(anchors[order, 1:3]),
         wifi=tuple(sorted(wifi, key=lambda e: e.t_ms)),
@@ -83,10 +81,6 @@ def _trace(
         magnetic=sensors["magnetic"],
         rotation=sensors["rotation"],
         uncalibrated=uncalibrated,
-        bad_lines=0,
-        joined_lines=0,
-        stale_wifi_readings=0,
-        skipped_types=MappingProxyType({}),
         t_first_ms=int(t_all.min()) if t_all.size else 0,
         t_last_ms=int(t_all.max()) if t_all.size else 0,
         gnss=gnss,
@@ -99,7 +93,7 @@ def trace_from_events(
     *,
     path_id: str = "",
     floor: str = "",
-) -> IlcTrace:
+) -> Walk:
     """A walk from our events and its known positions ``(t_ms, x_m, y_m)``."""
     parts: dict[str, list[NDArray[np.float64]]] = {name: [] for name in _SENSORS}
     uncalibrated: set[str] = set()
@@ -134,7 +128,7 @@ def trace_from_events(
     )
 
 
-def join_traces(traces: Sequence[IlcTrace], *, path_id: str = "", floor: str = "") -> IlcTrace:
+def join_traces(traces: Sequence[Walk], *, path_id: str = "", floor: str = "") -> Walk:
     """One walk from its pieces (e.g. a session's batches), in time order."""
     anchors = [np.column_stack([t.waypoint_t_ms, t.waypoint_xy_m]) for t in traces]
     sensors = {name: _rows([getattr(t, name) for t in traces], 4) for name in _SENSORS}
@@ -178,7 +172,7 @@ def _unscans(a: dict[str, np.ndarray], prefix: str) -> list[list[RadioReading]]:
     return scans
 
 
-def encode_trace(trace: IlcTrace) -> bytes:
+def encode_trace(trace: Walk) -> bytes:
     """The walk as one compressed array container (deterministic: equal walks, equal bytes)."""
     arrays: dict[str, np.ndarray] = {
         "anchors": np.column_stack([trace.waypoint_t_ms, trace.waypoint_xy_m]).astype(np.float64),
@@ -192,7 +186,7 @@ def encode_trace(trace: IlcTrace) -> bytes:
     return compress_arrays(arrays)
 
 
-def decode_trace(data: bytes, path_id: str = "") -> IlcTrace:
+def decode_trace(data: bytes, path_id: str = "") -> Walk:
     """The inverse of ``encode_trace``; ``CodecError`` (or ``KeyError``) for foreign bytes."""
     a = decompress_arrays(data)
     wifi = [
@@ -216,7 +210,7 @@ def decode_trace(data: bytes, path_id: str = "") -> IlcTrace:
     )
 
 
-def walk_steps(trace: IlcTrace, params: TrackerParams, block_ms: int = STEP_BLOCK_MS) -> StepBlock:
+def walk_steps(trace: Walk, params: TrackerParams, block_ms: int = STEP_BLOCK_MS) -> StepBlock:
     """Every step the server finds in the walk's raw motion samples (``step_tracker``, the
     samples fed in blocks of ``block_ms`` as a phone would send them), in time order."""
     state = initial_tracker(params)
@@ -227,7 +221,7 @@ def walk_steps(trace: IlcTrace, params: TrackerParams, block_ms: int = STEP_BLOC
     return _steps(blocks, None)
 
 
-def anchored_steps(trace: IlcTrace, params: TrackerParams) -> StepBlock | None:
+def anchored_steps(trace: Walk, params: TrackerParams) -> StepBlock | None:
     """The walk's steps between its first and last waypoint (its anchors); None when it
     has fewer than two or they span less than ``MIN_ANCHORED_PATH_M`` along the waypoints."""
     wp_t = trace.waypoint_t_ms

@@ -20,7 +20,7 @@ from websockets.asyncio.client import connect
 from client_sim.imu import Gait, blocks, synthesize_walk
 from server.api import convert
 from server.api import schemas as sc
-from server.datasets.ilc import read_trace
+from server.datasets.ilc_trace import read_trace
 from server.lab.evaluation import batches
 from server.positioning.events import ImuEvent
 from tests.api.toy_site import WIDTH_M, ToySite, build_toy_site, rssi_at

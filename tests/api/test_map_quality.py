@@ -14,8 +14,8 @@ from fastapi import FastAPI
 from sqlalchemy import select
 
 from server.services import maps
-from server.storage import repositories as repo
 from server.storage.models import SurveyPoint
+from server.storage.repositories import uploads as upload_repo
 from tests.api.toy_site import AP_XY, rssi_at
 
 T0 = 1_700_000_000_000
@@ -119,7 +119,7 @@ async def surveyed(
 
     # an upload's point in the east half, hearing an AP nobody heard since, made 60 days old
     async with app.state.runtime.transaction() as s:
-        upload = await repo.create_upload(
+        upload = await upload_repo.create_upload(
             s, site_id=site_id, content_type="text/plain", payload=b"", status="done"
         )
         ghost = maps.SurveyPointData(15.5, 5.5, 0, None, [(GHOST, -50.0)], [], None)

@@ -12,8 +12,9 @@ import pytest
 from typer.testing import CliRunner
 
 from server.cli import app
-from server.datasets.ilc import IlcFloor, IlcSite, IlcTrace, read_site
+from server.datasets.ilc import IlcFloor, IlcSite, read_site
 from server.datasets.uji import Fingerprints
+from server.datasets.walk import Walk
 from server.lab import evaluation
 from server.positioning.engines import ENGINES, step_ekf
 from server.positioning.engines.base import FloorRef, SiteMaps
@@ -72,12 +73,11 @@ def _fix(t_ms: int, x_m: float, floor: int = 0) -> Fix:
     return Fix(t_ms, x_m, 0.0, floor, None, (4.0, 0.0, 0.0, 4.0), "wifi")
 
 
-def _trace(**fields: Any) -> IlcTrace:
+def _trace(**fields: Any) -> Walk:
     none = np.zeros((0, 4))
     default: dict[str, Any] = {
         "path_id": "p",
         "floor": "F1",
-        "site_id": None,
         "waypoint_t_ms": np.array([100, 200, 300], dtype=np.int64),
         "waypoint_xy_m": np.array([[0.0, 0.0], [5.0, 0.0], [9.0, 0.0]]),
         "wifi": (),
@@ -87,14 +87,10 @@ def _trace(**fields: Any) -> IlcTrace:
         "magnetic": none,
         "rotation": none,
         "uncalibrated": frozenset(),
-        "bad_lines": 0,
-        "joined_lines": 0,
-        "stale_wifi_readings": 0,
-        "skipped_types": {},
         "t_first_ms": 0,
         "t_last_ms": 300,
     }
-    return IlcTrace(**{**default, **fields})
+    return Walk(**{**default, **fields})
 
 
 def test_estimate_is_the_last_fix_at_or_before_the_waypoint() -> None:

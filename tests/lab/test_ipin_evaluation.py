@@ -11,7 +11,8 @@ import pytest
 from typer.testing import CliRunner
 
 from server.cli import app
-from server.datasets.ipin import read_log, read_venue
+from server.datasets.ipin import read_venue
+from server.datasets.ipin_log import read_log
 from server.lab import ipin_evaluation
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from server.datasets.ilc import read_trace
+from server.datasets.ilc_trace import read_trace
 from server.lab.pdr_evaluation import TraceSteps, dead_reckon, trace_steps, with_detector
 from server.positioning.step_tracker import TrackerParams
 from tests.datasets.conftest import dataset_dir

@@ -22,7 +22,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from numpy.typing import NDArray
 
-from server.datasets.ilc import read_site, read_trace
+from server.datasets.ilc import read_site
+from server.datasets.ilc_trace import read_trace
 from server.positioning.floorplan import (
     CLEARANCE_STEPS,
     FloorPlan,

@@ -7,7 +7,8 @@ import lzma
 import numpy as np
 import pytest
 
-from server.datasets.ilc import IlcTrace, parse_trace_text
+from server.datasets.ilc_trace import parse_trace_text
+from server.datasets.walk import Walk
 from server.positioning.events import (
     BleEvent,
     ImuEvent,
@@ -21,7 +22,7 @@ from server.storage.codec import CodecError
 from tests.datasets.conftest import dataset_dir
 
 
-def assert_same(a: IlcTrace, b: IlcTrace) -> None:
+def assert_same(a: Walk, b: Walk) -> None:
     for name in ("waypoint_t_ms", "waypoint_xy_m", "accel", "gyro", "magnetic", "rotation"):
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
     assert a.wifi == b.wifi

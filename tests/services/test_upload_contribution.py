@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import lzma
 
-from server.services.uploads import contribution
+from server.services.upload_contribution import contribution
 from server.storage.models import Upload
 from tests.datasets.conftest import dataset_dir
 
@@ -35,9 +35,9 @@ def test_a_walk_is_placed_by_its_steps_and_inertial_selection_thins_it() -> None
 def test_a_pass_by_an_anchor_ap_becomes_one_more_anchor() -> None:
     """IV-E3: where the walk's RSS of an anchor AP peaks at or above its P0, the walker was
     at the AP; that pass joins the waypoints as an anchor."""
-    from server.datasets.ilc import parse_trace_text
+    from server.datasets.ilc_trace import parse_trace_text
     from server.positioning.mapping.labelled import interpolate_track
-    from server.services.uploads import AnchorContext, Beacon
+    from server.services.upload_anchors import AnchorContext, Beacon
 
     upload = _upload()
     trace = parse_trace_text(upload.payload.decode(), "u")
@@ -62,7 +62,7 @@ def test_a_pass_by_an_anchor_ap_becomes_one_more_anchor() -> None:
 
 def test_samples_placed_far_outside_the_floor_plan_are_not_used() -> None:
     from server.positioning.floorplan import PLAN_MARGIN_M
-    from server.services.uploads import AnchorContext
+    from server.services.upload_anchors import AnchorContext
 
     everything = contribution(_upload())
     xs = sorted(p.x_m for p in everything.points)

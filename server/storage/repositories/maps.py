@@ -1,5 +1,5 @@
-"""Queries over the SQL schema. Functions take an ``AsyncSession``; the caller (a service)
-owns the transaction."""
+"""Map versions: radio maps (emitters, reference-point statistics) and magnetic grids, and
+which version is current (``next_activation``)."""
 
 from __future__ import annotations
 
@@ -10,139 +10,20 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from sqlalchemy import func, insert, select, update
+from sqlalchemy import func, insert, select
 from sqlalchemy.ext.asyncio import AsyncSession
 
 from server.positioning.fingerprint import RadioMap
 from server.positioning.magnetic import MagneticGrid
 from server.storage.codec import array_to_str, compress_arrays, decompress_arrays, str_to_array
 from server.storage.models import (
-    ApiKey,
-    Building,
     Emitter,
-    Floor,
     MagneticMapVersion,
     RadioMapVersion,
     RadioStat,
     ReferencePoint,
-    SessionContribution,
-    SessionRecord,
-    Site,
-    SurveyPoint,
-    Upload,
     utcnow,
 )
-
-INSERT_CHUNK = 5000
-
-
-# ---------------------------------------------------------------- sites, buildings, floors
-
-
-async def create_site(s: AsyncSession, name: str) -> Site:
-    site = Site(name=name)
-    s.add(site)
-    await s.flush()
-    return site
-
-
-async def list_sites(s: AsyncSession) -> Sequence[Site]:
-    return (await s.scalars(select(Site).order_by(Site.created_at, Site.id))).all()
-
-
-async def get_site(s: AsyncSession, site_id: str) -> Site | None:
-    return await s.get(Site, site_id)
-
-
-async def create_building(s: AsyncSession, site_id: str, **fields: Any) -> Building:
-    building = Building(site_id=site_id, **fields)
-    s.add(building)
-    await s.flush()
-    return building
-
-
-async def list_buildings(s: AsyncSession, site_id: str) -> Sequence[Building]:
-    stmt = select(Building).where(Building.site_id == site_id).order_by(Building.created_at)
-    return (await s.scalars(stmt)).all()
-
-
-async def get_building(s: AsyncSession, building_id: str) -> Building | None:
-    return await s.get(Building, building_id)
-
-
-async def lock_building(s: AsyncSession, building_id: str) -> Building | None:
-    """The building row, locked until the transaction ends (map rebuilds take turns)."""
-    stmt = select(Building).where(Building.id == building_id).with_for_update()
-    return (await s.scalars(stmt)).one_or_none()
-
-
-async def create_floor(s: AsyncSession, building_id: str, level: int, name: str | None) -> Floor:
-    floor = Floor(building_id=building_id, level=level, name=name)
-    s.add(floor)
-    await s.flush()
-    return floor
-
-
-async def find_floor(s: AsyncSession, building_id: str, level: int) -> Floor | None:
-    stmt = select(Floor).where(Floor.building_id == building_id, Floor.level == level)
-    return (await s.scalars(stmt)).one_or_none()
-
-
-async def list_floors(s: AsyncSession, building_id: str) -> Sequence[Floor]:
-    stmt = select(Floor).where(Floor.building_id == building_id).order_by(Floor.level)
-    return (await s.scalars(stmt)).all()
-
-
-async def get_floor(s: AsyncSession, floor_id: str) -> Floor | None:
-    return await s.get(Floor, floor_id)
-
-
-async def list_site_floors(s: AsyncSession, site_id: str) -> Sequence[tuple[Floor, Building]]:
-    """All floors of a site with their building, in (building creation, level) order."""
-    stmt = (
-        select(Floor, Building)
-        .join(Building, Floor.building_id == Building.id)
-        .where(Building.site_id == site_id)
-        .order_by(Building.created_at, Building.id, Floor.level)
-    )
-    return [(f, b) for f, b in (await s.execute(stmt)).all()]
-
-
-# ---------------------------------------------------------------- survey points
-
-
-async def add_survey_points(s: AsyncSession, rows: Sequence[dict[str, Any]]) -> None:
-    for start in range(0, len(rows), INSERT_CHUNK):
-        await s.execute(insert(SurveyPoint), list(rows[start : start + INSERT_CHUNK]))
-
-
-async def list_survey_points(s: AsyncSession, building_id: str) -> Sequence[SurveyPoint]:
-    stmt = select(SurveyPoint).where(SurveyPoint.building_id == building_id)
-    return (await s.scalars(stmt.order_by(SurveyPoint.id))).all()
-
-
-async def survey_readings_with_devices(
-    s: AsyncSession, building_id: str
-) -> list[tuple[float, float, str, dict[str, Any], str | None, str | None]]:
-    """Per survey point of the building: x, y, floor id, readings, the upload it came from
-    (None for points surveyed through the admin API) and that upload's device model."""
-    stmt = (
-        select(
-            SurveyPoint.x_m,
-            SurveyPoint.y_m,
-            SurveyPoint.floor_id,
-            SurveyPoint.readings,
-            SurveyPoint.upload_id,
-            Upload.device_model,
-        )
-        .outerjoin(Upload, SurveyPoint.upload_id == Upload.id)
-        .where(SurveyPoint.building_id == building_id)
-        .order_by(SurveyPoint.id)
-    )
-    return [(r[0], r[1], r[2], r[3], r[4], r[5]) for r in (await s.execute(stmt)).all()]
-
-
-# ---------------------------------------------------------------- emitters and radio maps
 
 
 async def ensure_emitters(
@@ -335,9 +216,6 @@ async def next_activation(s: AsyncSession, model: Any, owner: Any, owner_id: str
     return now if last is None or now > last else last + timedelta(microseconds=1)
 
 
-# ---------------------------------------------------------------- magnetic maps
-
-
 async def save_magnetic_map(
     s: AsyncSession, floor_id: str, grid: MagneticGrid, *, source: str = "survey"
 ) -> MagneticMapVersion:
@@ -409,141 +287,4 @@ def magnetic_grid(row: MagneticMapVersion) -> MagneticGrid:
         count=arrays["count"],
         horizontal=arrays.get("horizontal"),
         vertical=arrays.get("vertical"),
-    )
-
-
-# ---------------------------------------------------------------- uploads
-
-
-async def create_upload(s: AsyncSession, **fields: Any) -> Upload:
-    row = Upload(**fields)
-    s.add(row)
-    await s.flush()
-    return row
-
-
-async def get_upload(s: AsyncSession, upload_id: str) -> Upload | None:
-    return await s.get(Upload, upload_id)
-
-
-async def find_upload_by_key(s: AsyncSession, key: str) -> Upload | None:
-    return (await s.scalars(select(Upload).where(Upload.idempotency_key == key))).one_or_none()
-
-
-async def lock_upload(s: AsyncSession, upload_id: str) -> Upload | None:
-    """The upload row, locked until the transaction ends (one worker settles it)."""
-    stmt = select(Upload).where(Upload.id == upload_id).with_for_update()
-    return (await s.scalars(stmt)).one_or_none()
-
-
-async def upload_ids(
-    s: AsyncSession, statuses: Sequence[str], untouched_since: datetime
-) -> list[str]:
-    """Uploads in one of ``statuses`` whose row has not changed since the given time."""
-    stmt = (
-        select(Upload.id)
-        .where(Upload.status.in_(statuses), Upload.updated_at <= untouched_since)
-        .order_by(Upload.created_at)
-    )
-    return list((await s.scalars(stmt)).all())
-
-
-async def count_survey_points(s: AsyncSession, upload_id: str) -> int:
-    stmt = select(func.count()).select_from(SurveyPoint).where(SurveyPoint.upload_id == upload_id)
-    return int(await s.scalar(stmt) or 0)
-
-
-# ---------------------------------------------------------------- session contributions
-
-
-async def keep_session_batch(s: AsyncSession, session_id: str, seq: int, payload: bytes) -> None:
-    """Keep a contributing session's batch (once per seq: a retry finds it there)."""
-    exists = await s.get(SessionContribution, (session_id, seq))
-    if exists is None:
-        s.add(SessionContribution(session_id=session_id, seq=seq, payload=payload))
-        await s.flush()
-
-
-async def take_session_batches(s: AsyncSession, session_id: str) -> list[bytes]:
-    """A session's kept batches in seq order, removed from the table."""
-    stmt = (
-        select(SessionContribution)
-        .where(SessionContribution.session_id == session_id)
-        .order_by(SessionContribution.seq)
-    )
-    rows = list((await s.scalars(stmt)).all())
-    for row in rows:
-        await s.delete(row)
-    return [row.payload for row in rows]
-
-
-# ---------------------------------------------------------------- API keys
-
-
-async def create_api_key(
-    s: AsyncSession, name: str, key_hash: str, scopes: str = "admin", site_id: str | None = None
-) -> ApiKey:
-    key = ApiKey(name=name, key_hash=key_hash, scopes=scopes, site_id=site_id)
-    s.add(key)
-    await s.flush()
-    return key
-
-
-async def find_api_key(s: AsyncSession, key_hash: str) -> ApiKey | None:
-    stmt = select(ApiKey).where(ApiKey.key_hash == key_hash, ApiKey.revoked_at.is_(None))
-    return (await s.scalars(stmt)).one_or_none()
-
-
-async def get_api_key(s: AsyncSession, key_id: str) -> ApiKey | None:
-    return await s.get(ApiKey, key_id)
-
-
-async def list_api_keys(s: AsyncSession, include_revoked: bool = False) -> Sequence[ApiKey]:
-    stmt = select(ApiKey).order_by(ApiKey.created_at, ApiKey.id)
-    if not include_revoked:
-        stmt = stmt.where(ApiKey.revoked_at.is_(None))
-    return (await s.scalars(stmt)).all()
-
-
-async def revoke_api_key(s: AsyncSession, key: ApiKey) -> None:
-    key.revoked_at = utcnow()
-    await s.flush()
-
-
-async def rotate_api_key(s: AsyncSession, key: ApiKey, key_hash: str) -> None:
-    key.key_hash = key_hash
-    key.rotated_at = utcnow()
-    await s.flush()
-
-
-# ---------------------------------------------------------------- sessions
-
-
-async def create_session_record(s: AsyncSession, record: SessionRecord) -> None:
-    s.add(record)
-    await s.flush()
-
-
-async def get_session_record(s: AsyncSession, session_id: str) -> SessionRecord | None:
-    return await s.get(SessionRecord, session_id)
-
-
-async def set_session_epoch(s: AsyncSession, session_id: str, epoch: str) -> None:
-    """The session lives in this epoch now, and was active just now."""
-    await s.execute(
-        update(SessionRecord)
-        .where(SessionRecord.id == session_id)
-        .values(epoch=epoch, last_active_at=utcnow())
-    )
-
-
-async def touch_session_record(s: AsyncSession, session_id: str) -> None:
-    await s.execute(
-        update(SessionRecord).where(SessionRecord.id == session_id).values(last_active_at=utcnow())
-    )
-
-
-async def end_session_record(s: AsyncSession, session_id: str) -> None:
-    await s.execute(
-        update(SessionRecord).where(SessionRecord.id == session_id).values(ended_at=utcnow())
     )

@@ -1,0 +1,160 @@
+"""A recorded walk: what the dataset readers produce and the map builder reads.
+
+One shape for every source: an ILC 2.0 path file (``ilc_trace.read_trace``), an IPIN
+GetSensorData log (``ipin_log.read_log``), or our own events (an upload, the batches of a
+session; ``services.traces``). A walk is what the phone recorded and where it is known to
+have been; what a reader could not read is in its report (``records.ParseReport``), not
+here.
+
+Its views as events (``radio_events``, ``imu_events``, ``events``) are what a phone would
+have posted, so a replayed walk and live phone traffic go through the same code.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from server.positioning.events import BleEvent, Event, ImuEvent, WifiEvent
+
+IMU_BLOCK_MS = 1000
+"""Phone time covered by one ``ImuEvent`` of ``Walk.imu_events``: a phone posting raw
+samples about once a second (as the evaluation replays batches)."""
+
+
+@dataclass(frozen=True, eq=False)
+class Walk:
+    """One recorded walk.
+
+    Attributes
+    ----------
+    path_id : str
+        The walk's name: its file name without ``.txt`` / ``.txt.xz``, an upload's id.
+    floor : str
+        Floor name, e.g. ``"F1"`` (``ilc.floor_level`` tells its level; ``""`` unknown).
+    waypoint_t_ms : ndarray, shape (n_wp,), int64
+        Ground-truth (anchor) times, sorted.
+    waypoint_xy_m : ndarray, shape (n_wp, 2), float64
+        Ground-truth positions in the floor-map frame (x east, y north), metres.
+    wifi : tuple of WifiEvent
+        One event per scan, sorted by time; readings keyed by lower-case BSSID.
+    ble : tuple of BleEvent
+        Beacon scans sorted by time (the readers group rows into scans of
+        ``events.BLE_WINDOW_MS``, ``window_ble``); readings keyed by the beacon's MAC in
+        lower case.
+    accel, gyro, magnetic, rotation : ndarray, shape (n, 4), float64
+        ``[t_ms, x, y, z]`` rows sorted by time: m/s², rad/s, µT, rotation-vector
+        quaternion (x, y, z).
+    uncalibrated : frozenset of str
+        Streams (``"accel"``, ``"gyro"``, ``"magnetic"``) taken from uncalibrated
+        records (their bias estimate subtracted) or sent uncalibrated.
+    t_first_ms, t_last_ms : int
+        First and last timestamp of the records read (0 and 0 when there are none).
+    gnss : ndarray, shape (n_fix, 5), float64
+        ``[t_ms, lat_deg, lon_deg, accuracy_m, hdop]`` satellite fixes (ILC files carry
+        none; walks made of our own events and IPIN logs may); hdop NaN where unknown.
+    pressure : ndarray, shape (n_p, 2), float64
+        ``[t_ms, hPa]`` barometer rows sorted by time (ILC files carry none).
+    waypoint_floor : ndarray, shape (n_wp,) or (0,), int64
+        Level of each waypoint (0 ground floor, negative below) where the source gives
+        one per waypoint (IPIN ``POSI`` lines); empty when the whole walk is on ``floor``.
+    """
+
+    path_id: str
+    floor: str
+    waypoint_t_ms: NDArray[np.int64]
+    waypoint_xy_m: NDArray[np.float64]
+    wifi: tuple[WifiEvent, ...]
+    ble: tuple[BleEvent, ...]
+    accel: NDArray[np.float64]
+    gyro: NDArray[np.float64]
+    magnetic: NDArray[np.float64]
+    rotation: NDArray[np.float64]
+    uncalibrated: frozenset[str]
+    t_first_ms: int
+    t_last_ms: int
+    gnss: NDArray[np.float64] = field(default_factory=lambda: np.empty((0, 5)))
+    pressure: NDArray[np.float64] = field(default_factory=lambda: np.empty((0, 2)))
+    waypoint_floor: NDArray[np.int64] = field(default_factory=lambda: np.empty(0, dtype=np.int64))
+
+    @property
+    def duration_ms(self) -> int:
+        """Time from the first to the last record read, in ms."""
+        return self.t_last_ms - self.t_first_ms
+
+    def radio_events(self) -> list[WifiEvent | BleEvent]:
+        """WiFi and BLE events merged and sorted by time (stable: WiFi first on ties)."""
+        events: list[WifiEvent | BleEvent] = [*self.wifi, *self.ble]
+        events.sort(key=lambda e: e.t_ms)
+        return events
+
+    def imu_events(self, block_ms: int = IMU_BLOCK_MS) -> list[ImuEvent]:
+        """The motion samples cut into blocks of ``block_ms`` phone time, as a phone that
+        sends raw samples would post them.
+
+        Block ``k`` holds the samples of every stream with ``t0 + k * block_ms <= t <
+        t0 + (k + 1) * block_ms``, ``t0`` being the first sample of any stream, and its
+        ``t_ms`` is that start; blocks without any sample are left out. Each sample is in
+        exactly one block, except one logged at the same millisecond as the previous
+        sample of its stream (the event model needs increasing times; site2 has none).
+
+        Rotation rows gain ``w = sqrt(1 - x² - y² - z²)`` (clipped at 0), as Android's
+        ``SensorManager.getQuaternionFromVector`` completes a three-value rotation vector.
+        ``magnetic_calibrated`` is always true: a stream taken from uncalibrated records
+        (see ``uncalibrated``) had the phone's hard-iron estimate subtracted on reading.
+
+        Raises
+        ------
+        ValueError
+            When ``block_ms`` is not positive.
+        """
+        if block_ms <= 0:
+            raise ValueError(f"block_ms must be positive, not {block_ms}")
+        accel, gyro, magnetic, rotation = (
+            _increasing(a)
+            for a in (self.accel, self.gyro, self.magnetic, _with_scalar_part(self.rotation))
+        )
+        streams = (accel, gyro, magnetic, rotation)
+        firsts = [a[0, 0] for a in streams if a.shape[0]]
+        if not firsts:
+            return []
+        t0 = int(min(firsts))
+        block_of = [(a[:, 0].astype(np.int64) - t0) // block_ms for a in streams]
+        blocks = np.unique(np.concatenate(block_of))
+        # piece i of a stream: its samples in blocks[i] (blocks[1:] are where pieces start)
+        pieces = [
+            np.split(a, np.searchsorted(b, blocks[1:]))
+            for a, b in zip(streams, block_of, strict=True)
+        ]
+        return [
+            ImuEvent(t0 + k * block_ms, accel=ac, gyro=gy, magnetic=ma, rotation=ro)
+            for k, ac, gy, ma, ro in zip(blocks.tolist(), *pieces, strict=True)
+        ]
+
+    def events(self, imu: bool = False, block_ms: int = IMU_BLOCK_MS) -> list[Event]:
+        """Radio events and, with ``imu``, the blocks of ``imu_events(block_ms)``, sorted
+        by time (stable: on a tie WiFi, then BLE, then the block).
+
+        A block is placed at its start: a scan taken while its samples were logged comes
+        after the whole block, as in a batch a phone posts.
+        """
+        events: list[Event] = [*self.radio_events()]
+        if imu:
+            events += self.imu_events(block_ms)
+        events.sort(key=lambda e: e.t_ms)
+        return events
+
+
+def _with_scalar_part(rotation: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(n, 4) ``[t, x, y, z]`` rotation-vector rows as (n, 5) ``[t, x, y, z, w]``."""
+    w = np.sqrt(np.clip(1.0 - np.sum(rotation[:, 1:4] ** 2, axis=1), 0.0, None))
+    return np.column_stack([rotation[:, :4], w])
+
+
+def _increasing(samples: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Time-sorted rows without those at the same time as the row before."""
+    keep = np.ones(samples.shape[0], dtype=bool)
+    keep[1:] = np.diff(samples[:, 0]) > 0
+    return samples if keep.all() else samples[keep]

@@ -1,0 +1,250 @@
+"""What one upload adds to the maps: its scans and magnetometer samples placed along the
+walk (CPU work, no I/O; ``uploads.settle`` folds the result in).
+
+What is folded today: a trace with at least two known positions (anchors; in an ILC 2.0
+path file its waypoints, as surveyors or an entrance and an elevator give them) places its
+scans and magnetometer samples by the walker's own steps between the anchors: steps found
+on the server in the raw IMU, aligned onto the anchors by a similarity transform and
+smoothed forward-backward between them (``mapping.placement``); without motion data, at
+constant speed between the anchors (``mapping.labelled``). A walk with fewer than two
+anchors is rejected with that reason. Its anchors are its waypoints, its passes by the
+beacons and anchor APs of its floor (``upload_anchors``) and its good satellite fixes
+(``papers/003_*`` IV-B, IV-E3).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from server.datasets.ilc import floor_level
+from server.datasets.walk import Walk
+from server.positioning.events import WifiEvent
+from server.positioning.floorplan import PLAN_MARGIN_M
+from server.positioning.magnetic import MagneticSamples
+from server.positioning.mapping.anchors import GeoReference, ble_anchors, gnss_anchors
+from server.positioning.mapping.labelled import interpolate_track
+from server.positioning.mapping.placement import place_samples
+from server.positioning.mapping.selection import select_inertial
+from server.positioning.step_tracker import TrackerParams
+from server.services import traces
+from server.services.errors import Invalid
+from server.services.maps import SurveyPointData
+from server.services.upload_anchors import AnchorContext, Beacon
+from server.services.upload_payloads import parse_payload
+from server.storage.models import Upload
+
+WEAK_DBM = -90.0  # papers/003_* IV-D: weaker readings are not signatures
+MAX_WALK_MPS = 3.0  # brisk walking is under 2 m/s; faster between anchors is not a walk
+
+
+@dataclass(frozen=True)
+class Contribution:
+    """What one upload adds to the maps, or why it adds nothing (``rejected``)."""
+
+    floor_level: int | None
+    points: Sequence[SurveyPointData] = ()
+    magnetic: MagneticSamples | None = None
+    rejected: str | None = None
+    report: dict[str, Any] = field(default_factory=dict)
+
+
+def contribution(
+    upload: Upload,
+    context: AnchorContext | None = None,
+    *,
+    inertial_selection: bool = False,
+) -> Contribution:
+    """The readings an upload adds to the maps (CPU work, no I/O: run it in a thread).
+    Its anchors are its waypoints, its passes by the beacons and anchor APs of its floor
+    and its good satellite fixes (``papers/003_*`` IV-B, IV-E3)."""
+    context = context or AnchorContext()
+    try:
+        trace = parse_payload(upload.content_type, upload.payload, upload.id)
+    except Invalid as exc:  # stored before a stricter reader: say why, do not retry
+        return Contribution(None, rejected=exc.message)
+    level = upload.floor_level
+    if level is None:
+        try:
+            level = floor_level(trace.floor)
+        except ValueError:
+            return Contribution(None, rejected="no floor: give the floor hint (floor)")
+    n_waypoints = int(trace.waypoint_t_ms.size)
+    trace = _with_passes(trace, [b for b in context.beacons if b.level == level], context.geo)
+    report: dict[str, Any] = {
+        "anchors": int(trace.waypoint_t_ms.size),
+        "anchor_source": "waypoints" if n_waypoints else "beacons",
+        "anchor_passes": int(trace.waypoint_t_ms.size) - n_waypoints,
+    }
+    if trace.waypoint_t_ms.size < 2:
+        return Contribution(
+            level,
+            rejected="fewer than two anchors: no waypoints, and passes by fewer than two "
+            "of the floor plan's beacons",
+            report=report,
+        )
+    events = [e for e in trace.radio_events() if e.readings]
+    samples = trace.magnetic
+    field_usable = bool(samples.shape[0]) and "magnetic" not in trace.uncalibrated
+    times = np.concatenate(
+        [
+            np.array([e.t_ms for e in events], dtype=np.float64),
+            samples[:, 0] if field_usable else np.empty(0),
+        ]
+    )
+    xy, placed, not_used = _place(trace, times, report)
+    if level in context.extents:
+        x0, y0, x1, y1 = context.extents[level]
+        m = PLAN_MARGIN_M
+        inside = (xy[:, 0] >= x0 - m) & (xy[:, 0] <= x1 + m) & (xy[:, 1] >= y0 - m)
+        inside &= xy[:, 1] <= y1 + m
+        if np.any(placed & ~inside):
+            not_used.append(
+                f"{int(np.count_nonzero(placed & ~inside))} samples placed more than "
+                f"{m:g} m outside the floor plan"
+            )
+        placed = placed & inside
+    if inertial_selection:
+        placed = placed & _selected(trace, times, report, not_used)
+    points: list[SurveyPointData] = []
+    weak = 0
+    for event, (x, y), ok in zip(events, xy[: len(events)].tolist(), placed, strict=False):
+        if ok:
+            # papers/003_* IV-D: readings weaker than -90 dBm are left out of the maps
+            pairs = [(r.emitter, r.rssi_dbm) for r in event.readings if r.rssi_dbm >= WEAK_DBM]
+            weak += len(event.readings) - len(pairs)
+            if not pairs:
+                continue
+            wifi = pairs if isinstance(event, WifiEvent) else []
+            points.append(
+                SurveyPointData(x, y, level, event.t_ms, wifi, [] if wifi else pairs, None)
+            )
+    report["scans"] = len(points)
+    if weak:
+        not_used.append(f"{weak} readings weaker than {WEAK_DBM:g} dBm")
+    magnetic = None
+    if field_usable:
+        strength = np.linalg.norm(samples[:, 1:4], axis=1)
+        keep = placed[len(events) :] & np.isfinite(strength)
+        if keep.any():
+            magnetic = MagneticSamples(xy=xy[len(events) :][keep], magnitude=strength[keep])
+        report["magnetic_samples"] = int(keep.sum())
+    elif samples.shape[0]:
+        not_used.append("magnetometer: uncalibrated only")
+    report["not_used"] = not_used
+    if not points and magnetic is None:
+        why = f": {'; '.join(not_used)}" if not_used else ""
+        return Contribution(level, rejected=f"nothing could be placed{why}", report=report)
+    return Contribution(level, points, magnetic, report=report)
+
+
+def _selected(
+    trace: Walk, times: NDArray[np.float64], report: dict[str, Any], not_used: list[str]
+) -> NDArray[np.bool_]:
+    """Which sample times fall in spans of steady walking (``papers/003_*`` IV-A,
+    ``mapping.selection``); the reasons for the rest go into the report."""
+    selection = select_inertial(trace.accel, trace.gyro)
+    spans = selection.kept_spans_ms
+    inside = np.zeros(times.shape, dtype=bool)
+    for start, end in spans.tolist():
+        inside |= (times >= start) & (times < end)
+    total = selection.kept_ms + selection.rejected_ms
+    report["inertial_selection_kept"] = round(selection.kept_ms / total, 3) if total else 0.0
+    worst: dict[str, int] = {}
+    for span in selection.rejected:
+        for criterion in span.criteria:
+            worst[criterion] = worst.get(criterion, 0) + span.end_ms - span.start_ms
+    for name, ms in sorted(worst.items(), key=lambda kv: -kv[1]):
+        not_used.append(f"inertial selection: {ms / 1000:.0f} s failed {name}")
+    return inside
+
+
+def _with_passes(trace: Walk, beacons: Sequence[Beacon], geo: GeoReference | None) -> Walk:
+    """The trace with its passes by known beacons and anchor APs, and its good satellite
+    fixes, added to its waypoints (``papers/003_*`` IV-B and IV-E3: where the smoothed RSS
+    of one of them peaks at or above its threshold, the walker was at its place; a fix
+    with accuracy < 5 m and HDOP < 20 places it too). One within a second of a waypoint
+    is left out: the waypoint says it better."""
+    found_t, found_xy = [trace.waypoint_t_ms.astype(np.float64)], [trace.waypoint_xy_m]
+    if geo is not None and trace.gnss.shape[0]:
+        fixes = gnss_anchors(trace.gnss, geo)
+        found_t.append(fixes.t_ms.astype(np.float64))
+        found_xy.append(fixes.xy_m)
+    for kind, scans in (("ble", trace.ble), ("wifi", trace.wifi)):
+        readings = [(e.t_ms, r.emitter.lower(), r.rssi_dbm) for e in scans for r in e.readings]
+        for threshold in {b.threshold_dbm for b in beacons if b.kind == kind}:
+            group = [b for b in beacons if b.kind == kind and b.threshold_dbm == threshold]
+            known = {b.emitter for b in group}
+            mine = [r for r in readings if r[1] in known]
+            if not mine:
+                continue
+            t, ids, rssi = zip(*mine, strict=True)
+            places = [(b.emitter, b.xy_m, b.level) for b in group]
+            options = {} if threshold is None else {"threshold_dbm": threshold}
+            passes = ble_anchors(t, list(ids), rssi, places, **options)
+            found_t.append(passes.t_ms.astype(np.float64))
+            found_xy.append(passes.xy_m)
+    if len(found_t) == 1:
+        return trace
+    t_all, xy_all = np.concatenate(found_t), np.concatenate(found_xy)
+    n_wp = trace.waypoint_t_ms.size
+    keep = np.ones(t_all.size, dtype=bool)
+    if n_wp:
+        gap = np.abs(t_all[n_wp:, None] - trace.waypoint_t_ms[None, :]).min(axis=1)
+        keep[n_wp:] = gap > 1000
+    order = np.argsort(t_all[keep], kind="stable")
+    return replace(
+        trace,
+        waypoint_t_ms=t_all[keep][order].astype(np.int64),
+        waypoint_xy_m=np.ascontiguousarray(xy_all[keep][order]),
+    )
+
+
+def _between_fast_anchors(trace: Walk, times: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """Which ``times`` fall between two consecutive anchors that a walker could not go
+    between at ``MAX_WALK_MPS`` (a wrong anchor, or one from another building)."""
+    t = trace.waypoint_t_ms.astype(np.float64)
+    dt_s = np.maximum(np.diff(t), 1.0) / 1000.0
+    speed = np.linalg.norm(np.diff(trace.waypoint_xy_m, axis=0), axis=1) / dt_s
+    segment = np.clip(np.searchsorted(t, times, side="right") - 1, 0, speed.size - 1)
+    out: NDArray[np.bool_] = speed[segment] > MAX_WALK_MPS
+    return out
+
+
+def _place(
+    trace: Walk, times: NDArray[np.float64], report: dict[str, Any]
+) -> tuple[NDArray[np.float64], NDArray[np.bool_], list[str]]:
+    """Positions of samples at ``times``: by the walker's steps between the anchors
+    (``mapping.placement``), or at constant speed between them when the trace has no
+    motion data to find steps in."""
+    steps = traces.anchored_steps(trace, TrackerParams())
+    if steps is None or steps.t_ms.size < 2:
+        xy, valid = interpolate_track(trace.waypoint_t_ms, trace.waypoint_xy_m, times)
+        report["placement"] = "constant speed between anchors (no steps found)"
+        outside = int(np.count_nonzero(~valid))
+        reasons = [f"{outside} samples before the first or after the last anchor"]
+        reasons = reasons if outside else []
+        too_fast = valid & _between_fast_anchors(trace, times)
+        if too_fast.any():
+            reasons.append(
+                f"{int(np.count_nonzero(too_fast))} samples between anchors farther apart "
+                f"than a walker goes at {MAX_WALK_MPS:g} m/s"
+            )
+        return xy, valid & ~too_fast, reasons
+    placement = place_samples(
+        steps.t_ms,
+        steps.length_m,
+        steps.heading_rad,
+        trace.waypoint_t_ms,
+        trace.waypoint_xy_m,
+        times,
+    )
+    report["placement"] = "steps between anchors"
+    report["steps"] = int(steps.t_ms.size)
+    if np.isfinite(placement.scale):
+        report["step_scale"] = round(placement.scale, 3)
+    return placement.xy_m, placement.placed, list(placement.not_used)
