@@ -329,7 +329,8 @@ def _http_replayer(
     builds the maps from them; the uploads' final states are appended to the list."""
     from client_sim.replay import keep_end_anchors, replay_over_http
     from server.api.convert import fix_from_wire, to_wire
-    from server.lab.evaluation import LabelledScans, TrainingSurvey, batches
+    from server.lab.replay import batches
+    from server.lab.training_maps import LabelledScans, TrainingSurvey
 
     def run(
         engine: str, maps: SiteMaps, training: TrainingSurvey, traces: list[list[Event]]
@@ -449,12 +450,12 @@ def _summarise_crowd(summary: dict[str, Any], reports: list[dict[str, Any]]) -> 
 def _write_points(json_path: Path, runs: Sequence[Any]) -> None:
     """The per-point errors of each run beside the summary: ``out.points.csv`` (one
     engine) or ``out.<engine>.points.csv``."""
-    from server.lab import evaluation
+    from server.lab.scoring import write_points
 
     for run in runs:
         middle = f".{run.summary['engine']}" if len(runs) > 1 else ""
         points = json_path.with_name(f"{json_path.stem}{middle}.points.csv")
-        evaluation.write_points(run.paths, points)
+        write_points(run.paths, points)
         console.print(f"per-point errors written to {points}")
 
 
@@ -499,7 +500,9 @@ def evaluate_ilc(
     ] = None,
 ) -> None:
     """Replay ILC 2.0 test traces through engines, with maps built from training traces."""
-    from server.lab import evaluation
+    from server.lab.engine_params import engine_params
+    from server.lab.ilc_evaluation import evaluate_ilc
+    from server.lab.replay import in_process_replayer
 
     if via_http and not admin_key:
         raise typer.BadParameter("--via-http needs --admin-key (or INDOORPOS_ADMIN_KEY)")
@@ -509,7 +512,7 @@ def evaluate_ilc(
     chosen = {}
     for name in engine:
         try:
-            chosen[name] = evaluation.engine_params(name, overrides) if overrides else None
+            chosen[name] = engine_params(name, overrides) if overrides else None
         except (KeyError, ValueError) as e:
             raise typer.BadParameter(str(e.args[0]), param_hint="--param") from None
 
@@ -532,10 +535,10 @@ def evaluate_ilc(
             replayer = (
                 _http_replayer(service[0], service[1], progress, reports)
                 if service is not None
-                else evaluation.in_process_replayer(split_seed, progress, chosen[name])
+                else in_process_replayer(split_seed, progress, chosen[name])
             )
             runs.append(
-                evaluation.evaluate_ilc(
+                evaluate_ilc(
                     site_dir,
                     name,
                     split_seed=split_seed,
@@ -582,7 +585,9 @@ def evaluate_ilc(
         console.print(f"metrics written to {json_path}")
         _write_points(json_path, runs)
     if plots is not None:
-        written = evaluation.write_ilc_plots(runs, plots)
+        from server.lab.plots import write_ilc_plots
+
+        written = write_ilc_plots(runs, plots)
         console.print(f"{len(written)} figures written to {plots}")
 
 
@@ -612,12 +617,13 @@ def evaluate_ipin(
     ] = None,
 ) -> None:
     """Replay IPIN 2023 Track 3 logs through engines, leaving one trial out of the maps."""
-    from server.lab import evaluation, ipin_evaluation
+    from server.lab import ipin_evaluation
+    from server.lab.engine_params import engine_params
 
     overrides = dict(p.partition("=")[::2] for p in param or [])
     for name in engine:
         try:
-            evaluation.engine_params(name, overrides)
+            engine_params(name, overrides)
         except (KeyError, ValueError) as e:
             raise typer.BadParameter(str(e.args[0]), param_hint="--param") from None
     runs = []
@@ -742,14 +748,14 @@ def evaluate_uji(
 ) -> None:
     """Fingerprint methods on UJIIndoorLoc-style CSV files (EvAAL score included)."""
     from server.datasets.uji import read_ujiindoorloc
-    from server.lab import evaluation
+    from server.lab.uji_evaluation import evaluate_uji
 
     with console.status("reading fingerprints"):
         train = read_ujiindoorloc(train_csv)
         test = read_ujiindoorloc(test_csv)
     with _progress_bar() as bar:
         task = bar.add_task(method, total=test.rssi_dbm.shape[0])
-        result = evaluation.evaluate_uji(
+        result = evaluate_uji(
             train,
             test,
             method,

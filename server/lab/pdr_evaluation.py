@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from server.datasets.ilc import IlcTrace, read_site, read_trace
-from server.lab.evaluation import split_site
+from server.lab.split import split_site
 from server.positioning import pdr
 from server.positioning.pdr import Detector, LengthModel
 from server.positioning.step_tracker import (

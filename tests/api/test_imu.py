@@ -22,7 +22,7 @@ from server.api import convert
 from server.api.schemas.events import ImuIn
 from server.api.schemas.sessions import MAX_IMU_ROWS_PER_BATCH, LiveBatch
 from server.datasets.ilc import read_trace
-from server.lab.evaluation import batches
+from server.lab.replay import batches
 from server.positioning.events import ImuEvent
 from tests.api.toy_site import WIDTH_M, ToySite, build_toy_site, rssi_at
 from tests.conftest import ADMIN_KEY
