@@ -795,7 +795,7 @@ def bench_particle(
     json_path: Annotated[Path | None, typer.Option("--json", help="write the figures here")] = None,
 ) -> None:
     """Mass-centered against DTW weight update on the same inputs, and the state codec."""
-    from server.lab.bench import particle_bench
+    from server.lab.particle_bench import particle_bench
 
     # no spinner: its refresh thread would take the GIL in the middle of the timings
     console.print(f"timing {particles} particles, {repeat} runs per measure ...")
@@ -896,7 +896,7 @@ def bench_load(
 ) -> None:
     """Walking users per core through HTTP + Redis, the in-process ceiling, and two
     api processes against one (bench/performance.md)."""
-    from server.load_bench import Level, run_load_bench
+    from server.lab.load_bench import Level, run_load_bench
 
     def show(level: Level) -> None:
         mark = "[green]held[/]" if level.held else "[red]not held[/]"
