@@ -26,7 +26,7 @@ from server.api import (
     sessions,
     uploads,
 )
-from server.api import schemas as sc
+from server.api.schemas.errors import ErrorOut
 from server.config import Settings, get_settings
 from server.services import telemetry
 from server.services.runtime import open_runtime
@@ -40,7 +40,7 @@ DESCRIPTION = (
 
 # what any route may answer besides its own success (server.api.errors makes each of them)
 ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
-    status: {"model": sc.ErrorOut, "description": description}
+    status: {"model": ErrorOut, "description": description}
     for status, description in {
         400: "the body could not be read",
         401: "no valid key or session token",

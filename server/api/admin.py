@@ -7,7 +7,6 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Path, status
 
-from server.api import schemas as sc
 from server.api.convert import ble_pairs, wifi_pairs
 from server.api.deps import (
     AdminDep,
@@ -18,6 +17,28 @@ from server.api.deps import (
     Viewer,
     ViewerDep,
 )
+from server.api.schemas.maps import (
+    DeviceOffsetList,
+    DeviceOffsetRead,
+    MagneticMapList,
+    MagneticMapRead,
+    MagneticSurveyIn,
+    RadioMapList,
+    RadioMapRead,
+    SurveyIn,
+)
+from server.api.schemas.sites import (
+    BuildingCreate,
+    BuildingList,
+    BuildingRead,
+    FloorCreate,
+    FloorList,
+    FloorPlan,
+    FloorRead,
+    SiteCreate,
+    SiteList,
+    SiteRead,
+)
 from server.services import device_offsets, magnetic_maps, maps, sites
 
 VersionPath = Annotated[int, Path(ge=1, le=2**31 - 1, description="map version number")]
@@ -25,8 +46,8 @@ VersionPath = Annotated[int, Path(ge=1, le=2**31 - 1, description="map version n
 router = APIRouter(prefix="/v1", tags=["admin"])
 
 
-def _floor(f: Any) -> sc.FloorRead:
-    return sc.FloorRead(
+def _floor(f: Any) -> FloorRead:
+    return FloorRead(
         id=f.id,
         building_id=f.building_id,
         level=f.level,
@@ -36,74 +57,74 @@ def _floor(f: Any) -> sc.FloorRead:
     )
 
 
-def _radio_map(m: Any) -> sc.RadioMapRead:
-    return sc.RadioMapRead.model_validate(m, from_attributes=True)
+def _radio_map(m: Any) -> RadioMapRead:
+    return RadioMapRead.model_validate(m, from_attributes=True)
 
 
 @router.post("/sites", status_code=status.HTTP_201_CREATED, dependencies=[GlobalAdminDep])
-async def create_site(body: sc.SiteCreate, s: SqlDep) -> sc.SiteRead:
-    return sc.SiteRead.model_validate(await sites.create_site(s, body.name), from_attributes=True)
+async def create_site(body: SiteCreate, s: SqlDep) -> SiteRead:
+    return SiteRead.model_validate(await sites.create_site(s, body.name), from_attributes=True)
 
 
 @router.get("/sites")
-async def list_sites(s: SqlDep, principal: Viewer) -> sc.SiteList:
+async def list_sites(s: SqlDep, principal: Viewer) -> SiteList:
     rows = [x for x in await sites.list_sites(s) if principal.site_id in (None, x.id)]
-    items = [sc.SiteRead.model_validate(x, from_attributes=True) for x in rows]
-    return sc.SiteList(items=items, count=len(items))
+    items = [SiteRead.model_validate(x, from_attributes=True) for x in rows]
+    return SiteList(items=items, count=len(items))
 
 
 @router.get("/sites/{site_id}", dependencies=[ViewerDep])
-async def get_site(site_id: IdPath, s: SqlDep) -> sc.SiteRead:
-    return sc.SiteRead.model_validate(await sites.get_site(s, site_id), from_attributes=True)
+async def get_site(site_id: IdPath, s: SqlDep) -> SiteRead:
+    return SiteRead.model_validate(await sites.get_site(s, site_id), from_attributes=True)
 
 
 @router.post(
     "/sites/{site_id}/buildings", status_code=status.HTTP_201_CREATED, dependencies=[AdminDep]
 )
-async def create_building(site_id: IdPath, body: sc.BuildingCreate, s: SqlDep) -> sc.BuildingRead:
+async def create_building(site_id: IdPath, body: BuildingCreate, s: SqlDep) -> BuildingRead:
     building = await sites.create_building(s, site_id, **body.model_dump())
-    return sc.BuildingRead.model_validate(building, from_attributes=True)
+    return BuildingRead.model_validate(building, from_attributes=True)
 
 
 @router.get("/sites/{site_id}/buildings", dependencies=[ViewerDep])
-async def list_buildings(site_id: IdPath, s: SqlDep) -> sc.BuildingList:
+async def list_buildings(site_id: IdPath, s: SqlDep) -> BuildingList:
     rows = await sites.list_buildings(s, site_id)
-    items = [sc.BuildingRead.model_validate(b, from_attributes=True) for b in rows]
-    return sc.BuildingList(items=items, count=len(items))
+    items = [BuildingRead.model_validate(b, from_attributes=True) for b in rows]
+    return BuildingList(items=items, count=len(items))
 
 
 @router.get("/buildings/{building_id}", dependencies=[ViewerDep])
-async def get_building(building_id: IdPath, s: SqlDep) -> sc.BuildingRead:
+async def get_building(building_id: IdPath, s: SqlDep) -> BuildingRead:
     building = await sites.get_building(s, building_id)
-    return sc.BuildingRead.model_validate(building, from_attributes=True)
+    return BuildingRead.model_validate(building, from_attributes=True)
 
 
 @router.post(
     "/buildings/{building_id}/floors", status_code=status.HTTP_201_CREATED, dependencies=[AdminDep]
 )
-async def create_floor(building_id: IdPath, body: sc.FloorCreate, s: SqlDep) -> sc.FloorRead:
+async def create_floor(building_id: IdPath, body: FloorCreate, s: SqlDep) -> FloorRead:
     return _floor(await sites.create_floor(s, building_id, body.level, body.name))
 
 
 @router.get("/buildings/{building_id}/floors", dependencies=[ViewerDep])
-async def list_floors(building_id: IdPath, s: SqlDep) -> sc.FloorList:
+async def list_floors(building_id: IdPath, s: SqlDep) -> FloorList:
     items = [_floor(f) for f in await sites.list_floors(s, building_id)]
-    return sc.FloorList(items=items, count=len(items))
+    return FloorList(items=items, count=len(items))
 
 
 @router.get("/floors/{floor_id}", dependencies=[ViewerDep])
-async def get_floor(floor_id: IdPath, s: SqlDep) -> sc.FloorRead:
+async def get_floor(floor_id: IdPath, s: SqlDep) -> FloorRead:
     return _floor(await sites.get_floor(s, floor_id))
 
 
 @router.put("/floors/{floor_id}/plan", dependencies=[MapsWriteDep])
-async def put_floor_plan(floor_id: IdPath, body: sc.FloorPlan, s: SqlDep) -> sc.FloorRead:
+async def put_floor_plan(floor_id: IdPath, body: FloorPlan, s: SqlDep) -> FloorRead:
     return _floor(await sites.put_floor_plan(s, floor_id, body.model_dump(mode="json")))
 
 
 @router.get("/floors/{floor_id}/plan", dependencies=[ViewerDep])
-async def get_floor_plan(floor_id: IdPath, s: SqlDep) -> sc.FloorPlan:
-    return sc.FloorPlan.model_validate(await sites.get_floor_plan(s, floor_id))
+async def get_floor_plan(floor_id: IdPath, s: SqlDep) -> FloorPlan:
+    return FloorPlan.model_validate(await sites.get_floor_plan(s, floor_id))
 
 
 @router.post(
@@ -111,7 +132,7 @@ async def get_floor_plan(floor_id: IdPath, s: SqlDep) -> sc.FloorPlan:
     status_code=status.HTTP_201_CREATED,
     dependencies=[MapsWriteDep],
 )
-async def post_survey(building_id: IdPath, body: sc.SurveyIn, s: SqlDep) -> sc.RadioMapRead:
+async def post_survey(building_id: IdPath, body: SurveyIn, s: SqlDep) -> RadioMapRead:
     points = [
         maps.SurveyPointData(
             x_m=p.x_m,
@@ -128,9 +149,9 @@ async def post_survey(building_id: IdPath, body: sc.SurveyIn, s: SqlDep) -> sc.R
 
 
 @router.get("/buildings/{building_id}/radio-maps", dependencies=[ViewerDep])
-async def list_radio_maps(building_id: IdPath, s: SqlDep) -> sc.RadioMapList:
+async def list_radio_maps(building_id: IdPath, s: SqlDep) -> RadioMapList:
     items = [_radio_map(m) for m in await maps.list_radio_maps(s, building_id)]
-    return sc.RadioMapList(items=items, count=len(items))
+    return RadioMapList(items=items, count=len(items))
 
 
 @router.post(
@@ -139,8 +160,8 @@ async def list_radio_maps(building_id: IdPath, s: SqlDep) -> sc.RadioMapList:
     dependencies=[MapsWriteDep],
 )
 async def post_magnetic_survey(
-    floor_id: IdPath, body: sc.MagneticSurveyIn, s: SqlDep
-) -> sc.MagneticMapRead:
+    floor_id: IdPath, body: MagneticSurveyIn, s: SqlDep
+) -> MagneticMapRead:
     """Fold survey points and walked lines into the floor's magnetic map (a new version)."""
     points = [
         magnetic_maps.MagneticPointData(
@@ -165,20 +186,18 @@ async def post_magnetic_survey(
         for line in body.lines
     ]
     row = await magnetic_maps.add_magnetic_survey(s, floor_id, points, lines)
-    return sc.MagneticMapRead.model_validate(row, from_attributes=True)
+    return MagneticMapRead.model_validate(row, from_attributes=True)
 
 
 @router.get("/floors/{floor_id}/magnetic-maps", dependencies=[ViewerDep])
-async def list_magnetic_maps(floor_id: IdPath, s: SqlDep) -> sc.MagneticMapList:
+async def list_magnetic_maps(floor_id: IdPath, s: SqlDep) -> MagneticMapList:
     rows = await magnetic_maps.list_magnetic_maps(s, floor_id)
-    items = [sc.MagneticMapRead.model_validate(m, from_attributes=True) for m in rows]
-    return sc.MagneticMapList(items=items, count=len(items))
+    items = [MagneticMapRead.model_validate(m, from_attributes=True) for m in rows]
+    return MagneticMapList(items=items, count=len(items))
 
 
 @router.post("/buildings/{building_id}/radio-maps/{version}:activate", dependencies=[MapsWriteDep])
-async def activate_radio_map(
-    building_id: IdPath, version: VersionPath, s: SqlDep
-) -> sc.RadioMapRead:
+async def activate_radio_map(building_id: IdPath, version: VersionPath, s: SqlDep) -> RadioMapRead:
     """Roll back (or forward) to a version: it becomes the building's current radio map."""
     return _radio_map(await maps.activate_radio_map(s, building_id, version))
 
@@ -186,22 +205,22 @@ async def activate_radio_map(
 @router.post("/floors/{floor_id}/magnetic-maps/{version}:activate", dependencies=[MapsWriteDep])
 async def activate_magnetic_map(
     floor_id: IdPath, version: VersionPath, s: SqlDep
-) -> sc.MagneticMapRead:
+) -> MagneticMapRead:
     """Roll back (or forward) to a version: it becomes the floor's current magnetic map."""
     row = await magnetic_maps.activate_magnetic_map(s, floor_id, version)
-    return sc.MagneticMapRead.model_validate(row, from_attributes=True)
+    return MagneticMapRead.model_validate(row, from_attributes=True)
 
 
 @router.get("/buildings/{building_id}/device-offsets", dependencies=[ViewerDep])
-async def list_device_offsets(building_id: IdPath, s: SqlDep) -> sc.DeviceOffsetList:
+async def list_device_offsets(building_id: IdPath, s: SqlDep) -> DeviceOffsetList:
     """Per device model, the RSSI offset estimated from co-located contributions; a
     session that names its device model has it taken off its scans."""
     await sites.get_building(s, building_id)
     found = await device_offsets.building_offsets(s, building_id)
     items = [
-        sc.DeviceOffsetRead(
+        DeviceOffsetRead(
             device_model=model, offset_db=o.offset_db, n_pairs=o.n_pairs, std_db=o.std_db
         )
         for model, o in sorted(found.items())
     ]
-    return sc.DeviceOffsetList(items=items, count=len(items))
+    return DeviceOffsetList(items=items, count=len(items))

@@ -8,7 +8,16 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from server.api import schemas as sc
+from server.api.schemas.events import (
+    BleIn,
+    BleReading,
+    GnssIn,
+    ImuIn,
+    MagIn,
+    StepIn,
+    WifiIn,
+    WifiReading,
+)
 from server.positioning.events import (
     BleEvent,
     Event,
@@ -21,7 +30,7 @@ from server.positioning.events import (
     WifiEvent,
 )
 
-WireEvent = sc.StepIn | sc.WifiIn | sc.BleIn | sc.MagIn | sc.ImuIn | sc.GnssIn
+WireEvent = StepIn | WifiIn | BleIn | MagIn | ImuIn | GnssIn
 
 
 def _samples(rows: Sequence[tuple[float, ...]], width: int) -> NDArray[np.float64]:
@@ -35,17 +44,17 @@ def _rows(samples: NDArray[np.float64]) -> list[list[float | int]]:
 
 def to_event(e: WireEvent) -> Event:
     match e:
-        case sc.StepIn():
+        case StepIn():
             return StepEvent(e.t, e.length_m, e.heading_rad, e.confidence)
-        case sc.WifiIn():
+        case WifiIn():
             return WifiEvent(e.t, tuple(RadioReading(r.bssid, r.rssi_dbm) for r in e.readings))
-        case sc.BleIn():
+        case BleIn():
             return BleEvent(e.t, tuple(RadioReading(r.id, r.rssi_dbm) for r in e.readings))
-        case sc.MagIn():
+        case MagIn():
             return MagEvent(e.t, e.field_ut, e.magnitude_ut)
-        case sc.GnssIn():
+        case GnssIn():
             return GnssEvent(e.t, e.lat_deg, e.lon_deg, e.accuracy_m, e.hdop)
-        case sc.ImuIn():
+        case ImuIn():
             return ImuEvent(
                 e.t,
                 accel=_samples(e.accel, 4),
@@ -61,11 +70,11 @@ def to_events(events: Sequence[WireEvent]) -> list[Event]:
     return [to_event(e) for e in events]
 
 
-def wifi_pairs(readings: Sequence[sc.WifiReading]) -> list[tuple[str, float]]:
+def wifi_pairs(readings: Sequence[WifiReading]) -> list[tuple[str, float]]:
     return [(r.bssid, r.rssi_dbm) for r in readings]
 
 
-def ble_pairs(readings: Sequence[sc.BleReading]) -> list[tuple[str, float]]:
+def ble_pairs(readings: Sequence[BleReading]) -> list[tuple[str, float]]:
     return [(r.id, r.rssi_dbm) for r in readings]
 
 

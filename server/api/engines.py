@@ -7,7 +7,7 @@ from typing import Annotated
 from fastapi import APIRouter, Path, Response, status
 
 from server.api.deps import IdPath, MapsWriteDep, PrincipalDep, SqlDep, ViewerDep
-from server.api.engine_schemas import (
+from server.api.schemas.engines import (
     EngineList,
     EngineRead,
     EngineSettingsIn,

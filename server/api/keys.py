@@ -6,8 +6,8 @@ from typing import Annotated
 
 from fastapi import APIRouter, Path, Query, Response, status
 
-from server.api import schemas as sc
 from server.api.deps import GlobalAdminDep, SqlDep
+from server.api.schemas.keys import ApiKeyCreate, ApiKeyCreated, ApiKeyList, ApiKeyRead
 from server.services import auth
 from server.storage.models import ApiKey
 
@@ -15,8 +15,8 @@ router = APIRouter(prefix="/v1/keys", tags=["keys"], dependencies=[GlobalAdminDe
 KeyPath = Annotated[str, Path(pattern=r"^[0-9a-f]{32}$")]
 
 
-def read(row: ApiKey) -> sc.ApiKeyRead:
-    return sc.ApiKeyRead(
+def read(row: ApiKey) -> ApiKeyRead:
+    return ApiKeyRead(
         id=row.id,
         name=row.name,
         scopes=row.scopes.split(),
@@ -27,12 +27,12 @@ def read(row: ApiKey) -> sc.ApiKeyRead:
     )
 
 
-def created(row: ApiKey, key: str) -> sc.ApiKeyCreated:
-    return sc.ApiKeyCreated(**read(row).model_dump(), key=key)
+def created(row: ApiKey, key: str) -> ApiKeyCreated:
+    return ApiKeyCreated(**read(row).model_dump(), key=key)
 
 
 @router.post("", status_code=status.HTTP_201_CREATED)
-async def create_key(body: sc.ApiKeyCreate, s: SqlDep) -> sc.ApiKeyCreated:
+async def create_key(body: ApiKeyCreate, s: SqlDep) -> ApiKeyCreated:
     row, key = await auth.create_key(s, body.name, body.scopes, body.site_id)
     return created(row, key)
 
@@ -40,9 +40,9 @@ async def create_key(body: sc.ApiKeyCreate, s: SqlDep) -> sc.ApiKeyCreated:
 @router.get("")
 async def list_keys(
     s: SqlDep, include_revoked: Annotated[bool, Query(description="revoked keys too")] = False
-) -> sc.ApiKeyList:
+) -> ApiKeyList:
     items = [read(row) for row in await auth.list_keys(s, include_revoked)]
-    return sc.ApiKeyList(items=items, count=len(items))
+    return ApiKeyList(items=items, count=len(items))
 
 
 @router.delete("/{key_id}", status_code=status.HTTP_204_NO_CONTENT)
@@ -52,7 +52,7 @@ async def revoke_key(key_id: KeyPath, s: SqlDep) -> Response:
 
 
 @router.post("/{key_id}:rotate")
-async def rotate_key(key_id: KeyPath, s: SqlDep) -> sc.ApiKeyCreated:
+async def rotate_key(key_id: KeyPath, s: SqlDep) -> ApiKeyCreated:
     """A new secret for the key (same id, scopes and site); the old one stops working."""
     row, key = await auth.rotate_key(s, key_id)
     return created(row, key)

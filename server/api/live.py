@@ -25,10 +25,11 @@ from fastapi import APIRouter, Depends, Query, WebSocket, WebSocketDisconnect
 from pydantic import Field, ValidationError
 from uvicorn.protocols.utils import ClientDisconnected
 
-from server.api import schemas as sc
 from server.api.convert import to_events
 from server.api.deps import IdPath, client_address, get_ws_runtime
 from server.api.errors import service_detail, validation_detail
+from server.api.schemas.common import StrictIn
+from server.api.schemas.sessions import LiveBatch
 from server.logs import session_context
 from server.services import limits, sessions, telemetry
 from server.services.errors import ServiceError, Unauthorized
@@ -57,7 +58,7 @@ class _Socket:
 AUTH_TIMEOUT_S = 10.0
 
 
-class AuthMessage(sc.StrictIn):
+class AuthMessage(StrictIn):
     type: Literal["auth"]
     token: Annotated[str, Field(min_length=1, max_length=256)]
 
@@ -150,7 +151,7 @@ async def _read(sock: _Socket, rt: Runtime, session_id: str, secret: str) -> Non
         if text is None:
             text = (message.get("bytes") or b"").decode("utf-8", errors="replace")
         try:
-            batch = sc.LiveBatch.model_validate_json(text)
+            batch = LiveBatch.model_validate_json(text)
         except ValidationError as exc:
             errors = [dict(e) for e in exc.errors()]
             await sock.send({"type": "error", "status": 422, **validation_detail(errors)})

@@ -6,8 +6,8 @@ from typing import Annotated
 
 from fastapi import APIRouter, Query
 
-from server.api import schemas as sc
 from server.api.deps import IdPath, SqlDep, ViewerDep
+from server.api.schemas.map_quality import MapQualityRead
 from server.services import map_quality
 
 router = APIRouter(prefix="/v1", tags=["admin"], dependencies=[ViewerDep])
@@ -29,11 +29,11 @@ async def get_map_quality(
             "before the floor's newest point counts as retired",
         ),
     ] = 30,
-) -> sc.MapQualityRead:
+) -> MapQualityRead:
     """Coverage, cell sampling, freshness and emitters of the floor's current radio and
     magnetic maps. A floor without maps answers with nulls and zeros."""
     params = map_quality.QualityParams(
         max_emitters=max_emitters, retired_after_days=retired_after_days
     )
     quality = await map_quality.floor_map_quality(s, floor_id, params)
-    return sc.MapQualityRead.model_validate(quality, from_attributes=True)
+    return MapQualityRead.model_validate(quality, from_attributes=True)

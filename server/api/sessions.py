@@ -5,9 +5,16 @@ from __future__ import annotations
 import orjson
 from fastapi import APIRouter, Response, status
 
-from server.api import schemas as sc
 from server.api.convert import to_events
 from server.api.deps import AddressDep, BearerDep, Device, IdPath, RuntimeDep
+from server.api.schemas.sessions import (
+    BatchIn,
+    BatchOut,
+    FixOut,
+    SessionCreate,
+    SessionCreated,
+    SessionRead,
+)
 from server.logs import session_context
 from server.services import limits, sessions, telemetry
 
@@ -16,8 +23,8 @@ router = APIRouter(prefix="/v1/sessions", tags=["sessions"])
 
 @router.post("", status_code=status.HTTP_201_CREATED)
 async def create_session(
-    body: sc.SessionCreate, rt: RuntimeDep, principal: Device, address: AddressDep
-) -> sc.SessionCreated:
+    body: SessionCreate, rt: RuntimeDep, principal: Device, address: AddressDep
+) -> SessionCreated:
     """Open a session with a ``device`` key (``contribute`` too for ``contribute: true``)."""
     principal.require("device", body.site_id)
     if body.contribute:
@@ -32,7 +39,7 @@ async def create_session(
         params=body.params,
     )
     telemetry.touch_session(created.id, created.idle_timeout_s)
-    return sc.SessionCreated(
+    return SessionCreated(
         id=created.id,
         token=created.token,
         site_id=created.site_id,
@@ -41,9 +48,9 @@ async def create_session(
     )
 
 
-@router.post("/{session_id}/batches", response_model=sc.BatchOut)
+@router.post("/{session_id}/batches", response_model=BatchOut)
 async def post_batch(
-    session_id: IdPath, body: sc.BatchIn, rt: RuntimeDep, token: BearerDep, address: AddressDep
+    session_id: IdPath, body: BatchIn, rt: RuntimeDep, token: BearerDep, address: AddressDep
 ) -> Response:
     """Apply the next batch of the session; its fixes in the answer. The answer is written
     straight from the fixes the service made (already in the ``FixOut`` shape), without a
@@ -65,15 +72,15 @@ async def post_batch(
 
 
 @router.get("/{session_id}")
-async def get_session(session_id: IdPath, rt: RuntimeDep, token: BearerDep) -> sc.SessionRead:
+async def get_session(session_id: IdPath, rt: RuntimeDep, token: BearerDep) -> SessionRead:
     with session_context(session_id):
         info = await sessions.get_session(rt, session_id, token)
-    return sc.SessionRead(
+    return SessionRead(
         id=info.id,
         site_id=info.site_id,
         engine=info.engine,
         last_seq=info.last_seq,
-        last_fix=sc.FixOut.model_validate(info.last_fix) if info.last_fix else None,
+        last_fix=FixOut.model_validate(info.last_fix) if info.last_fix else None,
         idle_timeout_s=info.idle_timeout_s,
     )
 

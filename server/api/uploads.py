@@ -20,9 +20,10 @@ from pydantic import ValidationError
 from pydantic.json_schema import models_json_schema
 from starlette.requests import ClientDisconnect
 
-from server.api import schemas as sc
 from server.api.convert import to_events
 from server.api.deps import IdPath, MapsWriter, RuntimeDep, SqlDep, Viewer, client_address
+from server.api.schemas.common import DeviceModel
+from server.api.schemas.uploads import UploadRead, UploadTraceIn
 from server.services import limits, traces, uploads
 from server.services.errors import Invalid, TooLarge
 from server.services.upload_payloads import ILC_TEXT
@@ -69,7 +70,7 @@ def _events_trace(payload: bytes) -> bytes:
     """A JSON walk (``UploadTraceIn``), validated (422 naming the field) and stored in the
     shape the map builder reads (``services.traces``)."""
     try:
-        walk = sc.UploadTraceIn.model_validate_json(payload)
+        walk = UploadTraceIn.model_validate_json(payload)
     except ValidationError as exc:
         raise RequestValidationError(exc.errors()) from None
     anchors = [(a.t, a.x_m, a.y_m) for a in walk.anchors]
@@ -79,7 +80,7 @@ def _events_trace(payload: bytes) -> bytes:
 @router.post(
     "/uploads",
     status_code=status.HTTP_202_ACCEPTED,
-    responses={200: {"model": sc.UploadRead, "description": "a retry of an earlier upload"}},
+    responses={200: {"model": UploadRead, "description": "a retry of an earlier upload"}},
     openapi_extra={
         "requestBody": {
             "required": True,
@@ -98,13 +99,13 @@ async def create_upload(
     site_id: Annotated[str, Query(pattern=r"^[0-9a-f]{32}$")],
     building_id: Annotated[str | None, Query(pattern=r"^[0-9a-f]{32}$")] = None,
     floor: Annotated[int | None, Query(ge=-20, le=200, description="floor level hint")] = None,
-    device_model: Annotated[sc.DeviceModel | None, Query()] = None,
+    device_model: Annotated[DeviceModel | None, Query()] = None,
     content_type: Annotated[str, Header()] = "text/plain",
     content_encoding: Annotated[str | None, Header()] = None,
     idempotency_key: Annotated[str | None, Header(min_length=1, max_length=128)] = None,
     *,
     principal: MapsWriter,
-) -> sc.UploadRead:
+) -> UploadRead:
     """Accept a trace for the map builder (202); the worker folds it in later."""
     principal.require("maps:write", site_id)
     await limits.check(rt, "uploads", client_address(request), principal.key_id)
@@ -147,14 +148,14 @@ async def create_upload(
 
 
 @router.get("/uploads/{upload_id}")
-async def get_upload(upload_id: IdPath, s: SqlDep, principal: Viewer) -> sc.UploadRead:
+async def get_upload(upload_id: IdPath, s: SqlDep, principal: Viewer) -> UploadRead:
     row = await uploads.get_upload(s, upload_id)
     principal.require("viewer", row.site_id)
     return _read(row)
 
 
-def _read(row: Any) -> sc.UploadRead:
-    return sc.UploadRead(
+def _read(row: Any) -> UploadRead:
+    return UploadRead(
         id=row.id,
         site_id=row.site_id,
         building_id=row.building_id,
@@ -172,7 +173,7 @@ def openapi_schemas() -> dict[str, Any]:
     """Schemas of bodies this router reads by hand (the JSON walk), for the OpenAPI
     document's components: FastAPI lists only models it validates itself."""
     _, top = models_json_schema(
-        [(sc.UploadTraceIn, "validation")], ref_template="#/components/schemas/{model}"
+        [(UploadTraceIn, "validation")], ref_template="#/components/schemas/{model}"
     )
     schemas: dict[str, Any] = top.get("$defs", {})
     return schemas

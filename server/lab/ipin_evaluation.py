@@ -4,10 +4,10 @@ For each trial, the maps come from every repetition of the other trials: each sc
 for engines that read the magnetometer (``"mag"`` in their ``uses``), each magnetometer
 sample is placed by linear interpolation in time between the POSI lines of its log (the
 walkers walked straight between landmarks), only between consecutive POSI lines on one
-floor, and gridded per floor as the ILC evaluation does (``evaluation.LabelledScans``,
-``evaluation.LabelledField``; there are no floor plans). Each repetition of the left-out
+floor, and gridded per floor as the ILC evaluation does (``training_maps.LabelledScans``,
+``training_maps.LabelledField``; there are no floor plans). Each repetition of the left-out
 trial is then replayed causally through the engine in the ILC evaluation's batches
-(``evaluation.trace_events``, ``evaluation.replay``); the engine never sees POSI lines or
+(``replay.trace_events``, ``replay.replay``); the engine never sees POSI lines or
 the true floor and searches every floor of the venue. The estimate at a POSI line is the
 last fix at or before its time (none yet: counted as missing), its true floor the POSI
 floor's index in the venue's floor list.
@@ -33,19 +33,11 @@ from numpy.typing import NDArray
 from server.datasets.ipin import IpinVenue, read_venue
 from server.datasets.ipin_log import IpinLog, read_log
 from server.datasets.walk import Walk
-from server.lab.evaluation import (
-    LabelledField,
-    LabelledScans,
-    PathResult,
-    Progress,
-    engine_params,
-    estimates_at_waypoints,
-    learned_fix_error,
-    replay,
-    site_floors,
-    summarize,
-    trace_events,
-)
+from server.lab.engine_params import engine_params
+from server.lab.progress import Progress
+from server.lab.replay import replay, trace_events
+from server.lab.scoring import PathResult, estimates_at_waypoints, summarize
+from server.lab.training_maps import LabelledField, LabelledScans, learned_fix_error, site_floors
 from server.positioning.engines import get_engine
 from server.positioning.engines.base import SiteMaps
 from server.positioning.events import Fix
@@ -173,7 +165,7 @@ def evaluate_ipin(
     progress : callable, optional
         ``progress(stage, done, total)``.
     params : mapping of str to str, optional
-        Engine parameters other than their defaults, as text (``evaluation.engine_params``).
+        Engine parameters other than their defaults, as text (``engine_params.engine_params``).
     seed : int
         Seed of every replay.
     trials, repetitions : collection of int, optional

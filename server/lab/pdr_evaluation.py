@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 from server.datasets.ilc import read_site
 from server.datasets.ilc_trace import read_trace
 from server.datasets.walk import Walk
-from server.lab.evaluation import split_site
+from server.lab.split import split_site
 from server.positioning import pdr
 from server.positioning.pdr import Detector, LengthModel
 from server.positioning.step_tracker import (

@@ -1,4 +1,5 @@
-"""Figures of evaluation results: error CDFs, tracks and magnetic maps on the floor plan.
+"""Figures of evaluation results: error CDFs, tracks and magnetic maps on the floor plan;
+``write_ilc_plots`` draws them all for ILC runs.
 
 matplotlib is an optional dependency (the ``plots`` extra), imported only when a figure
 is drawn. Figures are built with the object-oriented API on an Agg canvas
@@ -16,12 +17,15 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from server.positioning.magnetic import MagneticGrid
+from server.lab.scoring import errors_m
+from server.positioning.magnetic import MagneticGrid, known_share
 from server.positioning.metrics import error_cdf
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
+
+    from server.lab.ilc_evaluation import IlcEvaluation
 
 DPI = 120
 INSTALL_HINT = "drawing figures needs matplotlib: pip install 'indoorpos[plots]'"
@@ -348,3 +352,58 @@ def plot_magnetic_grid(
     ax.set_ylabel("y (m, north)")
     ax.set_title(title)
     return _save(fig, out)
+
+
+def write_ilc_plots(evaluations: Sequence[IlcEvaluation], out_dir: Path) -> list[Path]:
+    """The error CDF of every engine on one figure, per engine and test path the floor
+    plan with the truth and the estimated track, and, when an engine read a magnetic map,
+    per floor the map on the floor plan (``magnetic_<floor>.png``; the maps come from the
+    same training traces for every engine, so once)."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    site = evaluations[0].site.name
+    written = [
+        plot_error_cdf(
+            {e.summary["engine"]: errors_m(e.paths) for e in evaluations},
+            out_dir / "error_cdf.png",
+            title=f"ILC {site}: horizontal error at waypoints",
+        )
+    ]
+    for evaluation in evaluations:
+        engine = evaluation.summary["engine"]
+        for path in evaluation.paths:
+            floor = evaluation.site.floors[path.floor_index]
+            fixes = path.fixes
+            est = np.array([(f.x_m, f.y_m) for f in fixes], dtype=np.float64).reshape(-1, 2)
+            floor_ok = np.array([f.floor == path.floor_index for f in fixes], dtype=bool)
+            written.append(
+                plot_track(
+                    out_dir / engine / f"{floor.name}_{path.path_id}.png",
+                    title=f"{engine} · {floor.name} · {path.path_id}",
+                    plan=floor.plan,
+                    truth_xy_m=path.estimates.true_xy_m,
+                    est_xy_m=est,
+                    est_floor_ok=floor_ok,
+                    waypoint_xy_m=path.estimates.true_xy_m,
+                    sigma_m=np.array([f.uncertainty_m for f in fixes]),
+                )
+            )
+    magnetic = next((e for e in evaluations if e.maps.magnetic is not None), None)
+    if magnetic is not None and magnetic.maps.magnetic is not None:
+        plans = magnetic.maps.plans
+        for index, (floor, grid) in enumerate(
+            zip(magnetic.site.floors, magnetic.maps.magnetic.grids, strict=False)
+        ):
+            if grid is None:
+                continue
+            plan = plans[index] if index < len(plans) else None
+            coverage = known_share(grid, plan)
+            known = "no walkable cell" if coverage is None else f"{coverage:.0%} of walkable cells"
+            written.append(
+                plot_magnetic_grid(
+                    out_dir / f"magnetic_{floor.name}.png",
+                    title=f"{magnetic.site.name} · {floor.name}: magnetic map, {known} known",
+                    plan=floor.plan,
+                    grid=grid,
+                )
+            )
+    return written

@@ -19,9 +19,10 @@ from websockets.asyncio.client import connect
 
 from client_sim.imu import Gait, blocks, synthesize_walk
 from server.api import convert
-from server.api import schemas as sc
+from server.api.schemas.events import ImuIn
+from server.api.schemas.sessions import MAX_IMU_ROWS_PER_BATCH, LiveBatch
 from server.datasets.ilc_trace import read_trace
-from server.lab.evaluation import batches
+from server.lab.replay import batches
 from server.positioning.events import ImuEvent
 from tests.api.toy_site import WIDTH_M, ToySite, build_toy_site, rssi_at
 from tests.conftest import ADMIN_KEY
@@ -203,7 +204,7 @@ def test_imu_round_trip_is_exact() -> None:
     assert wire["t"] == T0
     assert wire["magnetic"] == []
     assert all(isinstance(row[0], int) for row in wire["accel"])
-    back = convert.to_event(sc.ImuIn.model_validate(wire))
+    back = convert.to_event(ImuIn.model_validate(wire))
     assert isinstance(back, ImuEvent)
     assert back.t_ms == event.t_ms
     assert back.magnetic_calibrated is False
@@ -233,7 +234,7 @@ def test_any_valid_accel_block_round_trips(
     times = np.cumsum([gap for gap, *_ in rows]).tolist()
     accel = [[T0 + t, x, y, z] for t, (_, x, y, z) in zip(times, rows, strict=True)]
     wire = {"type": "imu", "t": T0, "accel": accel, "magnetic_calibrated": calibrated}
-    event = convert.to_event(sc.ImuIn.model_validate(wire))
+    event = convert.to_event(ImuIn.model_validate(wire))
     assert convert.to_wire(event) == {**{name: [] for name in EMPTY}, **wire}
 
 
@@ -248,7 +249,7 @@ async def test_a_batch_holds_at_most_60000_imu_rows(
     url = f"/v1/sessions/{sid}/batches"
     # five minutes at 200 Hz, one minute per event, is the most one batch can carry
     full = [accel_only(T0 + 60_000 * i, 12_000) for i in range(5)]
-    assert sum(len(e["accel"]) for e in full) == sc.MAX_IMU_ROWS_PER_BATCH
+    assert sum(len(e["accel"]) for e in full) == MAX_IMU_ROWS_PER_BATCH
     over = [*full, accel_only(T0 + 300_000, 1)]
     r = await client.post(url, json={"seq": 1, "events": over}, headers=auth)
     assert r.status_code == 422, r.text
@@ -262,7 +263,7 @@ def test_the_batch_limit_holds_on_the_socket_too() -> None:
     over = [accel_only(T0 + 60_000 * i, 12_000) for i in range(5)]
     over.append(accel_only(T0 + 300_000, 1))
     with pytest.raises(ValueError, match="at most 60000"):
-        sc.LiveBatch.model_validate({"type": "batch", "seq": 1, "events": over})
+        LiveBatch.model_validate({"type": "batch", "seq": 1, "events": over})
 
 
 async def test_reused_seq_with_other_imu_samples_is_a_conflict(

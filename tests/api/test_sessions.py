@@ -10,7 +10,7 @@ from typing import Any
 import httpx
 import pytest
 
-from server.api import schemas as sc
+from server.api.schemas.sessions import BatchOut
 from tests.api.toy_site import ToySite, build_toy_site, rssi_at
 
 T0 = 1_700_000_000_000
@@ -50,7 +50,7 @@ async def test_first_batch_gives_a_fix_near_the_truth(
     assert r.status_code == 200, r.text
     assert r.headers["content-type"] == "application/json"
     # the answer is written by hand: it must be exactly the documented BatchOut
-    assert sc.BatchOut.model_validate_json(r.content).session_id == sid
+    assert BatchOut.model_validate_json(r.content).session_id == sid
     fixes = r.json()["fixes"]
     assert len(fixes) == 1
     fix = fixes[0]

@@ -8,9 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from typer.testing import CliRunner
 
-from server.cli import app
 from server.datasets.ipin import read_venue
 from server.datasets.ipin_log import read_log
 from server.lab import ipin_evaluation
@@ -76,12 +74,3 @@ def test_floor_parts_cut_at_floor_changes() -> None:
     # a trace without per-waypoint floors is one part on its floor
     whole = replace(log.trace, waypoint_floor=np.empty(0, dtype=np.int64))
     assert [(i, p is whole) for i, p in ipin_evaluation.floor_parts(whole, venue)] == [(2, True)]
-
-
-@needs_data
-def test_cli_refuses_an_unknown_parameter() -> None:
-    result = CliRunner().invoke(
-        app, ["evaluate", "ipin", str(VENUE), "--engine", "wknn", "--param", "nope=1"]
-    )
-    assert result.exit_code == 2
-    assert "nope" in result.output

@@ -13,10 +13,19 @@ pytest.importorskip("matplotlib")
 
 from matplotlib.image import imread
 
-from server.lab.plots import DPI, plot_error_cdf, plot_magnetic_grid, plot_track
+from server.datasets.ilc import read_site
+from server.lab.ilc_evaluation import IlcEvaluation
+from server.lab.plots import DPI, plot_error_cdf, plot_magnetic_grid, plot_track, write_ilc_plots
+from server.lab.scoring import summarize
+from server.lab.split import split_site
+from server.lab.training_maps import build_site_maps
 from server.positioning.magnetic import grid_from_samples
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+SITE2 = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "ilc20-sample" / "site2"
+needs_data = pytest.mark.skipif(
+    not SITE2.is_dir(), reason="../shared/data is not beside the project"
+)
 
 PLAN: dict[str, Any] = {
     "type": "FeatureCollection",
@@ -190,3 +199,17 @@ def test_missing_matplotlib_names_the_extra(
     with pytest.raises(RuntimeError, match=r"indoorpos\[plots\]"):
         plot_error_cdf({"a": [1.0]}, tmp_path / "cdf.png", title="")
     assert not (tmp_path / "cdf.png").exists()
+
+
+@needs_data
+def test_magnetic_maps_are_drawn_per_floor(tmp_path: Path) -> None:
+    site = read_site(SITE2 / "F4")
+    split = split_site(site, 0, 0.8)
+    maps, _, _ = build_site_maps(site, split.train[:4], magnetic=True)
+    summary = summarize([], floor_names=["F4"], maps=maps, engine="pf_magnetic")
+    coverage = summary["per_floor"]["F4"]["magnetic_coverage"]
+    assert 0.0 < coverage < 1.0  # four walks cover some of the corridors
+    run = IlcEvaluation(site, maps, split, (), summary)
+    written = write_ilc_plots([run], tmp_path)
+    assert written[1:] == [tmp_path / "magnetic_F4.png"]
+    assert written[1].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -11,7 +11,7 @@ import pytest
 from fastapi import FastAPI
 
 from server.api.convert import to_events
-from server.api.schemas import BatchIn
+from server.api.schemas.sessions import BatchIn
 from server.positioning.events import Event
 from server.services import session_records, sessions
 from server.services.maps import MapCache

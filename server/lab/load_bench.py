@@ -66,8 +66,8 @@ from client_sim.run import (
 )
 from client_sim.site import provision_site
 from client_sim.world import synthesize_world
-from server.api import schemas as sc
 from server.api.convert import to_events
+from server.api.schemas.sessions import BatchIn
 from server.config import Settings
 from server.positioning.engines import get_engine
 from server.positioning.events import StepEvent
@@ -378,7 +378,7 @@ async def _ceiling(database_url: str, walk: _Walk) -> float:
         walks.append(
             [
                 to_events(
-                    sc.BatchIn.model_validate(
+                    BatchIn.model_validate(
                         {"seq": 1, "events": [item.event for item in next(batches)[1]]}
                     ).events
                 )

@@ -6,7 +6,7 @@ from typing import Any
 
 from pydantic import Field
 
-from server.api.schemas import Strict, StrictIn
+from server.api.schemas.common import Strict, StrictIn
 
 PARAMS_DOC = (
     "overrides of the engine's parameters, nested as the engine's defaults are "

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from server.load_bench import Level, find_capacity
+from server.lab.load_bench import Level, find_capacity
 
 
 def _level(users: int, held: bool) -> Level:

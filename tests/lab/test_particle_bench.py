@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from server.lab.bench import particle_bench
+from server.lab.particle_bench import particle_bench
 from server.positioning import state_codec
 from server.positioning.particle_cloud import from_points
 from server.storage.codec import encode_arrays

@@ -1,0 +1,26 @@
+"""One-shot location from a radio scan."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from pydantic import Field
+
+from server.api.schemas.common import LAX_ARRAY, Id, Strict, StrictIn
+from server.api.schemas.events import MAX_READINGS_PER_SCAN, BleReading, WifiReading
+
+
+class LocateIn(StrictIn):
+    site_id: Id
+    wifi: Annotated[list[WifiReading], Field(max_length=MAX_READINGS_PER_SCAN)] = []
+    ble: Annotated[list[BleReading], Field(max_length=MAX_READINGS_PER_SCAN)] = []
+
+
+class LocateOut(Strict):
+    x_m: float
+    y_m: float
+    floor: int
+    building_id: str
+    floor_id: str
+    cov_m2: Annotated[tuple[float, float, float, float], LAX_ARRAY]
+    uncertainty_m: float

@@ -1,0 +1,114 @@
+"""How good a floor's maps are: coverage, cells, freshness, emitters."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Annotated, Literal
+
+from pydantic import Field
+
+from server.api.schemas.common import LAX_ARRAY, Strict
+
+
+class MapVersionRef(Strict):
+    id: str
+    version: int
+
+
+class Percentiles(Strict):
+    p10: float
+    p50: float
+    p90: float
+
+
+class MapCoverage(Strict):
+    radio: float | None = Field(
+        description="share of the walkable 1 m cells (centre walkable) holding a reference "
+        "point of this floor; without a plan, of the 1 m cells of the reference points' "
+        "bounding box; null when the plan has no walkable cell"
+    )
+    magnetic: float | None = Field(
+        description="share of the walkable cells of the magnetic grid's lattice (0.5 m, "
+        "centre walkable) whose field is known; without a plan, of the grid's own cells"
+    )
+    walkable_area_known: bool = Field(
+        description="the floor has a usable plan, so the shares are over its walkable area"
+    )
+
+
+class RadioCellsQuality(Strict):
+    n_reference_points: int = Field(description="reference points of this floor")
+    readings_per_rp: Percentiles | None = Field(
+        description="RSS readings (all emitters) folded into a reference point"
+    )
+    emitters_per_rp: Percentiles | None = Field(description="emitters heard at a reference point")
+    var_db2: Percentiles | None = Field(
+        description="RSS variance (dB²) over reference point x emitter entries with at least "
+        "2 readings"
+    )
+
+
+class MagneticCellsQuality(Strict):
+    known_cells: int = Field(description="grid cells with a known field")
+    samples_per_cell: Percentiles | None = Field(description="samples per known cell")
+    var_ut2: Percentiles | None = Field(
+        description="field magnitude variance (µT²) over cells with at least 2 samples"
+    )
+
+
+class MapFreshness(Strict):
+    newest: datetime | None = Field(description="creation time of the newest survey point")
+    oldest: datetime | None = Field(description="creation time of the oldest survey point")
+    n_cells: int = Field(description="1 m cells holding survey points")
+    cell_age_days: Percentiles | None = Field(
+        description="per 1 m cell with survey points: days since its newest point was created"
+    )
+    n_points: int = Field(description="survey points of this floor")
+    n_surveyed_points: int = Field(description="points surveyed through the admin API")
+    n_uploads: int = Field(description="distinct uploads that contributed points")
+
+
+class EmitterPositionOut(Strict):
+    kind: Literal["wifi", "ble"]
+    key: str = Field(description="lower-cased BSSID or beacon id")
+    x_m: float
+    y_m: float
+    xy_std_m: Annotated[tuple[float, float], LAX_ARRAY] | None = Field(
+        description="standard deviations of x and y from the fit; null when the noise cannot "
+        "be estimated (exactly 4 readings)"
+    )
+    p0_dbm: float = Field(description="RSS at 1 m")
+    exponent: float = Field(description="path-loss exponent")
+    n: int = Field(description="readings fitted")
+    residual_rms_db: float
+
+
+class EmitterQuality(Strict):
+    seen: int = Field(description="emitters heard at a reference point of this floor")
+    fixed: int = Field(
+        description="WiFi APs identified as fixed on this floor from the timed survey "
+        "readings (heard on 4+ days, once above -55 dBm, strong readings clustered in "
+        "under 100 m²)"
+    )
+    retired: int = Field(
+        description="seen emitters that no survey point of this floor heard in the "
+        "retired_after_days days before the floor's newest survey point"
+    )
+    positions: list[EmitterPositionOut] = Field(
+        description="log-distance fits of the max_emitters most-read emitters, where the "
+        "readings determine one"
+    )
+    unlocated: int = Field(
+        description="emitters among the max_emitters most-read whose fit is under-determined"
+    )
+
+
+class MapQualityRead(Strict):
+    floor_id: str
+    radio_map: MapVersionRef | None = Field(description="the building's latest radio map")
+    magnetic_map: MapVersionRef | None = Field(description="the floor's latest magnetic map")
+    coverage: MapCoverage
+    radio_cells: RadioCellsQuality
+    magnetic_cells: MagneticCellsQuality
+    freshness: MapFreshness
+    emitters: EmitterQuality

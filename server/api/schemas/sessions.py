@@ -1,0 +1,110 @@
+"""Sessions, their batches and the fixes they produce."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import Field, field_validator
+
+from server.api.schemas.common import LAX_ARRAY, DeviceModel, Id, Strict, StrictIn
+from server.api.schemas.events import EventIn, ImuIn
+
+MAX_EVENTS_PER_BATCH = 2000
+# a batch holds a minute of raw motion samples of all five sensors at 200 Hz
+MAX_IMU_ROWS_PER_BATCH = 60_000
+
+# ---------------------------------------------------------------- fixes
+
+
+class FixOut(Strict):
+    t: int
+    x_m: float
+    y_m: float
+    floor: int | None = Field(description="floor level")
+    building_id: str | None
+    floor_id: str | None
+    heading_rad: float | None
+    cov_m2: Annotated[tuple[float, float, float, float], LAX_ARRAY] = Field(
+        description="position covariance xx, xy, yx, yy in m²"
+    )
+    uncertainty_m: float
+    source: str
+    engine: str
+    diagnostics: dict[str, float] = Field(default_factory=dict)
+
+
+# ---------------------------------------------------------------- sessions
+
+
+class SessionCreate(StrictIn):
+    site_id: Id
+    engine: Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[a-z0-9_]+$")] = "step_ekf"
+    contribute: bool = Field(
+        False,
+        description="offer this walk for map building: its batches are kept and, when the "
+        "session ends, become one upload (anchored by the floor plan's beacons)",
+    )
+    device_model: DeviceModel | None = None
+    params: dict[str, Any] | None = Field(
+        None,
+        description="overrides of the engine's parameters for this session, over the "
+        "site's engine settings; nested as the defaults of GET /v1/engines are, e.g. "
+        '{"particles": {"n": 500}}; checked, 422 naming the dotted field',
+    )
+
+
+class SessionCreated(Strict):
+    id: str
+    token: str = Field(description="bearer token for this session only; shown once")
+    site_id: str
+    engine: str
+    idle_timeout_s: int
+
+
+class SessionRead(Strict):
+    id: str
+    site_id: str
+    engine: str
+    last_seq: int
+    last_fix: FixOut | None
+    idle_timeout_s: int
+
+
+class BatchIn(StrictIn):
+    seq: Annotated[int, Field(ge=1, description="1, 2, 3, ... per session")]
+    events: Annotated[
+        list[EventIn],
+        Field(
+            max_length=MAX_EVENTS_PER_BATCH,
+            description=f"at most {MAX_IMU_ROWS_PER_BATCH} imu sample rows in all",
+        ),
+    ]
+
+    @field_validator("events")
+    @classmethod
+    def _imu_rows(cls, events: list[Any]) -> list[Any]:
+        n_rows = sum(e.n_rows for e in events if isinstance(e, ImuIn))
+        if n_rows > MAX_IMU_ROWS_PER_BATCH:
+            raise ValueError(
+                f"{n_rows} imu sample rows: at most {MAX_IMU_ROWS_PER_BATCH} in one batch"
+            )
+        return events
+
+
+class BatchOut(Strict):
+    session_id: str
+    seq: int
+    replayed: bool = Field(description="true when this seq had been applied before")
+    fixes: list[FixOut]
+    reinitialised: bool = Field(
+        False,
+        description="true when the session had to be rebuilt before this batch (the "
+        "server lost its state): the filter started again from this batch",
+    )
+
+
+# ---------------------------------------------------------------- live socket
+
+
+class LiveBatch(BatchIn):
+    type: Literal["batch"]

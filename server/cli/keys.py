@@ -1,0 +1,96 @@
+"""``indoorpos keys``: admin API keys, created, listed, revoked and rotated in the database."""
+
+from __future__ import annotations
+
+import asyncio
+from typing import Annotated, Any
+
+import typer
+from rich.table import Table
+
+from server.cli.output import console
+from server.config import get_settings
+from server.services import auth
+from server.services.errors import ServiceError
+from server.services.runtime import open_runtime
+from server.storage import db
+
+keys_app = typer.Typer(help="Admin API keys.", no_args_is_help=True)
+
+
+def _database() -> str:
+    """The database the key commands act on, without credentials, for the operator."""
+    settings = get_settings()
+    url = settings.resolved_database_url
+    where = url.split("@")[-1]
+    if settings.database_url is None:
+        return f"the embedded SQLite database {where} (set INDOORPOS_DATABASE_URL for another)"
+    return where
+
+
+async def _in_transaction(work: Any) -> Any:
+    async with open_runtime(get_settings()) as rt, rt.transaction() as s:
+        return await work(s)
+
+
+def run_keys(work: Any) -> Any:
+    """``work(session)`` in one transaction on the migrated database; a service's refusal is
+    printed and ends the command with status 1."""
+    db.migrate(get_settings().resolved_database_url)
+    try:
+        return asyncio.run(_in_transaction(work))
+    except ServiceError as exc:
+        console.print(f"[red]{exc.field or 'key'}: {exc.message}[/]")
+        raise typer.Exit(1) from None
+
+
+@keys_app.command("create")
+def keys_create(
+    name: Annotated[str | None, typer.Option(help="what the key is for")] = None,
+    scope: Annotated[
+        list[str] | None,
+        typer.Option(help=f"repeatable; one of {', '.join(auth.SCOPES)} (default admin)"),
+    ] = None,
+    site: Annotated[str | None, typer.Option(help="the one site id the key is for")] = None,
+) -> None:
+    """Create an API key; it is printed once and only its digest is stored."""
+    scopes = scope or ["admin"]
+    label = name or f"{' '.join(scopes)} key"
+    row, key = run_keys(lambda s: auth.create_key(s, label, scopes, site))
+    console.print(
+        f"key id {row.id} ({row.scopes}; {'site ' + row.site_id if row.site_id else 'all sites'})"
+        f" in {_database()}; keep this key, it is not shown again:"
+    )
+    typer.echo(key)
+
+
+@keys_app.command("list")
+def keys_list(
+    revoked: Annotated[bool, typer.Option(help="revoked keys too")] = False,
+) -> None:
+    """List the keys (never their secrets)."""
+    rows = run_keys(lambda s: auth.list_keys(s, revoked))
+    table = Table(title=_database())
+    table.add_column("id", no_wrap=True)
+    for column in ("name", "scopes", "site", "created", "revoked"):
+        table.add_column(column)
+    for row in rows:
+        revoked_at = row.revoked_at.isoformat(timespec="seconds") if row.revoked_at else ""
+        created_at = row.created_at.isoformat(timespec="seconds")
+        table.add_row(row.id, row.name, row.scopes, row.site_id or "all", created_at, revoked_at)
+    console.print(table)
+
+
+@keys_app.command("revoke")
+def keys_revoke(key_id: Annotated[str, typer.Argument(help="the key's id")]) -> None:
+    """Revoke a key: it stops working at once."""
+    run_keys(lambda s: auth.revoke_key(s, key_id))
+    console.print(f"key {key_id} revoked in {_database()}")
+
+
+@keys_app.command("rotate")
+def keys_rotate(key_id: Annotated[str, typer.Argument(help="the key's id")]) -> None:
+    """Give a key a new secret (printed once); the old one stops working."""
+    _, key = run_keys(lambda s: auth.rotate_key(s, key_id))
+    console.print(f"key {key_id} rotated in {_database()}; its new secret, shown once:")
+    typer.echo(key)

@@ -1,0 +1,88 @@
+"""Running the service: ``serve``, ``worker``, ``migrate``, ``openapi``."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from pathlib import Path
+from typing import Annotated
+
+import typer
+import uvicorn
+
+from server.app import create_app
+from server.cli.output import console
+from server.config import get_settings
+from server.services.runtime import open_runtime
+from server.storage import db
+
+
+def serve(
+    host: Annotated[str, typer.Option(help="interface to listen on")] = "127.0.0.1",
+    port: Annotated[int, typer.Option(help="TCP port")] = 8000,
+    workers: Annotated[int, typer.Option(help="uvicorn worker processes")] = 1,
+    access_log: Annotated[bool, typer.Option(help="log every request")] = True,
+) -> None:
+    """Run the API server (logs: INDOORPOS_LOG_FORMAT=json|text, INDOORPOS_LOG_LEVEL)."""
+    from server import logs
+
+    settings = get_settings()
+    logs.configure(settings.log_format, settings.log_level)
+    if workers > 1 and settings.redis_url is None:
+        raise typer.BadParameter(
+            "several workers need a shared session store: set INDOORPOS_REDIS_URL",
+            param_hint="--workers",
+        )
+    if settings.resolved_database_url.startswith("sqlite"):
+        db.migrate(settings.resolved_database_url)  # once, before any worker starts
+    uvicorn.run(
+        "server.app:create_app",
+        factory=True,
+        host=host,
+        port=port,
+        workers=workers,
+        # uvicorn applies this in every worker process instead of its own logging setup
+        log_config=logs.dict_config(settings.log_format, settings.log_level),
+        log_level=settings.log_level.lower(),
+        access_log=access_log,
+        ws_max_size=settings.json_max_bytes,  # a live-socket message: a batch at most
+    )
+
+
+def worker() -> None:
+    """Run an upload worker: fold crowdsourced uploads into new map versions (needs
+    INDOORPOS_REDIS_URL; without Redis the api process runs the worker itself)."""
+    from server import logs
+    from server import worker as upload_worker
+
+    settings = get_settings()
+    if settings.redis_url is None:
+        raise typer.BadParameter(
+            "a separate worker needs the shared queue: set INDOORPOS_REDIS_URL "
+            "(embedded, `indoorpos serve` runs the worker in-process)"
+        )
+    logs.configure(settings.log_format, settings.log_level)
+
+    async def main() -> None:
+        async with open_runtime(settings) as rt:
+            await upload_worker.run(rt, upload_worker.consumer_name())
+
+    asyncio.run(main())
+
+
+def migrate() -> None:
+    """Bring the database schema up to date (alembic upgrade head)."""
+    url = get_settings().resolved_database_url
+    db.migrate(url)
+    console.print(f"[green]schema up to date[/] on {url.split('@')[-1]}")
+
+
+def openapi(
+    out: Annotated[Path, typer.Option(help="where to write the document")] = Path(
+        "openapi/openapi.json"
+    ),
+) -> None:
+    """Write the OpenAPI document generated from the app."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(create_app().openapi(), indent=2, sort_keys=True) + "\n")
+    console.print(f"wrote {out}")

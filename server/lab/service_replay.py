@@ -1,0 +1,141 @@
+"""Replaying an evaluation through a running service, over HTTP, as phones and surveyors
+would use it.
+
+The training maps go up as a survey: every labelled scan a survey point at its
+interpolated position (``survey_points``), with the floor plans and the magnetometer
+samples (``magnetic_points``) when the engine reads them. With crowd maps the training
+traces go up as crowd uploads instead, every waypoint dropped but the first and last
+(``crowd_uploads``), and the service builds the maps from them (what became of them:
+``summarise_crowd``). Each test trace becomes one session's batches.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import lzma
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from client_sim.replay import keep_end_anchors, replay_over_http
+from server.api.convert import fix_from_wire, to_wire
+from server.lab.progress import Progress
+from server.lab.replay import Replayer, batches
+from server.lab.training_maps import LabelledField, LabelledScans, TrainingSurvey
+from server.positioning.engines.base import SiteMaps
+from server.positioning.events import Event, Fix
+
+
+def http_replayer(
+    base_url: str,
+    admin_key: str,
+    progress: Progress,
+    crowd_reports: list[dict[str, Any]] | None = None,
+) -> Replayer:
+    """Replay through a running service: training scans go up as a survey (with the floor
+    plans and the magnetometer samples when the engine reads them), each test trace
+    becomes one session's batches. With ``crowd_reports`` the training traces go up as
+    crowd uploads instead (every waypoint dropped but the first and last) and the service
+    builds the maps from them; the uploads' final states are appended to the list."""
+
+    def run(
+        engine: str, maps: SiteMaps, training: TrainingSurvey, traces: list[list[Event]]
+    ) -> list[list[Fix]]:
+        levels = [f.level for f in maps.floors]
+        uploads: list[tuple[int, bytes]] = []
+        if crowd_reports is not None:
+            uploads = crowd_uploads(training.traces, levels)
+            training = TrainingSurvey(LabelledScans(), plans=training.plans)
+        plans = {levels[i]: plan for i, plan in enumerate(training.plans) if plan}
+        fixes = asyncio.run(
+            replay_over_http(
+                base_url,
+                admin_key,
+                site_name=f"evaluation {maps.floors[0].building_id}",
+                levels=levels,
+                survey_points=survey_points(training.scans, levels),
+                engine=engine,
+                traces=[[[to_wire(e) for e in b] for b in batches(t)] for t in traces],
+                plans=plans,
+                magnetic_points=magnetic_points(training.field, levels),
+                uploads=uploads,
+                on_progress=progress,
+                upload_reports=crowd_reports,
+            )
+        )
+        index = {level: i for i, level in enumerate(levels)}
+        return [[fix_from_wire(f, index) for f in path] for path in fixes]
+
+    return run
+
+
+def crowd_uploads(
+    traces: Sequence[tuple[int, Path]], levels: Sequence[int]
+) -> list[tuple[int, bytes]]:
+    """Each (floor index, file) trace as a crowd upload body by floor level: the trace
+    text with every waypoint dropped but the first and last."""
+    uploads = []
+    for floor_index, path in traces:
+        opener = lzma.open if path.suffix == ".xz" else open
+        with opener(path, "rt", encoding="utf-8", errors="replace") as f:
+            text = keep_end_anchors(f.read())
+        uploads.append((levels[floor_index], text.encode()))
+    return uploads
+
+
+def survey_points(labelled: LabelledScans, levels: Sequence[int]) -> list[dict[str, Any]]:
+    """Every labelled scan as a survey point body (``SurveyPoint``): its position, floor
+    level, time and readings."""
+    survey = []
+    for (x_m, y_m), floor, event in zip(
+        labelled.xy_m, labelled.floor, labelled.events, strict=True
+    ):
+        wire = to_wire(event)
+        key = "wifi" if wire["type"] == "wifi" else "ble"
+        survey.append(
+            {
+                "x_m": x_m,
+                "y_m": y_m,
+                "floor": levels[floor],
+                "t": event.t_ms,
+                key: wire["readings"],
+            }
+        )
+    return survey
+
+
+def magnetic_points(
+    field: LabelledField | None, levels: Sequence[int]
+) -> dict[int, list[dict[str, float]]]:
+    """The placed magnetometer samples as magnetic survey point bodies
+    (``MagneticPointIn``) by floor level; none without samples."""
+    magnetic: dict[int, list[dict[str, float]]] = {}
+    if field is not None:
+        for i, xy in field.xy_m.items():
+            strengths = field.magnitude_ut[i]
+            magnetic[levels[i]] = [
+                {"x_m": x, "y_m": y, "magnitude_ut": b}
+                for part, values in zip(xy, strengths, strict=True)
+                for (x, y), b in zip(part.tolist(), values.tolist(), strict=True)
+            ]
+    return magnetic
+
+
+def summarise_crowd(summary: dict[str, Any], reports: list[dict[str, Any]]) -> None:
+    """What became of the crowd uploads, in the run's summary (the reference points and the
+    per-floor magnetic coverage there describe the survey maps, so they are dropped)."""
+    summary["map_source"] = "crowd"
+    summary.pop("reference_points", None)  # of the survey maps, which this run did not use
+    statuses: dict[str, int] = {}
+    reasons: dict[str, int] = {}
+    for r in reports:
+        statuses[r["status"]] = statuses.get(r["status"], 0) + 1
+        reason = (r.get("report") or {}).get("reason")
+        if reason:
+            # numbers differ from walk to walk; the wording says what happened
+            key = " ".join(w for w in reason.split() if not any(c.isdigit() for c in w))
+            reasons[key] = reasons.get(key, 0) + 1
+    summary["uploads"] = {"status": statuses, "reasons": reasons}
+    for floor in summary.get("per_floor", {}).values():
+        floor.pop("magnetic_coverage", None)
+        floor.pop("magnetic_at_waypoints", None)

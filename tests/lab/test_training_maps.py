@@ -1,0 +1,21 @@
+"""Maps from training traces: labelled scans and their cross-validation groups."""
+
+from __future__ import annotations
+
+from server.lab import training_maps
+from server.positioning.events import RadioReading, WifiEvent
+
+
+def test_walks_along_one_route_share_a_cross_validation_group() -> None:
+    from server.services.traces import trace_from_events
+
+    wifi = WifiEvent(1_000, (RadioReading("aa:bb", -60.0),))
+    walk = trace_from_events([wifi], [(900, 1.0, 2.0), (1_100, 2.0, 2.0)])
+    scans = training_maps.LabelledScans()
+    scans.add_trace(walk, 0, group=3)
+    scans.add_trace(walk, 0, group=3)
+    scans.add_trace(walk, 0)
+    scans.add_trace(walk, 0)
+    assert len(scans.path) == 4
+    assert scans.path[0] == scans.path[1]
+    assert len({scans.path[1], scans.path[2], scans.path[3]}) == 3

@@ -1,0 +1,46 @@
+"""UJIIndoorLoc-style evaluation: per-phone RSS offsets."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import pytest
+
+from server.lab import uji_evaluation
+from tests.lab.fakes import uji_offset_sets
+
+
+def test_uji_phone_offsets_are_estimated_on_training_and_reduce_the_error() -> None:
+    train, test = uji_offset_sets()
+    plain = uji_evaluation.evaluate_uji(train, test, "wknn")
+    corrected = uji_evaluation.evaluate_uji(train, test, "wknn", device_offsets=True)
+    assert plain["device_offsets_applied"] is False
+    assert "device_offsets" not in plain
+    offsets = corrected["device_offsets"]
+    assert list(offsets) == ["1", "2"]  # phone 3 never appears in training
+    difference = offsets["2"]["offset_db"] - offsets["1"]["offset_db"]
+    assert difference == pytest.approx(8.0, abs=0.5)
+    assert offsets["2"]["n_pairs"] == 4 * 11 * 5  # its spots x the five access points
+    assert all(o["std_db"] > 0 for o in offsets.values())
+    assert corrected["train_rows_corrected"] == len(train)
+    assert corrected["test_rows_known_phone"] == corrected["test_rows_corrected"] == 50
+    assert corrected["mean_m"] < 0.8 * plain["mean_m"]
+
+
+def test_uji_offsets_leave_a_set_of_one_phone_alone() -> None:
+    train, test = uji_offset_sets()
+    only = train.phone_id == 1
+    one_phone = replace(
+        train,
+        rssi_dbm=train.rssi_dbm[only],
+        xy_m=train.xy_m[only],
+        floor=train.floor[only],
+        building=train.building[only],
+        t_s=train.t_s[only],
+        phone_id=train.phone_id[only],
+    )
+    corrected = uji_evaluation.evaluate_uji(one_phone, test, "wknn", device_offsets=True)
+    plain = uji_evaluation.evaluate_uji(one_phone, test, "wknn")
+    assert corrected["device_offsets"] == {}  # nothing co-located: nothing to estimate
+    assert corrected["test_rows_corrected"] == 0
+    assert corrected["mean_m"] == plain["mean_m"]
