@@ -3,7 +3,7 @@
 This joins the pieces of PDR for the fusion engines, across batches:
 
 * steps and their lengths from the accelerometer (``server.positioning.pdr``);
-* the phone heading from one of three sources (``server.positioning.attitude``):
+* the phone heading from one of three sources (``server.positioning.sensors``):
 
   - ``"attitude"``: the yaw of the attitude-determination EKF (``papers/002_*`` eq 9-17),
     gyro-driven with roll and pitch from gravity;
@@ -33,10 +33,22 @@ from typing import Literal, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from server.positioning import attitude as att
 from server.positioning import pdr
 from server.positioning.events import BleEvent, Event, ImuEvent, WifiEvent
 from server.positioning.kalman import wrap_angle
+from server.positioning.sensors.attitude_ekf import (
+    AttitudeParams,
+    AttitudeState,
+    attitude_ekf,
+    initial_attitude,
+)
+from server.positioning.sensors.geometry import heading_from_yaw, rotation_heading
+from server.positioning.sensors.heading_fusion import (
+    HeadingParams,
+    HeadingState,
+    fuse_heading,
+    initial_heading,
+)
 
 FloatArray = NDArray[np.float64]
 
@@ -50,8 +62,8 @@ class TrackerParams:
     heading: HeadingSource = "fused"
     steps: pdr.PdrParams = field(default_factory=pdr.PdrParams)
     turns: pdr.TurnParams = field(default_factory=pdr.TurnParams)
-    attitude: att.AttitudeParams = field(default_factory=att.AttitudeParams)
-    fusion: att.HeadingParams = field(default_factory=att.HeadingParams)
+    attitude: AttitudeParams = field(default_factory=AttitudeParams)
+    fusion: HeadingParams = field(default_factory=HeadingParams)
     step_scale: float = 1.0  # multiplies the step-length model (per-person calibration)
 
     def __post_init__(self) -> None:
@@ -81,8 +93,8 @@ class StepBlock:
 class TrackerState:
     detector: pdr.DetectorState
     turns: pdr.TurnState
-    attitude: att.AttitudeState
-    fusion: att.HeadingState
+    attitude: AttitudeState
+    fusion: HeadingState
     history: FloatArray  # (m, 2) [t_ms, unwrapped heading] of the last HISTORY_MS
     north_history: FloatArray  # (m, 2) the same for the north-referenced heading
     seen_ms: FloatArray  # (5,) newest sample time processed per sensor (-inf: none)
@@ -115,8 +127,8 @@ class TrackerState:
         return cls(
             detector=pdr.DetectorState.from_arrays(part("det.")),
             turns=pdr.TurnState.from_arrays(part("turn.")),
-            attitude=att.AttitudeState.from_arrays(part("att.")),
-            fusion=att.HeadingState.from_arrays(part("fus.")),
+            attitude=AttitudeState.from_arrays(part("att.")),
+            fusion=HeadingState.from_arrays(part("fus.")),
             history=rows("history"),
             north_history=rows("north_history"),
             seen_ms=np.array(arrays["seen_ms"], dtype=np.float64),
@@ -128,8 +140,8 @@ def initial_tracker(params: TrackerParams) -> TrackerState:
     return TrackerState(
         detector=pdr.initial_detector(),
         turns=pdr.initial_turns(params.turns),
-        attitude=att.initial_attitude(params.attitude),
-        fusion=att.initial_heading(params.fusion),
+        attitude=initial_attitude(params.attitude),
+        fusion=initial_heading(params.fusion),
         history=np.empty((0, 2)),
         north_history=np.empty((0, 2)),
         seen_ms=np.full(len(_SENSORS), -np.inf),
@@ -147,19 +159,17 @@ def _headings(
     north = none
     if imu.gyro.shape[0]:
         was_referenced = state.fusion.initialized
-        fusion, fused = att.fuse_heading(
-            state.fusion, imu.gyro, imu.accel, imu.magnetic, params.fusion
-        )
+        fusion, fused = fuse_heading(state.fusion, imu.gyro, imu.accel, imu.magnetic, params.fusion)
         state = replace(state, fusion=fusion)
         if was_referenced:
             north = fused[:, :2]
     if imu.rotation.shape[0]:
-        north = att.rotation_heading(imu.rotation)
+        north = rotation_heading(imu.rotation)
     if params.heading == "attitude":
         if imu.gyro.shape[0] == 0:
             return state, none, north
-        attitude, euler = att.attitude_ekf(state.attitude, imu.gyro, imu.accel, params.attitude)
-        heading = np.column_stack([euler[:, 0], att.heading_from_yaw(euler[:, 1])])
+        attitude, euler = attitude_ekf(state.attitude, imu.gyro, imu.accel, params.attitude)
+        heading = np.column_stack([euler[:, 0], heading_from_yaw(euler[:, 1])])
         return replace(state, attitude=attitude), heading, north
     if params.heading == "rotation" and imu.rotation.shape[0]:
         return state, north, north
