@@ -12,7 +12,8 @@ This joins the pieces of PDR for the fusion engines, across batches:
   - ``"rotation"``: the phone's rotation vector where it sends one, ``"fused"``
     otherwise;
 
-* turn and straight-walk labels per step (``papers/003_*`` section III).
+* turn and straight-walk labels per step (``server.positioning.turns``, ``papers/003_*``
+  section III).
 
 The heading of a step is the phone heading at the step's time, interpolated from a short
 history carried in the state, so a step found one batch late still gets the heading of its
@@ -49,6 +50,7 @@ from server.positioning.sensors.heading_fusion import (
     fuse_heading,
     initial_heading,
 )
+from server.positioning.turns import STRAIGHT, TurnParams, TurnState, classify_steps, initial_turns
 
 FloatArray = NDArray[np.float64]
 
@@ -61,7 +63,7 @@ HISTORY_MS = 3000  # longer than any step can wait for its completing extreme
 class TrackerParams:
     heading: HeadingSource = "fused"
     steps: pdr.PdrParams = field(default_factory=pdr.PdrParams)
-    turns: pdr.TurnParams = field(default_factory=pdr.TurnParams)
+    turns: TurnParams = field(default_factory=TurnParams)
     attitude: AttitudeParams = field(default_factory=AttitudeParams)
     fusion: HeadingParams = field(default_factory=HeadingParams)
     step_scale: float = 1.0  # multiplies the step-length model (per-person calibration)
@@ -81,7 +83,7 @@ class StepBlock:
     length_m: FloatArray
     heading_rad: FloatArray  # phone heading from the chosen source, wrapped to (-pi, pi]
     north_rad: FloatArray  # phone heading clockwise from north; NaN when not known
-    status: NDArray[np.int64]  # pdr.STRAIGHT / SUSPECT / TURN
+    status: NDArray[np.int64]  # turns.STRAIGHT / SUSPECT / TURN
     segment: NDArray[np.int64]
     magnitude_ut: FloatArray  # magnetic field strength at the step; NaN when not known
 
@@ -92,7 +94,7 @@ class StepBlock:
 @dataclass(frozen=True)
 class TrackerState:
     detector: pdr.DetectorState
-    turns: pdr.TurnState
+    turns: TurnState
     attitude: AttitudeState
     fusion: HeadingState
     history: FloatArray  # (m, 2) [t_ms, unwrapped heading] of the last HISTORY_MS
@@ -126,7 +128,7 @@ class TrackerState:
 
         return cls(
             detector=pdr.DetectorState.from_arrays(part("det.")),
-            turns=pdr.TurnState.from_arrays(part("turn.")),
+            turns=TurnState.from_arrays(part("turn.")),
             attitude=AttitudeState.from_arrays(part("att.")),
             fusion=HeadingState.from_arrays(part("fus.")),
             history=rows("history"),
@@ -139,7 +141,7 @@ class TrackerState:
 def initial_tracker(params: TrackerParams) -> TrackerState:
     return TrackerState(
         detector=pdr.initial_detector(),
-        turns=pdr.initial_turns(params.turns),
+        turns=initial_turns(params.turns),
         attitude=initial_attitude(params.attitude),
         fusion=initial_heading(params.fusion),
         history=np.empty((0, 2)),
@@ -223,13 +225,11 @@ def track(
     heading = _at(history, t)
     lengths = pdr.step_lengths(steps, params.steps, params.step_scale)
     known = ~np.isnan(heading)
-    status = np.full(len(steps), pdr.STRAIGHT, dtype=np.int64)
+    status = np.full(len(steps), STRAIGHT, dtype=np.int64)
     segment = np.full(len(steps), state.turns.segment, dtype=np.int64)
     turns = state.turns
     if known.any():
-        turns, status[known], segment[known] = pdr.classify_steps(
-            turns, heading[known], params.turns
-        )
+        turns, status[known], segment[known] = classify_steps(turns, heading[known], params.turns)
     block = StepBlock(
         steps.t_ms,
         lengths,
@@ -287,7 +287,7 @@ class Step(NamedTuple):
     length_m: float
     heading_rad: float  # from the tracker's heading source
     north_rad: float  # clockwise from north; NaN when not known
-    straight: bool  # part of a straight walk (pdr.STRAIGHT)
+    straight: bool  # part of a straight walk (turns.STRAIGHT)
     magnitude_ut: float = math.nan  # magnetic field strength at the step
 
 
@@ -309,7 +309,7 @@ def timeline(
                 float(block.length_m[i]),
                 float(block.heading_rad[i]),
                 float(block.north_rad[i]),
-                bool(block.status[i] == pdr.STRAIGHT),
+                bool(block.status[i] == STRAIGHT),
                 float(block.magnitude_ut[i]),
             )
             items.append((step.t_ms, 0, step))
