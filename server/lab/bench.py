@@ -39,7 +39,9 @@ import numpy as np
 
 from server.positioning import particle as pf
 from server.positioning.floorplan import FloorPlan, plan_from_geojson, valid_moves, walkable_at
-from server.positioning.magnetic import MagneticGrid, dtw_distance, grid_from_samples, mmse, sample
+from server.positioning.magnetic import MagneticGrid, sample
+from server.positioning.magnetic_distance import dtw_distance, mmse
+from server.positioning.mapping.magnetic_gridding import grid_from_samples
 from server.storage.codec import decode_arrays, encode_arrays
 
 CORRIDOR_M = (60.0, 3.0)  # length along x, width along y

@@ -52,13 +52,7 @@ from server.positioning.fingerprint import (
 )
 from server.positioning.fix_error import FixErrorModel
 from server.positioning.floorplan import FloorPlan, plan_from_geojson
-from server.positioning.magnetic import (
-    MagneticGrid,
-    MagneticMap,
-    grid_from_samples,
-    known_share,
-    sample,
-)
+from server.positioning.magnetic import MagneticGrid, MagneticMap, sample
 from server.positioning.mapping.device_offsets import (
     apply_offsets,
     cell_ids,
@@ -69,6 +63,7 @@ from server.positioning.mapping.device_offsets import (
 from server.positioning.mapping.fix_calibration import learn_fix_error
 from server.positioning.mapping.gridding import build_radio_map
 from server.positioning.mapping.labelled import interpolate_track
+from server.positioning.mapping.magnetic_gridding import grid_from_samples, known_share
 from server.positioning.mapping.matrices import readings_matrix
 from server.positioning.metrics import error_report
 from server.positioning.step_tracker import TrackerParams

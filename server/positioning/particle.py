@@ -90,7 +90,7 @@ from typing import Literal, TypeVar
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from server.positioning.magnetic import dtw_distance, mmse
+from server.positioning.magnetic_distance import dtw_distance, mmse
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]

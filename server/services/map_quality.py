@@ -43,7 +43,7 @@ from sqlalchemy.ext.asyncio import AsyncSession
 
 from server.positioning.fingerprint import MISSING_DBM
 from server.positioning.floorplan import FloorPlan, plan_from_geojson
-from server.positioning.magnetic import known_share
+from server.positioning.mapping.magnetic_gridding import known_share
 from server.positioning.mapping.signatures import identify_fixed_aps
 from server.positioning.pathloss import fit_emitter
 from server.services.errors import NotFound

@@ -44,9 +44,9 @@ from server.positioning.anchors import anchors_from_plan
 from server.positioning.events import WifiEvent
 from server.positioning.fingerprint import MISSING_DBM
 from server.positioning.floorplan import PLAN_MARGIN_M, plan_extent
-from server.positioning.magnetic import MagneticSamples
 from server.positioning.mapping.anchors import GeoReference, ble_anchors, gnss_anchors
 from server.positioning.mapping.labelled import interpolate_track
+from server.positioning.mapping.magnetic_gridding import MagneticSamples
 from server.positioning.mapping.placement import place_samples
 from server.positioning.mapping.selection import select_inertial
 from server.positioning.mapping.wifi_anchors import anchor_nodes

@@ -19,7 +19,8 @@ from server.positioning.engines import ENGINES, get_engine
 from server.positioning.engines.base import FloorRef, SiteMaps
 from server.positioning.events import Event, Fix, ImuEvent, RadioReading, StepEvent, WifiEvent
 from server.positioning.floorplan import plan_from_geojson
-from server.positioning.magnetic import MagneticMap, grid_from_samples, known_share
+from server.positioning.magnetic import MagneticMap
+from server.positioning.mapping.magnetic_gridding import grid_from_samples, known_share
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
 SITE2 = DATA / "ilc20-sample" / "site2"

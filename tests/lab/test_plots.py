@@ -14,7 +14,7 @@ pytest.importorskip("matplotlib")
 from matplotlib.image import imread
 
 from server.lab.plots import DPI, plot_error_cdf, plot_magnetic_grid, plot_track
-from server.positioning.magnetic import grid_from_samples
+from server.positioning.mapping.magnetic_gridding import grid_from_samples
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
