@@ -9,8 +9,8 @@ timed code contained. Measured here, in one process and on the same inputs:
   the sequence distance of every particle over its ``W + 1`` magnitudes, the award of
   eq (c) and the normalisation. The inputs are the moved clouds of a recorded walk,
   each with full windows, and the magnitude the phone measured at that step.
-* **Distance**: ``magnetic.mmse`` against ``magnetic.dtw_distance`` on those windows,
-  the only part that differs between the two updates.
+* **Distance**: ``magnetic_distance.mmse`` against ``magnetic_distance.dtw_distance`` on
+  those windows, the only part that differs between the two updates.
 * **Filter step** (context): ``particle.step`` -- move with the floor plan's wall test,
   update, resampling when ``N_eff`` is low -- from the clouds of the same walk.
 * **State**: the cloud as the session store keeps it: ``Particles.to_arrays`` then
@@ -38,7 +38,8 @@ from typing import Any
 import numpy as np
 
 from server.positioning import particle as pf
-from server.positioning.floorplan import FloorPlan, plan_from_geojson, valid_moves, walkable_at
+from server.positioning.floorplan import FloorPlan, valid_moves, walkable_at
+from server.positioning.floorplan_geojson import plan_from_geojson
 from server.positioning.magnetic import MagneticGrid, sample
 from server.positioning.magnetic_distance import dtw_distance, mmse
 from server.positioning.mapping.magnetic_gridding import grid_from_samples

@@ -51,7 +51,8 @@ from server.positioning.fingerprint import (
     wknn,
 )
 from server.positioning.fix_error import FixErrorModel
-from server.positioning.floorplan import FloorPlan, plan_from_geojson
+from server.positioning.floorplan import FloorPlan
+from server.positioning.floorplan_geojson import plan_from_geojson
 from server.positioning.magnetic import MagneticGrid, MagneticMap, sample
 from server.positioning.mapping.device_offsets import (
     apply_offsets,

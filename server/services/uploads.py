@@ -43,7 +43,7 @@ from server.datasets.ilc import IlcTrace, TraceFormatError, floor_level, parse_t
 from server.positioning.anchors import anchors_from_plan
 from server.positioning.events import WifiEvent
 from server.positioning.fingerprint import MISSING_DBM
-from server.positioning.floorplan import PLAN_MARGIN_M, plan_extent
+from server.positioning.floorplan_geojson import PLAN_MARGIN_M, plan_extent
 from server.positioning.mapping.anchors import GeoReference, ble_anchors, gnss_anchors
 from server.positioning.mapping.labelled import interpolate_track
 from server.positioning.mapping.magnetic_gridding import MagneticSamples

@@ -18,7 +18,7 @@ from server.lab import evaluation
 from server.positioning.engines import ENGINES, get_engine
 from server.positioning.engines.base import FloorRef, SiteMaps
 from server.positioning.events import Event, Fix, ImuEvent, RadioReading, StepEvent, WifiEvent
-from server.positioning.floorplan import plan_from_geojson
+from server.positioning.floorplan_geojson import plan_from_geojson
 from server.positioning.magnetic import MagneticMap
 from server.positioning.mapping.magnetic_gridding import grid_from_samples, known_share
 
