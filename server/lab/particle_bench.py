@@ -9,8 +9,8 @@ timed code contained. Measured here, in one process and on the same inputs:
   the sequence distance of every particle over its ``W + 1`` magnitudes, the award of
   eq (c) and the normalisation. The inputs are the moved clouds of a recorded walk,
   each with full windows, and the magnitude the phone measured at that step.
-* **Distance**: ``magnetic.mmse`` against ``magnetic.dtw_distance`` on those windows,
-  the only part that differs between the two updates.
+* **Distance**: ``magnetic_distance.mmse`` against ``magnetic_distance.dtw_distance`` on
+  those windows, the only part that differs between the two updates.
 * **Filter step** (context): ``particle.step`` -- move with the floor plan's wall test,
   update, resampling when ``N_eff`` is low -- from the clouds of the same walk.
 * **State**: the cloud as the session store keeps it: ``state_codec.to_arrays`` then
@@ -40,8 +40,11 @@ import numpy as np
 from server.positioning import particle as pf
 from server.positioning import particle_cloud as pc
 from server.positioning import state_codec
-from server.positioning.floorplan import FloorPlan, plan_from_geojson, valid_moves, walkable_at
-from server.positioning.magnetic import MagneticGrid, dtw_distance, grid_from_samples, mmse, sample
+from server.positioning.floorplan import FloorPlan, valid_moves, walkable_at
+from server.positioning.floorplan_geojson import plan_from_geojson
+from server.positioning.magnetic import MagneticGrid, sample
+from server.positioning.magnetic_distance import dtw_distance, mmse
+from server.positioning.mapping.magnetic_gridding import grid_from_samples
 from server.storage.codec import decode_arrays, encode_arrays
 
 CORRIDOR_M = (60.0, 3.0)  # length along x, width along y

@@ -33,11 +33,11 @@ from server.datasets.ilc import read_site
 from server.datasets.ilc_trace import read_trace
 from server.datasets.walk import Walk
 from server.lab.split import split_site
-from server.positioning import pdr
 from server.positioning.pdr import Detector, LengthModel
 from server.positioning.step_tracker import (
     TrackerParams,
 )
+from server.positioning.straight_lines import straighten_track
 from server.services.traces import anchored_steps
 
 Progress = Callable[[str, int, int], None]
@@ -54,7 +54,7 @@ class TraceSteps:
     length_m: NDArray[np.float64]  # paper model
     heading_rad: NDArray[np.float64]  # from the tracker's heading source
     north_rad: NDArray[np.float64]
-    status: NDArray[np.int64]  # pdr.STRAIGHT / SUSPECT / TURN
+    status: NDArray[np.int64]  # turns.STRAIGHT / SUSPECT / TURN
     segment: NDArray[np.int64]
     waypoint_t_ms: NDArray[np.int64]
     waypoint_xy_m: NDArray[np.float64]
@@ -95,8 +95,8 @@ def dead_reckon(
     north-referenced heading is known, onto north: a relative (gyro-only) source drifts
     from there, a north-referenced one stays as good as its reference. Steps before that
     do not move the position. With an ``rng`` the track's straight stretches are filtered
-    with RANSAC (``pdr.straighten_track``, ``papers/003_*`` eq 2-3; the rng draws the
-    pairs of long stretches).
+    with RANSAC (``straight_lines.straighten_track``, ``papers/003_*`` eq 2-3; the rng draws
+    the pairs of long stretches).
     """
     known = np.flatnonzero(~np.isnan(steps.north_rad) & ~np.isnan(steps.heading_rad))
     length = scale * steps.length_m
@@ -115,7 +115,7 @@ def dead_reckon(
         ]
     )
     if rng is not None:
-        xy[1:] = pdr.straighten_track(xy[1:], steps.status, steps.segment, rng=rng)
+        xy[1:] = straighten_track(xy[1:], steps.status, steps.segment, rng=rng)
     walked = np.concatenate([[0.0], np.cumsum(length)])
     taken = np.searchsorted(steps.t_ms, steps.waypoint_t_ms[1:], side="right")
     errors = np.linalg.norm(xy[taken] - steps.waypoint_xy_m[1:], axis=1)

@@ -18,7 +18,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from server.lab.scoring import errors_m
-from server.positioning.magnetic import MagneticGrid, known_share
+from server.positioning.magnetic import MagneticGrid
+from server.positioning.mapping.magnetic_gridding import known_share
 from server.positioning.metrics import error_cdf
 
 if TYPE_CHECKING:

@@ -26,11 +26,13 @@ from server.positioning.engines.base import FloorRef, SiteMaps
 from server.positioning.events import BleEvent, WifiEvent, radio_key
 from server.positioning.fingerprint import RadioMap, in_place_order
 from server.positioning.fix_error import FixErrorModel
-from server.positioning.floorplan import FloorPlan, plan_from_geojson
-from server.positioning.magnetic import MagneticGrid, MagneticMap, grid_from_samples
+from server.positioning.floorplan import FloorPlan
+from server.positioning.floorplan_geojson import plan_from_geojson
+from server.positioning.magnetic import MagneticGrid, MagneticMap
 from server.positioning.mapping.fix_calibration import learn_fix_error
 from server.positioning.mapping.gridding import build_radio_map
 from server.positioning.mapping.labelled import interpolate_track
+from server.positioning.mapping.magnetic_gridding import grid_from_samples
 from server.positioning.mapping.matrices import readings_matrix
 
 # Traces sample the walk every few metres; 1 m cells keep that resolution and merge only

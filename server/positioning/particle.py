@@ -88,7 +88,7 @@ from dataclasses import replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from server.positioning.magnetic import dtw_distance, mmse
+from server.positioning.magnetic_distance import dtw_distance, mmse
 from server.positioning.particle_cloud import (
     Estimate,
     MapSampler,

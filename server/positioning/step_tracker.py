@@ -3,7 +3,7 @@
 This joins the pieces of PDR for the fusion engines, across batches:
 
 * steps and their lengths from the accelerometer (``server.positioning.pdr``);
-* the phone heading from one of three sources (``server.positioning.attitude``):
+* the phone heading from one of three sources (``server.positioning.sensors``):
 
   - ``"attitude"``: the yaw of the attitude-determination EKF (``papers/002_*`` eq 9-17),
     gyro-driven with roll and pitch from gravity;
@@ -12,7 +12,8 @@ This joins the pieces of PDR for the fusion engines, across batches:
   - ``"rotation"``: the phone's rotation vector where it sends one, ``"fused"``
     otherwise;
 
-* turn and straight-walk labels per step (``papers/003_*`` section III).
+* turn and straight-walk labels per step (``server.positioning.turns``, ``papers/003_*``
+  section III).
 
 The heading of a step is the phone heading at the step's time, interpolated from a short
 history carried in the state, so a step found one batch late still gets the heading of its
@@ -33,12 +34,25 @@ from typing import Literal, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from server.positioning import attitude as att
 from server.positioning import pdr
 from server.positioning.events import BleEvent, Event, ImuEvent, WifiEvent
 from server.positioning.kalman import wrap_angle
 from server.positioning.params import Params, Positive
+from server.positioning.sensors.attitude_ekf import (
+    AttitudeParams,
+    AttitudeState,
+    attitude_ekf,
+    initial_attitude,
+)
+from server.positioning.sensors.geometry import heading_from_yaw, rotation_heading
+from server.positioning.sensors.heading_fusion import (
+    HeadingParams,
+    HeadingState,
+    fuse_heading,
+    initial_heading,
+)
 from server.positioning.state_codec import shape
+from server.positioning.turns import STRAIGHT, TurnParams, TurnState, classify_steps, initial_turns
 
 FloatArray = NDArray[np.float64]
 
@@ -51,9 +65,9 @@ HISTORY_MS = 3000  # longer than any step can wait for its completing extreme
 class TrackerParams(Params):
     heading: HeadingSource = "fused"
     steps: pdr.PdrParams = field(default_factory=pdr.PdrParams)
-    turns: pdr.TurnParams = field(default_factory=pdr.TurnParams)
-    attitude: att.AttitudeParams = field(default_factory=att.AttitudeParams)
-    fusion: att.HeadingParams = field(default_factory=att.HeadingParams)
+    turns: TurnParams = field(default_factory=TurnParams)
+    attitude: AttitudeParams = field(default_factory=AttitudeParams)
+    fusion: HeadingParams = field(default_factory=HeadingParams)
     step_scale: Positive = 1.0  # multiplies the step-length model (per-person calibration)
 
 
@@ -65,7 +79,7 @@ class StepBlock:
     length_m: FloatArray
     heading_rad: FloatArray  # phone heading from the chosen source, wrapped to (-pi, pi]
     north_rad: FloatArray  # phone heading clockwise from north; NaN when not known
-    status: NDArray[np.int64]  # pdr.STRAIGHT / SUSPECT / TURN
+    status: NDArray[np.int64]  # turns.STRAIGHT / SUSPECT / TURN
     segment: NDArray[np.int64]
     magnitude_ut: FloatArray  # magnetic field strength at the step; NaN when not known
 
@@ -76,9 +90,9 @@ class StepBlock:
 @dataclass(frozen=True)
 class TrackerState:
     detector: pdr.DetectorState
-    turns: pdr.TurnState
-    attitude: att.AttitudeState
-    fusion: att.HeadingState
+    turns: TurnState
+    attitude: AttitudeState
+    fusion: HeadingState
     # [t_ms, unwrapped heading] of the last HISTORY_MS
     history: FloatArray = field(metadata=shape(-1, 2))
     # the same for the north-referenced heading
@@ -92,9 +106,9 @@ class TrackerState:
 def initial_tracker(params: TrackerParams) -> TrackerState:
     return TrackerState(
         detector=pdr.initial_detector(),
-        turns=pdr.initial_turns(params.turns),
-        attitude=att.initial_attitude(params.attitude),
-        fusion=att.initial_heading(params.fusion),
+        turns=initial_turns(params.turns),
+        attitude=initial_attitude(params.attitude),
+        fusion=initial_heading(params.fusion),
         history=np.empty((0, 2)),
         north_history=np.empty((0, 2)),
         seen_ms=np.full(len(_SENSORS), -np.inf),
@@ -112,19 +126,17 @@ def _headings(
     north = none
     if imu.gyro.shape[0]:
         was_referenced = state.fusion.initialized
-        fusion, fused = att.fuse_heading(
-            state.fusion, imu.gyro, imu.accel, imu.magnetic, params.fusion
-        )
+        fusion, fused = fuse_heading(state.fusion, imu.gyro, imu.accel, imu.magnetic, params.fusion)
         state = replace(state, fusion=fusion)
         if was_referenced:
             north = fused[:, :2]
     if imu.rotation.shape[0]:
-        north = att.rotation_heading(imu.rotation)
+        north = rotation_heading(imu.rotation)
     if params.heading == "attitude":
         if imu.gyro.shape[0] == 0:
             return state, none, north
-        attitude, euler = att.attitude_ekf(state.attitude, imu.gyro, imu.accel, params.attitude)
-        heading = np.column_stack([euler[:, 0], att.heading_from_yaw(euler[:, 1])])
+        attitude, euler = attitude_ekf(state.attitude, imu.gyro, imu.accel, params.attitude)
+        heading = np.column_stack([euler[:, 0], heading_from_yaw(euler[:, 1])])
         return replace(state, attitude=attitude), heading, north
     if params.heading == "rotation" and imu.rotation.shape[0]:
         return state, north, north
@@ -178,13 +190,11 @@ def track(
     heading = _at(history, t)
     lengths = pdr.step_lengths(steps, params.steps, params.step_scale)
     known = ~np.isnan(heading)
-    status = np.full(len(steps), pdr.STRAIGHT, dtype=np.int64)
+    status = np.full(len(steps), STRAIGHT, dtype=np.int64)
     segment = np.full(len(steps), state.turns.segment, dtype=np.int64)
     turns = state.turns
     if known.any():
-        turns, status[known], segment[known] = pdr.classify_steps(
-            turns, heading[known], params.turns
-        )
+        turns, status[known], segment[known] = classify_steps(turns, heading[known], params.turns)
     block = StepBlock(
         steps.t_ms,
         lengths,
@@ -242,7 +252,7 @@ class Step(NamedTuple):
     length_m: float
     heading_rad: float  # from the tracker's heading source
     north_rad: float  # clockwise from north; NaN when not known
-    straight: bool  # part of a straight walk (pdr.STRAIGHT)
+    straight: bool  # part of a straight walk (turns.STRAIGHT)
     magnitude_ut: float = math.nan  # magnetic field strength at the step
 
 
@@ -264,7 +274,7 @@ def timeline(
                 float(block.length_m[i]),
                 float(block.heading_rad[i]),
                 float(block.north_rad[i]),
-                bool(block.status[i] == pdr.STRAIGHT),
+                bool(block.status[i] == STRAIGHT),
                 float(block.magnitude_ut[i]),
             )
             items.append((step.t_ms, 0, step))

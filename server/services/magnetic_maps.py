@@ -16,10 +16,10 @@ import anyio
 import numpy as np
 from sqlalchemy.ext.asyncio import AsyncSession
 
-from server.positioning.floorplan import PLAN_MARGIN_M, plan_extent
-from server.positioning.magnetic import (
+from server.positioning.floorplan_geojson import PLAN_MARGIN_M, plan_extent
+from server.positioning.magnetic import MagneticGrid
+from server.positioning.mapping.magnetic_gridding import (
     GridTooLarge,
-    MagneticGrid,
     MagneticSamples,
     grid_from_sources,
     merge_grids,

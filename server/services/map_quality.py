@@ -42,8 +42,9 @@ from numpy.typing import ArrayLike, NDArray
 from sqlalchemy.ext.asyncio import AsyncSession
 
 from server.positioning.fingerprint import MISSING_DBM
-from server.positioning.floorplan import FloorPlan, plan_from_geojson
-from server.positioning.magnetic import known_share
+from server.positioning.floorplan import FloorPlan
+from server.positioning.floorplan_geojson import plan_from_geojson
+from server.positioning.mapping.magnetic_gridding import known_share
 from server.positioning.mapping.signatures import identify_fixed_aps
 from server.positioning.pathloss import fit_emitter
 from server.services.errors import NotFound

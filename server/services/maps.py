@@ -19,10 +19,12 @@ from server.positioning.anchors import anchors_from_plan
 from server.positioning.engines.base import FloorRef, SiteMaps
 from server.positioning.events import radio_key
 from server.positioning.fingerprint import MISSING_DBM, RadioMap, in_place_order
-from server.positioning.floorplan import FloorPlan, plan_from_geojson
-from server.positioning.magnetic import MagneticMap, MagneticSamples
+from server.positioning.floorplan import FloorPlan
+from server.positioning.floorplan_geojson import plan_from_geojson
+from server.positioning.magnetic import MagneticMap
 from server.positioning.mapping.device_offsets import DeviceOffset
 from server.positioning.mapping.gridding import build_radio_map, fold_radio_maps
+from server.positioning.mapping.magnetic_gridding import MagneticSamples
 from server.positioning.mapping.matrices import merge_radio_maps, readings_matrix
 from server.services.device_offsets import building_offsets
 from server.services.errors import Invalid, NotFound

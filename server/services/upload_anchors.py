@@ -18,7 +18,7 @@ from sqlalchemy.ext.asyncio import AsyncSession
 
 from server.positioning.anchors import anchors_from_plan
 from server.positioning.fingerprint import MISSING_DBM
-from server.positioning.floorplan import plan_extent
+from server.positioning.floorplan_geojson import plan_extent
 from server.positioning.mapping.anchors import GeoReference
 from server.positioning.mapping.wifi_anchors import anchor_nodes
 from server.services.maps import stored_radio_map

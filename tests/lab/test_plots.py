@@ -19,7 +19,7 @@ from server.lab.plots import DPI, plot_error_cdf, plot_magnetic_grid, plot_track
 from server.lab.scoring import summarize
 from server.lab.split import split_site
 from server.lab.training_maps import build_site_maps
-from server.positioning.magnetic import grid_from_samples
+from server.positioning.mapping.magnetic_gridding import grid_from_samples
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 SITE2 = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "ilc20-sample" / "site2"

@@ -8,8 +8,9 @@ import pytest
 from server.lab import scoring
 from server.positioning.engines.base import FloorRef, SiteMaps
 from server.positioning.events import Fix
-from server.positioning.floorplan import plan_from_geojson
-from server.positioning.magnetic import MagneticMap, grid_from_samples, known_share
+from server.positioning.floorplan_geojson import plan_from_geojson
+from server.positioning.magnetic import MagneticMap
+from server.positioning.mapping.magnetic_gridding import grid_from_samples, known_share
 from tests.lab.fakes import ilc_trace
 
 

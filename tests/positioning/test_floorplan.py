@@ -11,9 +11,7 @@ its cell's centre, so it may disagree with the exact polygon within half a cell 
 from __future__ import annotations
 
 import math
-from functools import cache
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
@@ -25,45 +23,19 @@ from numpy.typing import NDArray
 from server.datasets.ilc import read_site
 from server.datasets.ilc_trace import read_trace
 from server.positioning.floorplan import (
-    CLEARANCE_STEPS,
     FloorPlan,
-    _cells,
-    _segments_meet,
     crosses_wall,
-    plan_from_geojson,
     random_walkable_points,
     valid_moves,
     walkable_at,
 )
+from server.positioning.floorplan_geojson import plan_from_geojson
 from tests.datasets.conftest import dataset_dir
+from tests.positioning.toy_plans import ROOM, as_moves, room
 
 NUMERIC_TOL_M = 1e-9
 RASTER_BAND_M = 0.25 * math.sqrt(0.5)  # half a cell diagonal
 
-
-def _feature(kind: str, geometry_type: str, coordinates: Any) -> dict[str, Any]:
-    return {
-        "type": "Feature",
-        "properties": {"kind": kind},
-        "geometry": {"type": geometry_type, "coordinates": coordinates},
-    }
-
-
-def _box(x0: float, y0: float, x1: float, y1: float) -> list[list[list[float]]]:
-    return [[[x0, y0], [x1, y0], [x1, y1], [x0, y1], [x0, y0]]]
-
-
-# 20 m x 10 m room, a thin wall at x = 10 with a 1 m door (y 4.5-5.5), a 2 m pillar
-ROOM = {
-    "type": "FeatureCollection",
-    "features": [
-        _feature("walkable", "Polygon", _box(0, 0, 20, 10)),
-        _feature("wall", "LineString", [[10, 0], [10, 10]]),
-        _feature("door", "LineString", [[10, 4.5], [10, 5.5]]),
-        _feature("wall", "Polygon", _box(4, 2, 6, 4)),
-        _feature("anchor", "Point", [1, 1]),  # other kinds are ignored
-    ],
-}
 # the same room drawn independently for the shapely reference
 REF_AREA = shapely.difference(shapely.box(0, 0, 20, 10), shapely.box(4, 2, 6, 4))
 REF_WALLS = shapely.union_all(
@@ -75,29 +47,6 @@ REF_WALLS = shapely.union_all(
 )
 REF_VERTICES = shapely.multipoints(shapely.get_coordinates(REF_WALLS))
 SNAP = 0.5
-
-
-@cache
-def room() -> FloorPlan:
-    return plan_from_geojson(ROOM)
-
-
-def _moves(a: Any, b: Any) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    return np.atleast_2d(np.asarray(a, dtype=float)), np.atleast_2d(np.asarray(b, dtype=float))
-
-
-def test_room_raster_and_walls() -> None:
-    plan = room()
-    assert plan.origin_m == (0.0, 0.0)
-    assert plan.cell_m == 0.25
-    assert plan.walkable.shape == (40, 80)
-    assert plan.walkable.sum() * 0.25**2 == pytest.approx(200 - 4)
-    assert not plan.walkable[8:16, 16:24].any()  # the pillar
-    assert plan.walkable[:8].all()
-    # 4 outline edges, 4 pillar edges, the thin wall in two pieces around the door
-    assert plan.walls.shape == (10, 4)
-    thin = plan.walls[(plan.walls[:, 0] == 10) & (plan.walls[:, 2] == 10)]
-    assert sorted(sorted((y1, y2)) for _, y1, _, y2 in thin.tolist()) == [[0, 4.5], [5.5, 10]]
 
 
 @pytest.mark.parametrize(
@@ -130,8 +79,8 @@ def test_room_raster_and_walls() -> None:
 )
 def test_moves(a: tuple[float, float], b: tuple[float, float], valid: bool) -> None:
     plan = room()
-    assert valid_moves(plan, *_moves(a, b)).tolist() == [valid]
-    assert valid_moves(plan, *_moves(b, a)).tolist() == [valid]  # the wall part is symmetric
+    assert valid_moves(plan, *as_moves(a, b)).tolist() == [valid]
+    assert valid_moves(plan, *as_moves(b, a)).tolist() == [valid]  # the wall part is symmetric
 
 
 def test_moves_are_vectorised() -> None:
@@ -155,103 +104,6 @@ def test_non_finite_points() -> None:
 def test_walkable_at_outside_the_raster() -> None:
     xy = [[-0.1, 5.0], [5.0, -0.1], [20.1, 5.0], [5.0, 10.1], [0.1, 0.1], [19.9, 9.9]]
     assert walkable_at(room(), xy).tolist() == [False] * 4 + [True] * 2
-
-
-def test_thick_wall_with_a_door_polygon() -> None:
-    plan = plan_from_geojson(
-        {
-            "features": [
-                _feature("walkable", "Polygon", _box(0, 0, 20, 10)),
-                _feature("wall", "Polygon", _box(9.75, 0, 10.25, 10)),
-                _feature("door", "Polygon", _box(9.7, 4.5, 10.3, 5.5)),  # wider than the wall
-            ]
-        }
-    )
-    a, b = _moves(
-        [[9.5, 5.0], [9.5, 2.0], [9.5, 2.0], [9.5, 4.4]],
-        [[10.5, 5.0], [10.5, 2.0], [10.0, 2.0], [10.5, 4.4]],
-    )
-    assert valid_moves(plan, a, b).tolist() == [True, False, False, False]
-    assert walkable_at(plan, [[10.0, 5.0], [10.0, 2.0]]).tolist() == [True, False]
-
-
-def test_ilc_kinds_outline_minus_units() -> None:
-    plan = plan_from_geojson(
-        {
-            "features": [
-                _feature("outline", "MultiPolygon", [_box(0, 0, 10, 10)]),
-                _feature("unit", "Polygon", _box(2, 2, 8, 8)),
-                _feature("obstacle", "Polygon", _box(0, 0, 1, 1)),
-            ]
-        }
-    )
-    assert walkable_at(plan, [[1.0, 5.0], [5.0, 5.0], [0.5, 0.5], [1.5, 1.5]]).tolist() == [
-        True,
-        False,
-        False,
-        True,
-    ]
-    assert valid_moves(
-        plan, *_moves([[1.0, 5.0], [1.0, 5.0]], [[1.0, 6.0], [2.5, 5.0]])
-    ).tolist() == [
-        True,
-        False,
-    ]
-
-
-@pytest.mark.parametrize(
-    ("geojson", "message"),
-    [
-        pytest.param({"features": []}, "no walkable polygon", id="empty"),
-        pytest.param({"features": [3]}, "feature 0: not a GeoJSON feature", id="not a feature"),
-        pytest.param(
-            {"features": [_feature("wall", "LineString", [[0, 0], [1, 1]])]},
-            "no walkable polygon",
-            id="walls only",
-        ),
-        pytest.param(
-            {"features": [_feature("walkable", "LineString", [[0, 0], [1, 1]])]},
-            "feature 0 \\(walkable\\): unexpected LineString",
-            id="walkable line",
-        ),
-        pytest.param(
-            {
-                "features": [
-                    _feature("walkable", "Polygon", _box(0, 0, 1, 1)),
-                    _feature("door", "Point", [0.5, 0.0]),
-                ]
-            },
-            "feature 1 \\(door\\): unexpected Point",
-            id="door point",
-        ),
-        pytest.param(
-            {"features": [{"properties": {"kind": "walkable"}, "geometry": {"type": "Nope"}}]},
-            "feature 0 \\(walkable\\): not a GeoJSON geometry",
-            id="bad geometry",
-        ),
-        pytest.param(
-            {
-                "features": [
-                    _feature("walkable", "Polygon", _box(0, 0, 1, 1)),
-                    _feature("wall", "Polygon", _box(-1, -1, 2, 2)),
-                ]
-            },
-            "the walkable area is empty",
-            id="all walled",
-        ),
-    ],
-)
-def test_bad_plans(geojson: dict[str, Any], message: str) -> None:
-    with pytest.raises(ValueError, match=message):
-        plan_from_geojson(geojson)
-
-
-def test_a_self_crossing_polygon_is_repaired() -> None:
-    bow_tie = [[[0, 0], [4, 4], [4, 0], [0, 4], [0, 0]]]  # two triangles meeting at (2, 2)
-    plan = plan_from_geojson({"features": [_feature("walkable", "Polygon", bow_tie)]})
-    assert walkable_at(plan, [[0.5, 2.0], [2.0, 0.5], [3.5, 2.0]]).tolist() == [True, False, True]
-    assert plan.walls.shape == (6, 4)
-    assert not valid_moves(plan, [[0.5, 2.0]], [[3.5, 2.0]]).any()  # through the waist
 
 
 def test_bad_arguments() -> None:
@@ -293,7 +145,7 @@ def short_moves(draw: st.DrawFn) -> tuple[float, float, float, float]:
 @given(short_moves())
 def test_moves_agree_with_shapely(move: tuple[float, float, float, float]) -> None:
     ax, ay, bx, by = move
-    a, b = _moves([ax, ay], [bx, by])
+    a, b = as_moves([ax, ay], [bx, by])
     end = shapely.points([bx, by])
     # shapely takes a zero-length line for an empty one
     segment = shapely.linestrings([[ax, ay], [bx, by]]) if (ax, ay) != (bx, by) else end
@@ -417,130 +269,3 @@ def test_ilc_crossings_agree_with_shapely(
     exact = shapely.intersects(walls, shapely.linestrings(np.stack([a, b], axis=1)))
     assert 0.05 < exact.mean() < 0.5
     np.testing.assert_array_equal(crosses_wall(plan, a, b), exact)
-
-
-def test_plan_extent_is_the_box_of_the_walkable_features() -> None:
-    from server.positioning.floorplan import plan_extent
-
-    plan = {
-        "type": "FeatureCollection",
-        "features": [
-            {
-                "type": "Feature",
-                "properties": {"kind": "walkable"},
-                "geometry": {"type": "Polygon", "coordinates": [[[1, 2], [9, 2], [9, 5], [1, 2]]]},
-            },
-            {
-                "type": "Feature",
-                "properties": {"beacon": "b"},
-                "geometry": {"type": "Point", "coordinates": [500, 500]},
-            },
-        ],
-    }
-    assert plan_extent(plan) == (1.0, 2.0, 9.0, 5.0)
-    assert plan_extent({"type": "FeatureCollection", "features": []}) is None
-    assert plan_extent(None) is None
-
-
-# --- the fast paths against the plain test ---
-
-
-def _plain_crossing(
-    plan: FloorPlan, a: NDArray[np.float64], b: NDArray[np.float64]
-) -> NDArray[np.bool_]:
-    """The orientation test of every move against every wall: no index, no clearance
-    raster, no box filter, no cutting of long moves."""
-    out = ~np.asarray(np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1), dtype=bool)
-    walls = plan.walls
-    m = walls.shape[0]
-    for rows in np.array_split(np.flatnonzero(~out), max(1, a.shape[0] // 100)):
-        p, q = np.repeat(a[rows], m, axis=0), np.repeat(b[rows], m, axis=0)
-        c, d = np.tile(walls[:, :2], (rows.size, 1)), np.tile(walls[:, 2:], (rows.size, 1))
-        out[rows] = _segments_meet(p, q, c, d).reshape(rows.size, m).any(axis=1)
-    return out
-
-
-@cache
-def cluttered() -> FloorPlan:
-    """The room with 150 random thin walls (0.2-3 m, any direction) and a few pillars."""
-    rng = np.random.default_rng(21)
-    start = rng.uniform([0, 0], [20, 10], size=(150, 2))
-    angle = rng.uniform(0, np.pi, size=150)
-    end = start + rng.uniform(0.2, 3.0, size=(150, 1)) * np.column_stack(
-        [np.cos(angle), np.sin(angle)]
-    )
-    features = [
-        _feature("wall", "LineString", [s, e])
-        for s, e in zip(start.tolist(), end.tolist(), strict=True)
-    ]
-    pillars = [
-        _feature("wall", "Polygon", _box(x, y, x + 0.4, y + 0.4))
-        for x, y in rng.uniform([1, 1], [18, 8], size=(8, 2)).tolist()
-    ]
-    return plan_from_geojson({"features": [*ROOM["features"], *features, *pillars]})
-
-
-def _random_moves(
-    plan: FloorPlan, n: int, rng: np.random.Generator, max_m: float
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Moves from walkable points and from anywhere around the plan, and moves that
-    start exactly at a wall's end or on a wall (grazing)."""
-    k = n // 4
-    a = np.concatenate([random_walkable_points(plan, n - k, rng), rng.uniform(-2, 22, size=(k, 2))])
-    heading = rng.uniform(0, 2 * np.pi, size=n)
-    length = rng.uniform(0, max_m, size=n) * (rng.random(n) > 0.02)  # some stand still
-    step = length[:, None] * np.column_stack([np.sin(heading), np.cos(heading)])
-    walls = plan.walls[rng.integers(plan.walls.shape[0], size=k)]
-    t = rng.random((k, 1))
-    a[:k] = walls[:, 2:]  # starts at a wall's end (a cut move's first piece starts at a)
-    a[k : 2 * k] = walls[:, :2] + t * (walls[:, 2:] - walls[:, :2])  # starts on a wall
-    return a, a + step
-
-
-@pytest.mark.parametrize("max_m", [0.3, 1.0, 3.0])
-def test_fast_crossing_test_agrees_with_the_plain_test(max_m: float) -> None:
-    """Clearance raster, wall index, box filter and cutting of long moves give the plain
-    test's answer on every move (moves up to 1 m are tested in one piece)."""
-    for plan in (cluttered(), room()):
-        a, b = _random_moves(plan, 4000, np.random.default_rng(int(max_m * 10)), max_m)
-        plain = _plain_crossing(plan, a, b)
-        assert 0.05 < plain.mean() < 0.95
-        fast = crosses_wall(plan, a, b)
-        np.testing.assert_array_equal(fast, plain)
-        np.testing.assert_array_equal(valid_moves(plan, a, b), walkable_at(plan, b) & ~plain)
-        # the clearance raster spared some of the moves the segment test (in the room
-        # 13-27 %, in the cluttered room 0.5-5 %)
-        cell, inside = _cells(plan, a)
-        length2 = np.sum((b - a) ** 2, axis=1)
-        spared = inside & (length2 < plan._clear_below[plan._clearance[cell]])
-        assert spared.sum() >= 10
-
-
-def test_clearance_is_a_lower_bound_of_the_distance_to_the_walls() -> None:
-    """Any point of a cell is at least the cell's clearance from every wall, walls
-    outside the raster included."""
-    rng = np.random.default_rng(5)
-    base = cluttered()
-    outside = np.array([[-3.0, 5.0, -0.5, 5.0], [25.0, -1.0, 25.0, 12.0]])  # off the raster
-    plan = FloorPlan(
-        base.origin_m, base.cell_m, base.walkable, np.concatenate([base.walls, outside])
-    )
-    xy = rng.uniform(
-        plan.origin_m,
-        np.asarray(plan.origin_m) + plan.cell_m * np.array(plan.walkable.shape[::-1]),
-        size=(20000, 2),
-    )
-    cell, inside = _cells(plan, xy)
-    assert inside.all()
-    clearance_m = plan._clearance[cell] * (plan.cell_m / CLEARANCE_STEPS)
-    walls = shapely.multilinestrings(plan.walls.reshape(-1, 2, 2))
-    distance = shapely.distance(walls, shapely.points(xy))
-    assert np.all(clearance_m <= distance)
-    # and not a useless one: the slack is two cell diagonals at most (measured: 0.67 m,
-    # median 0.19 m)
-    assert np.max(distance - clearance_m) < 4 * plan.cell_m
-    assert np.median(distance - clearance_m) < plan.cell_m
-    # a plan without walls: the clearance only reflects the edge of the raster
-    bare = FloorPlan((0.0, 0.0), 0.25, np.ones((40, 40), dtype=bool), np.zeros((0, 4)))
-    # the middle cells of 40: their points come within 19 cells (4.75 m) of the edge
-    assert bare._clearance.max() == 19 * CLEARANCE_STEPS

@@ -24,7 +24,9 @@ from hypothesis import strategies as st
 from numpy.typing import NDArray
 
 from server.positioning import state_codec
-from server.positioning.magnetic import dtw_distance, grid_from_samples, sample
+from server.positioning.magnetic import sample
+from server.positioning.magnetic_distance import dtw_distance
+from server.positioning.mapping.magnetic_gridding import grid_from_samples
 from server.positioning.particle import (
     alive,
     dtw_update,

@@ -1,4 +1,4 @@
-"""Step detection, step lengths, turns and straight lines on synthetic raw IMU.
+"""Step detection and step lengths on synthetic raw IMU.
 
 The walks come from ``client_sim.imu``: a phone held in front, its top edge raised 20 deg,
 swaying a few degrees; one vertical bounce cycle (2.5 m/s²) per step at 1.8 Hz, a
@@ -20,25 +20,15 @@ from numpy.typing import NDArray
 
 from client_sim.imu import Gait, ImuTrace, Sensors, synthesize_walk
 from server.positioning.pdr import (
-    STRAIGHT,
-    SUSPECT,
-    TURN,
     Detector,
     DetectorState,
     G,
     PdrParams,
     Steps,
-    TurnParams,
-    TurnState,
     calibrated_step_m,
-    classify_steps,
     detect_steps,
     initial_detector,
-    initial_turns,
-    project_to_line,
-    ransac_line,
     step_lengths,
-    straighten_track,
 )
 
 FloatArray = NDArray[np.float64]
@@ -238,136 +228,6 @@ def test_calibrated_step_length() -> None:
             calibrated_step_m(bad, 20)
 
 
-# --- turns ---------------------------------------------------------------------------------
-
-
-def classify(
-    headings_deg: list[float], params: TurnParams | None = None
-) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    params = params or TurnParams()
-    _, status, segment = classify_steps(initial_turns(params), np.radians(headings_deg), params)
-    return status, segment
-
-
-def test_a_straight_walk_is_straight() -> None:
-    rng = np.random.default_rng(1)
-    headings = list(40.0 + rng.uniform(-2.0, 2.0, 60))
-    status, segment = classify(headings)
-    assert (status == STRAIGHT).all()
-    assert (segment == 0).all()
-
-
-def test_a_straight_walk_across_the_wrap_is_straight() -> None:
-    status, _ = classify([178.0, -179.0, 179.0, -178.0, 180.0, -180.0, 177.0])
-    assert (status == STRAIGHT).all()
-
-
-def test_a_slow_sway_of_5_degrees_stays_straight() -> None:
-    headings = list(90.0 + 5.0 * np.sin(2.0 * np.pi * np.arange(80) / 20.0))
-    status, segment = classify(headings)
-    assert (status == STRAIGHT).all()
-    assert (segment == 0).all()
-
-
-def test_a_right_angle_turn_is_a_turn_and_starts_a_segment() -> None:
-    headings = [0.0] * 20 + [30.0, 60.0, 90.0] + [90.0] * 20
-    status, segment = classify(headings)
-    assert (status[:20] == STRAIGHT).all()
-    assert status[20] == SUSPECT  # 30 deg from the last straight step: not more than λ_h
-    assert (status[21:23] == TURN).all()
-    # the turn lasts while the window still holds pre-turn headings
-    assert (status[23:26] == TURN).all()
-    assert (status[26:] == STRAIGHT).all()
-    assert (segment[:26] == 0).all()
-    assert (segment[26:] == 1).all()
-
-
-def test_a_suspected_turn_that_comes_back_starts_a_new_segment() -> None:
-    headings = [0.0] * 10 + [15.0, 0.0] + [0.0] * 10
-    status, segment = classify(headings)
-    assert (status[10:12] == SUSPECT).all()
-    assert segment[-1] == 1
-    assert (status[-1:] == STRAIGHT).all()
-
-
-def test_turn_classification_is_incremental() -> None:
-    rng = np.random.default_rng(2)
-    headings = np.radians(
-        np.concatenate([np.zeros(15), np.linspace(0, 90, 6), np.full(15, 90.0)])
-        + rng.normal(0.0, 1.0, 36)
-    )
-    params = TurnParams()
-    _, status, segment = classify_steps(initial_turns(params), headings, params)
-    state = initial_turns(params)
-    parts = []
-    for chunk in np.array_split(headings, [4, 17, 18, 30]):
-        state, s, g = classify_steps(TurnState.from_arrays(state.to_arrays()), chunk, params)
-        parts.append((s, g))
-    np.testing.assert_array_equal(np.concatenate([p[0] for p in parts]), status)
-    np.testing.assert_array_equal(np.concatenate([p[1] for p in parts]), segment)
-
-
-# --- straight lines ------------------------------------------------------------------------
-
-
-def same_line(
-    got: tuple[float, float, float] | None, want: tuple[float, float, float], atol: float = 1e-9
-) -> None:
-    """``a x + b y + c = 0`` lines equal up to scale and sign; ``got`` normalised."""
-    assert got is not None
-    a, b, c = want
-    want_unit = np.array([a, b, c]) / math.hypot(a, b)
-    assert math.hypot(got[0], got[1]) == pytest.approx(1.0)
-    sign = np.sign(np.dot(got, want_unit))
-    np.testing.assert_allclose(sign * np.array(got), want_unit, rtol=0.0, atol=atol)
-
-
-def total_least_squares(points: FloatArray) -> tuple[float, float, float]:
-    centre = points.mean(axis=0)
-    _, _, vt = np.linalg.svd(points - centre)
-    a, b = vt[-1]
-    return float(a), float(b), float(-(a * centre[0] + b * centre[1]))
-
-
-def test_ransac_recovers_a_line_among_outliers() -> None:
-    rng = np.random.default_rng(3)
-    x = np.linspace(0.0, 20.0, 25)
-    on_line = np.column_stack([x, 0.5 * x + 1.0 + rng.normal(0.0, 0.1, x.size)])
-    outliers = np.array([[5.0, 10.0], [10.0, -6.0], [15.0, 16.0], [2.0, -5.0]])
-    points = np.vstack([on_line, outliers])
-    line = ransac_line(points)
-    same_line(line, total_least_squares(on_line))  # refitted to exactly the inliers
-    same_line(line, (0.5, -1.0, 1.0), atol=0.1)  # 0.5 x - y + 1 = 0
-    # more pairs than max_pairs: sampled with the generator
-    sampled = ransac_line(points, max_pairs=50, rng=np.random.default_rng(0))
-    same_line(sampled, total_least_squares(on_line))
-    with pytest.raises(ValueError, match="rng"):
-        ransac_line(points, max_pairs=50)
-
-
-def test_ransac_needs_two_distinct_points() -> None:
-    assert ransac_line(np.empty((0, 2))) is None
-    assert ransac_line(np.array([[1.0, 2.0]])) is None
-    assert ransac_line(np.array([[1.0, 2.0], [1.0, 2.0]])) is None
-    same_line(ransac_line(np.array([[0.0, 0.0], [3.0, 0.0]])), (0.0, 1.0, 0.0))
-
-
-@pytest.mark.parametrize("line", [(0.0, 1.0, 0.0), (0.0, 2.0, 0.0)], ids=["unit", "scaled"])
-def test_only_far_points_are_projected_onto_the_line(line: tuple[float, float, float]) -> None:
-    points = np.array([[1.0, 0.5], [2.0, 3.0], [3.0, -2.0], [4.0, -1.5]])
-    before = points.copy()
-    moved = project_to_line(points, line)
-    np.testing.assert_allclose(moved, [[1.0, 0.5], [2.0, 0.0], [3.0, 0.0], [4.0, -1.5]])
-    np.testing.assert_array_equal(points, before)  # the input is left alone
-
-
-def test_projection_is_the_foot_of_the_perpendicular() -> None:
-    line = (1.0, 1.0, -2.0)  # x + y = 2, not normalised
-    moved = project_to_line(np.array([[4.0, 4.0], [1.5, 1.0]]), line, threshold_m=1.0)
-    # (4, 4) is 6 / sqrt(2) = 4.2 m away: its foot is (1, 1); (1.5, 1) is 0.35 m away
-    np.testing.assert_allclose(moved, [[1.0, 1.0], [1.5, 1.0]])
-
-
 # --- parameters ----------------------------------------------------------------------------
 
 
@@ -384,30 +244,3 @@ def test_projection_is_the_foot_of_the_perpendicular() -> None:
 def test_pdr_params_are_validated(kwargs: dict[str, object], message: str) -> None:
     with pytest.raises(ValueError, match=message):
         PdrParams(**kwargs)  # type: ignore[arg-type]
-
-
-@pytest.mark.parametrize(
-    ("kwargs", "message"),
-    [
-        ({"window_steps": 1}, "window_steps"),
-        ({"lambda_low_rad": 0.0}, "lambda_low_rad < lambda_high_rad"),
-        ({"lambda_low_rad": 0.6, "lambda_high_rad": 0.5}, "lambda_low_rad < lambda_high_rad"),
-    ],
-)
-def test_turn_params_are_validated(kwargs: dict[str, float], message: str) -> None:
-    with pytest.raises(ValueError, match=message):
-        TurnParams(**kwargs)  # type: ignore[arg-type]
-
-
-def test_straighten_track_moves_only_outliers_of_long_straight_stretches() -> None:
-    # ten straight steps along y = 0 with one 3 m off; a turn; then a 3-step stretch
-    xy = np.array(
-        [[float(i), 0.0] for i in range(10)] + [[10.0, 1.0], [10.0, 2.0], [10.0, 3.0], [10.0, 9.0]]
-    )
-    xy[4, 1] = 3.0
-    status = np.array([STRAIGHT] * 10 + [TURN] + [STRAIGHT] * 3)
-    segment = np.array([0] * 10 + [0] + [1] * 3)
-    out = straighten_track(xy, status, segment, np.random.default_rng(0))
-    np.testing.assert_allclose(out[4], [4.0, 0.0], atol=1e-9)  # onto the line (eq 3)
-    np.testing.assert_allclose(np.delete(out[:10], 4, axis=0), np.delete(xy[:10], 4, axis=0))
-    np.testing.assert_array_equal(out[10:], xy[10:])  # a turn and a short stretch: as they were

@@ -17,7 +17,7 @@ import pytest
 from numpy.typing import NDArray
 
 from client_sim.imu import Block, Gait, ImuTrace, Sensors, blocks, synthesize_walk
-from server.positioning import pdr, state_codec
+from server.positioning import state_codec
 from server.positioning.events import Event, ImuEvent, MagEvent, RadioReading, WifiEvent
 from server.positioning.step_tracker import (
     HeadingSource,
@@ -29,6 +29,7 @@ from server.positioning.step_tracker import (
     timeline,
     track,
 )
+from server.positioning.turns import STRAIGHT, TURN
 
 FloatArray = NDArray[np.float64]
 
@@ -123,11 +124,11 @@ def test_fused_heading_steps_through_a_right_angle_turn() -> None:
     assert np.max(error_deg(steps.heading_rad, true_heading(steps.t_ms))[settled]) < 3.0
     # the turn: straight before, a turn, a new straight segment after
     before, after = t_s < TURN_S[0], t_s > TURN_S[1] + 3.0
-    assert (steps.status[before] == pdr.STRAIGHT).all()
+    assert (steps.status[before] == STRAIGHT).all()
     assert (steps.segment[before] == 0).all()
     during = steps.status[~before & ~after]
-    assert (during == pdr.TURN).sum() >= 3
-    assert (steps.status[after] == pdr.STRAIGHT).all()
+    assert (during == TURN).sum() >= 3
+    assert (steps.status[after] == STRAIGHT).all()
     assert (steps.segment[after] == 1).all()
     # north-referenced once the compass was seen in an earlier block: NaN in the first
     first_block = np.isin(steps.t_ms, found[0].t_ms)
@@ -172,8 +173,8 @@ def test_relative_headings_turn_by_the_right_angle(
     after = (t_s > TURN_S[1] + 3.0) & (t_s < TURN_S[1] + 7.0)
     turned = heading[after].mean() - heading[before].mean()
     assert math.degrees(turned) == pytest.approx(90.0, abs=tolerance_deg)
-    assert (steps.status[before] == pdr.STRAIGHT).all()
-    assert steps.status[(t_s > TURN_S[0]) & (t_s < TURN_S[1] + 2.0)].max() == pdr.TURN
+    assert (steps.status[before] == STRAIGHT).all()
+    assert steps.status[(t_s > TURN_S[0]) & (t_s < TURN_S[1] + 2.0)].max() == TURN
     if source == "fused":  # no compass: the heading starts from 0 and north is never known
         assert np.isnan(steps.north_rad).all()
         assert error_deg(steps.heading_rad[:1], np.zeros(1))[0] < 3.0
@@ -253,7 +254,7 @@ def test_blocks_without_gyro_or_accelerometer() -> None:
     assert len(steps) >= 5
     assert np.isnan(steps.heading_rad).all()
     assert np.isnan(steps.north_rad).all()
-    assert (steps.status == pdr.STRAIGHT).all()
+    assert (steps.status == STRAIGHT).all()
 
 
 @pytest.mark.parametrize(

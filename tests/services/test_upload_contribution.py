@@ -61,7 +61,7 @@ def test_a_pass_by_an_anchor_ap_becomes_one_more_anchor() -> None:
 
 
 def test_samples_placed_far_outside_the_floor_plan_are_not_used() -> None:
-    from server.positioning.floorplan import PLAN_MARGIN_M
+    from server.positioning.floorplan_geojson import PLAN_MARGIN_M
     from server.services.upload_anchors import AnchorContext
 
     everything = contribution(_upload())

@@ -1,1 +1,1 @@
-"""Map building as pure steps: survey and crowdsourced points in, radio maps out."""
+"""Map building as pure steps: survey and crowdsourced points in, radio and magnetic maps out."""

@@ -1,0 +1,15 @@
+"""Phone attitude and heading from gyroscope, accelerometer and magnetometer samples.
+
+``streams`` (sample arrays and their alignment across streams and batches), ``geometry``
+(gravity, vertical rate and headings in phone axes), ``matrix3`` (the attitude filter's
+3×3 algebra), ``attitude_ekf`` (``papers/002_*`` section 6.1) and ``heading_fusion``
+(``papers/003_*`` section III).
+
+Frames and units. Phone axes are Android's (x to the right edge, y to the top edge, z out
+of the screen); the world frame is east-north-up. The accelerometer gives specific force
+in m/s² with gravity included (a phone lying flat screen up reads about ``[0, 0, +g]``),
+the gyroscope rad/s right-handed about each phone axis, the magnetometer µT. A *heading*
+is in radians, clockwise from north, wrapped to (-pi, pi]; unless said otherwise it is the
+heading of the phone's top edge (y axis) projected on the horizontal plane. Samples are
+``(n, 4)`` arrays ``[t_ms, x, y, z]`` with strictly increasing ``t_ms``.
+"""
