@@ -28,6 +28,7 @@ P = TypeVar("P", bound="Params")
 Positive = Annotated[float, at.Gt(0)]
 NonNegative = Annotated[float, at.Ge(0)]
 AtLeastOne = Annotated[int, at.Ge(1)]
+NonNegativeInt = Annotated[int, at.Ge(0)]
 Share = Annotated[float, at.Ge(0), at.Le(1)]  # a fraction in [0, 1]
 OpenShare = Annotated[float, at.Gt(0), at.Lt(1)]  # a fraction in (0, 1)
 

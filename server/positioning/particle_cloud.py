@@ -49,7 +49,7 @@ class ParticleParams(Params):
     step_sd_m: NonNegative = 0.1
     # Delta of Algorithm 1 line 8 (no value in the paper): the phone heading error used
     # by step_ekf (r_heading_rad2)
-    heading_sd_rad: NonNegative = math.radians(10.0)  # noqa: RUF009 (a constant)
+    heading_sd_rad: NonNegative = math.radians(10.0)
     # resample when N_eff < fraction * N: ref [24] resamples below a threshold N_T, N/2
     # is the common choice; 1.0 resamples at every step as Algorithm 1 line 13
     resample_ess_fraction: Share = 0.5

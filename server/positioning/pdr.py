@@ -55,13 +55,16 @@ are straightened by ``straight_lines``.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass, replace
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.signal import lfilter
+
+from server.positioning.params import AtLeastOne, NonNegativeInt, ParamError, Params, Positive
+from server.positioning.state_codec import shape
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -73,37 +76,29 @@ LengthModel = Literal["mansour", "weinberg"]
 
 
 @dataclass(frozen=True)
-class PdrParams:
+class PdrParams(Params):
     """Step detection and step length parameters (paper values where the paper has one)."""
 
     detector: Detector = "mansour"
     length_model: LengthModel = "mansour"
-    grid_ms: int = 20  # 50 Hz grid, the rate of the phones in papers/003_* and ILC 2.0
-    half_window: int = 5  # N of papers/002_* eq 7: 11 samples, 0.22 s
-    gravity_tau_s: float = 5.0
-    vertical_tau_s: float = 1.0  # low-pass giving the vertical for the "mansour" signal
-    threshold_ms2: float = 0.65  # papers/003_* III
-    min_peak_valley_ms: int = 100  # papers/003_* III
-    max_peak_valley_ms: int = 800  # half of the longest gait cycle, 1.6 s (papers/003_*)
-    min_step_ms: int = 200  # shortest gait cycle, 0.2 s (papers/003_* III)
-    false_extreme_ms: int = 150
-    weinberg_k: float = 0.861  # papers/002_* Table 2
-    mansour_m: float = 0.55  # papers/003_* eq 1
-    min_step_m: float = 0.6  # papers/003_* eq 1
-    max_step_m: float = 0.9  # papers/003_* eq 1
-    max_gap_ms: int = 2000  # a longer gap between samples restarts the detector
+    grid_ms: AtLeastOne = 20  # 50 Hz grid, the rate of the phones in papers/003_* and ILC 2.0
+    half_window: AtLeastOne = 5  # N of papers/002_* eq 7: 11 samples, 0.22 s
+    gravity_tau_s: Positive = 5.0
+    vertical_tau_s: Positive = 1.0  # low-pass giving the vertical for the "mansour" signal
+    threshold_ms2: Positive = 0.65  # papers/003_* III
+    min_peak_valley_ms: NonNegativeInt = 100  # papers/003_* III
+    max_peak_valley_ms: AtLeastOne = 800  # half of the longest gait cycle, 1.6 s (papers/003_*)
+    min_step_ms: NonNegativeInt = 200  # shortest gait cycle, 0.2 s (papers/003_* III)
+    false_extreme_ms: NonNegativeInt = 150
+    weinberg_k: Positive = 0.861  # papers/002_* Table 2
+    mansour_m: Positive = 0.55  # papers/003_* eq 1
+    min_step_m: Positive = 0.6  # papers/003_* eq 1
+    max_step_m: Positive = 0.9  # papers/003_* eq 1
+    max_gap_ms: AtLeastOne = 2000  # a longer gap between samples restarts the detector
 
-    def __post_init__(self) -> None:
-        if self.detector not in ("mansour", "cui"):
-            raise ValueError(f"detector must be 'mansour' or 'cui', got {self.detector!r}")
-        if self.length_model not in ("mansour", "weinberg"):
-            raise ValueError(
-                f"length_model must be 'mansour' or 'weinberg', got {self.length_model!r}"
-            )
-        if self.grid_ms < 1 or self.half_window < 1:
-            raise ValueError("grid_ms and half_window must be at least 1")
+    def check(self) -> None:
         if not self.min_step_m <= self.max_step_m:
-            raise ValueError("min_step_m must not exceed max_step_m")
+            raise ParamError("max_step_m", "must not be below min_step_m")
 
 
 @dataclass(frozen=True)
@@ -131,58 +126,6 @@ class Steps:
 _NO_STEPS = Steps(np.empty(0, np.int64), np.empty(0), np.empty(0))
 
 
-@dataclass(frozen=True)
-class DetectorState:
-    """Everything the detector carries from one batch to the next (small, fixed size
-    apart from ``tail``, which holds at most ``2N + 2`` values)."""
-
-    last_raw: FloatArray  # (4,) [t_ms, x, y, z] of the last raw sample; t NaN before any
-    next_grid_ms: float  # next grid time to produce; NaN before any sample
-    gravity_lp: FloatArray  # (1,) last low-passed magnitude (the gravity estimate)
-    vertical_lp: FloatArray  # (3,) last low-passed acceleration vector
-    initialized: bool
-    tail_t: FloatArray  # grid times whose raw signal is kept for the moving average
-    tail_v: FloatArray  # raw signal at tail_t
-    tail_g: FloatArray  # gravity at tail_t
-    smooth: FloatArray  # (2, 3) last two smoothed [t, value, gravity]; NaN rows when absent
-    machine: FloatArray  # state machine, see _MACHINE
-
-    def to_arrays(self) -> dict[str, np.ndarray]:
-        return {
-            "last_raw": self.last_raw,
-            "next_grid_ms": np.array(self.next_grid_ms),
-            "gravity_lp": self.gravity_lp,
-            "vertical_lp": self.vertical_lp,
-            "initialized": np.array(self.initialized, dtype=np.int8),
-            "tail_t": self.tail_t,
-            "tail_v": self.tail_v,
-            "tail_g": self.tail_g,
-            "smooth": self.smooth,
-            "machine": self.machine,
-        }
-
-    @classmethod
-    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> DetectorState:
-        def f(name: str) -> FloatArray:
-            return np.array(arrays[name], dtype=np.float64)
-
-        state = cls(
-            last_raw=f("last_raw"),
-            next_grid_ms=float(arrays["next_grid_ms"]),
-            gravity_lp=f("gravity_lp"),
-            vertical_lp=f("vertical_lp"),
-            initialized=bool(arrays["initialized"]),
-            tail_t=f("tail_t"),
-            tail_v=f("tail_v"),
-            tail_g=f("tail_g"),
-            smooth=f("smooth"),
-            machine=f("machine"),
-        )
-        if state.last_raw.shape != (4,) or state.machine.shape != (len(_MACHINE),):
-            raise ValueError("step detector state has the wrong shape")
-        return state
-
-
 # slots of DetectorState.machine
 _MACHINE = (
     "phase",  # 0: waiting for a peak, 1: have a peak, 2: have a valley (mansour)
@@ -195,6 +138,26 @@ _MACHINE = (
     "run_min",  # cui: minimum of the signal since the last peak
 )
 _I = {name: i for i, name in enumerate(_MACHINE)}
+
+
+@dataclass(frozen=True, kw_only=True)
+class DetectorState:
+    """Everything the detector carries from one batch to the next (small, fixed size
+    apart from ``tail``, which holds at most ``2N + 2`` values)."""
+
+    # [t_ms, x, y, z] of the last raw sample; t NaN before any
+    last_raw: FloatArray = field(metadata=shape(4))
+    next_grid_ms: float  # next grid time to produce; NaN before any sample
+    # last low-passed magnitude (the gravity estimate)
+    gravity_lp: FloatArray = field(metadata=shape(1))
+    vertical_lp: FloatArray = field(metadata=shape(3))  # last low-passed acceleration vector
+    initialized: bool
+    tail_t: FloatArray  # grid times whose raw signal is kept for the moving average
+    tail_v: FloatArray  # raw signal at tail_t
+    tail_g: FloatArray  # gravity at tail_t
+    # last two smoothed [t, value, gravity]; NaN rows when absent
+    smooth: FloatArray = field(metadata=shape(2, 3))
+    machine: FloatArray = field(metadata=shape(len(_MACHINE)))  # state machine, see _MACHINE
 
 
 def initial_detector() -> DetectorState:

@@ -12,11 +12,14 @@ fits a line to.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
+from annotated_types import Ge
 from numpy.typing import NDArray
+
+from server.positioning.params import ParamError, Params, Positive
 
 FloatArray = NDArray[np.float64]
 
@@ -24,18 +27,16 @@ STRAIGHT, SUSPECT, TURN = 0, 1, 2
 
 
 @dataclass(frozen=True)
-class TurnParams:
+class TurnParams(Params):
     """``papers/003_*`` section III turn detection; the paper gives no λ values."""
 
-    window_steps: int = 5
-    lambda_low_rad: float = math.radians(10.0)  # λ_l: heading sway allowed on a straight
-    lambda_high_rad: float = math.radians(30.0)  # λ_h: total change that makes a turn
+    window_steps: Annotated[int, Ge(2)] = 5
+    lambda_low_rad: Positive = math.radians(10.0)  # λ_l: heading sway allowed on a straight
+    lambda_high_rad: Positive = math.radians(30.0)  # λ_h: total change that makes a turn
 
-    def __post_init__(self) -> None:
-        if self.window_steps < 2:
-            raise ValueError(f"window_steps must be at least 2, got {self.window_steps}")
-        if not 0 < self.lambda_low_rad < self.lambda_high_rad:
-            raise ValueError("need 0 < lambda_low_rad < lambda_high_rad")
+    def check(self) -> None:
+        if not self.lambda_low_rad < self.lambda_high_rad:
+            raise ParamError("lambda_high_rad", "must be above lambda_low_rad")
 
 
 @dataclass(frozen=True)
@@ -47,23 +48,6 @@ class TurnState:
     reference: float
     status: int
     segment: int  # increases whenever a new straight-line model starts
-
-    def to_arrays(self) -> dict[str, np.ndarray]:
-        return {
-            "recent": self.recent,
-            "reference": np.array(self.reference),
-            "status": np.array(self.status, dtype=np.int64),
-            "segment": np.array(self.segment, dtype=np.int64),
-        }
-
-    @classmethod
-    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> TurnState:
-        return cls(
-            recent=np.array(arrays["recent"], dtype=np.float64),
-            reference=float(arrays["reference"]),
-            status=int(arrays["status"]),
-            segment=int(arrays["segment"]),
-        )
 
 
 def initial_turns(params: TurnParams) -> TurnState:

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
+from server.positioning import state_codec
 from server.positioning.turns import (
     STRAIGHT,
     SUSPECT,
@@ -77,7 +78,9 @@ def test_turn_classification_is_incremental() -> None:
     state = initial_turns(params)
     parts = []
     for chunk in np.array_split(headings, [4, 17, 18, 30]):
-        state, s, g = classify_steps(TurnState.from_arrays(state.to_arrays()), chunk, params)
+        state, s, g = classify_steps(
+            state_codec.from_arrays(TurnState, state_codec.to_arrays(state)), chunk, params
+        )
         parts.append((s, g))
     np.testing.assert_array_equal(np.concatenate([p[0] for p in parts]), status)
     np.testing.assert_array_equal(np.concatenate([p[1] for p in parts]), segment)
@@ -87,8 +90,8 @@ def test_turn_classification_is_incremental() -> None:
     ("kwargs", "message"),
     [
         ({"window_steps": 1}, "window_steps"),
-        ({"lambda_low_rad": 0.0}, "lambda_low_rad < lambda_high_rad"),
-        ({"lambda_low_rad": 0.6, "lambda_high_rad": 0.5}, "lambda_low_rad < lambda_high_rad"),
+        ({"lambda_low_rad": 0.0}, "lambda_low_rad: must be greater than 0"),
+        ({"lambda_low_rad": 0.6, "lambda_high_rad": 0.5}, "lambda_high_rad: must be above lambda_low_rad"),
     ],
 )
 def test_turn_params_are_validated(kwargs: dict[str, float], message: str) -> None:

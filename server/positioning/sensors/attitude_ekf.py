@@ -45,12 +45,14 @@ measures both (CPython 3.11.7, numpy 2.4.6, scipy 1.17.1, the machine of
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Annotated
 
 import numpy as np
+from annotated_types import Gt
 from numpy.typing import NDArray
 
+from server.positioning.params import Params
 from server.positioning.sensors.geometry import G, wrap_float
 from server.positioning.sensors.matrix3 import (
     Matrix3,
@@ -63,6 +65,7 @@ from server.positioning.sensors.matrix3 import (
     transpose,
 )
 from server.positioning.sensors.streams import MAX_GAP_S, fresh, held_index, samples, with_carried
+from server.positioning.state_codec import shape
 
 FloatArray = NDArray[np.float64]
 
@@ -72,22 +75,17 @@ MAX_ATTITUDE_VAR = 1e6  # beyond this the attitude filter has diverged and start
 _MIN_COS_PITCH = 1e-3  # |cos(theta)| floor in eq 12: the Z-Y-X kinematics are singular at ±90°
 
 
+Variances3 = Annotated[tuple[float, float, float], Gt(0)]  # three positive variances
+
+
 @dataclass(frozen=True)
-class AttitudeParams:
+class AttitudeParams(Params):
     """Parameters of the attitude-determination EKF, Cui's values by default."""
 
     d0: tuple[float, float, float] = (0.5 * math.pi, 0.0, 0.0)  # [psi, theta, gamma], eq 10
-    p0: tuple[float, float, float] = (1.0, 1.0, 1.0)  # diag of P_0, rad², eq 11
-    q: tuple[float, float, float] = (1.0, 1.0, 1.0)  # diag of Q_1 per gyro sample, rad², eq 13
-    r: tuple[float, float, float] = (1.0, 1.0, 1.0)  # diag of R_1 per accel sample, g², eq 17
-
-    def __post_init__(self) -> None:
-        if len(self.d0) != 3 or not all(math.isfinite(v) for v in self.d0):
-            raise ValueError(f"d0 must be three finite angles, got {self.d0}")
-        for name in ("p0", "q", "r"):
-            values = getattr(self, name)
-            if len(values) != 3 or not all(math.isfinite(v) and v > 0 for v in values):
-                raise ValueError(f"{name} must be three positive finite variances, got {values}")
+    p0: Variances3 = (1.0, 1.0, 1.0)  # diag of P_0, rad², eq 11
+    q: Variances3 = (1.0, 1.0, 1.0)  # diag of Q_1 per gyro sample, rad², eq 13
+    r: Variances3 = (1.0, 1.0, 1.0)  # diag of R_1 per accel sample, g², eq 17
 
 
 @dataclass(frozen=True)
@@ -108,44 +106,11 @@ class AttitudeState:
         Last accelerometer sample seen ``[t_ms, x, y, z]``; NaN before any.
     """
 
-    D: FloatArray
-    P: FloatArray
+    D: FloatArray = field(metadata=shape(3))
+    P: FloatArray = field(metadata=shape(3, 3))
     last_t_ms: float
-    last_gyro: FloatArray
-    last_accel: FloatArray
-
-    def to_arrays(self) -> dict[str, np.ndarray]:
-        """Flat float64 arrays (scalars as 0-d arrays); ``from_arrays`` inverts exactly."""
-        return {
-            "D": np.array(self.D, dtype=np.float64),
-            "P": np.array(self.P, dtype=np.float64),
-            "last_t_ms": np.array(self.last_t_ms, dtype=np.float64),
-            "last_gyro": np.array(self.last_gyro, dtype=np.float64),
-            "last_accel": np.array(self.last_accel, dtype=np.float64),
-        }
-
-    @classmethod
-    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> AttitudeState:
-        """Rebuild a state from ``to_arrays`` output.
-
-        Raises
-        ------
-        KeyError
-            When an array is missing.
-        ValueError
-            When an array has the wrong shape.
-        """
-        state = cls(
-            D=np.array(arrays["D"], dtype=np.float64),
-            P=np.array(arrays["P"], dtype=np.float64),
-            last_t_ms=float(arrays["last_t_ms"]),
-            last_gyro=np.array(arrays["last_gyro"], dtype=np.float64),
-            last_accel=np.array(arrays["last_accel"], dtype=np.float64),
-        )
-        shapes = (state.D.shape, state.P.shape, state.last_gyro.shape, state.last_accel.shape)
-        if shapes != ((3,), (3, 3), (3,), (4,)):
-            raise ValueError(f"attitude state has shapes {shapes}")
-        return state
+    last_gyro: FloatArray = field(metadata=shape(3))
+    last_accel: FloatArray = field(metadata=shape(4))
 
 
 def initial_attitude(params: AttitudeParams) -> AttitudeState:

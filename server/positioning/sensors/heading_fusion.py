@@ -29,12 +29,14 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Annotated
 
 import numpy as np
+from annotated_types import Ge
 from numpy.typing import NDArray
 
+from server.positioning.params import Params, Positive
 from server.positioning.sensors.geometry import compass_heading, unit, vertical_rate, wrap_float
 from server.positioning.sensors.streams import (
     MAX_GAP_S,
@@ -44,61 +46,46 @@ from server.positioning.sensors.streams import (
     samples,
     with_carried,
 )
+from server.positioning.state_codec import shape
 
 FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
-class HeadingParams:
+class HeadingParams(Params):
     """Parameters of the gyro/compass heading filter.
 
     The defaults assume a phone gyro with a bias of up to about 1 deg/s and a magnetometer
     at about 50 Hz with 0.3-0.6 µT of noise.
     """
 
-    window_s: float = 1.0  # QSMF sliding window, s
+    window_s: Positive = 1.0  # QSMF sliding window, s
     # std of |B| over the window below which the field is quasi-static, µT: about twice the
     # noise of phone magnetometers (0.3-0.6 µT rms), while indoor disturbances change |B|
     # by several µT over a metre, i.e. within a second of walking
-    qsmf_magnitude_std_ut: float = 1.0
+    qsmf_magnitude_std_ut: Positive = 1.0
     # compass and gyro heading changes over the window agree within this, rad: a compass
     # sample is good to about 1 deg, and a gyro bias of 1 deg/s adds 1 deg a window
-    qsmf_agreement_rad: float = math.radians(5.0)
+    qsmf_agreement_rad: Positive = math.radians(5.0)
     # heading random walk, rad²/s: gyro white noise plus the error of projecting the rates
     # on a low-passed vertical while the phone sways; (0.2 deg)² per s
-    q_heading: float = math.radians(0.2) ** 2
-    q_bias: float = 1e-8  # gyro bias random walk, rad²/s³ (its std grows 0.04 deg/s a minute)
+    q_heading: Positive = math.radians(0.2) ** 2
+    q_bias: Positive = 1e-8  # gyro bias random walk, rad²/s³ (its std grows 0.04 deg/s a minute)
     # compass heading variance per magnetometer sample, rad²: larger than the noise of one
     # sample because tilt errors and small disturbances are correlated over many samples;
     # with q_heading it sets a ~3 s time constant for the compass pull at 50 Hz
-    r_compass_rad2: float = math.radians(5.0) ** 2
-    p0_heading_rad2: float = math.radians(20.0) ** 2  # at the first compass heading
-    p0_bias_rad2_s2: float = math.radians(1.0) ** 2  # initial gyro bias variance, (rad/s)²
+    r_compass_rad2: Positive = math.radians(5.0) ** 2
+    p0_heading_rad2: Positive = math.radians(20.0) ** 2  # at the first compass heading
+    p0_bias_rad2_s2: Positive = math.radians(1.0) ** 2  # initial gyro bias variance, (rad/s)²
     # low-pass time constant for the up vector, s. Walking accelerations leak into the
     # low-passed up vector at the step frequency, and their product with the phone's sway
     # rates integrates to a heading drift roughly proportional to 1 / tau (on the
     # synthetic walk of the tests 7.5 deg/min at 0.5 s, 3.9 at 1 s, 2.0 at 2 s) which the
     # bias state must absorb; a longer tau lags behind changes of how the phone is held
-    gravity_tau_s: float = 1.0
-    window_entries: int = 50  # samples kept per window (ring buffer spacing window_s / this)
-
-    def __post_init__(self) -> None:
-        if self.window_entries < 2:
-            raise ValueError(f"window_entries must be at least 2, got {self.window_entries}")
-        positive = {
-            "window_s": self.window_s,
-            "qsmf_magnitude_std_ut": self.qsmf_magnitude_std_ut,
-            "qsmf_agreement_rad": self.qsmf_agreement_rad,
-            "q_heading": self.q_heading,
-            "q_bias": self.q_bias,
-            "r_compass_rad2": self.r_compass_rad2,
-            "p0_heading_rad2": self.p0_heading_rad2,
-            "p0_bias_rad2_s2": self.p0_bias_rad2_s2,
-            "gravity_tau_s": self.gravity_tau_s,
-        }
-        for name, value in positive.items():
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be positive and finite, got {value}")
+    gravity_tau_s: Positive = 1.0
+    window_entries: Annotated[int, Ge(2)] = (
+        50  # samples kept per window (ring buffer spacing window_s / this)
+    )
 
 
 @dataclass(frozen=True)
@@ -137,63 +124,16 @@ class HeadingState:
 
     heading: float
     bias: float
-    P: FloatArray
+    P: FloatArray = field(metadata=shape(2, 2))
     last_t_ms: float
     last_rate: float
-    gravity: FloatArray
+    gravity: FloatArray = field(metadata=shape(3))
     gravity_t_ms: float
-    last_magnetic: FloatArray
+    last_magnetic: FloatArray = field(metadata=shape(4))
     gyro_heading: float
-    window: FloatArray
+    window: FloatArray = field(metadata=shape(-1, 4))
     qsmf: bool
     initialized: bool
-
-    def to_arrays(self) -> dict[str, np.ndarray]:
-        """Flat numeric arrays (scalars as 0-d arrays); ``from_arrays`` inverts exactly."""
-        return {
-            "heading": np.array(self.heading, dtype=np.float64),
-            "bias": np.array(self.bias, dtype=np.float64),
-            "P": np.array(self.P, dtype=np.float64),
-            "last_t_ms": np.array(self.last_t_ms, dtype=np.float64),
-            "last_rate": np.array(self.last_rate, dtype=np.float64),
-            "gravity": np.array(self.gravity, dtype=np.float64),
-            "gravity_t_ms": np.array(self.gravity_t_ms, dtype=np.float64),
-            "last_magnetic": np.array(self.last_magnetic, dtype=np.float64),
-            "gyro_heading": np.array(self.gyro_heading, dtype=np.float64),
-            "window": np.array(self.window, dtype=np.float64).reshape(-1, 4),
-            "qsmf": np.array(self.qsmf, dtype=np.int8),
-            "initialized": np.array(self.initialized, dtype=np.int8),
-        }
-
-    @classmethod
-    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> HeadingState:
-        """Rebuild a state from ``to_arrays`` output.
-
-        Raises
-        ------
-        KeyError
-            When an array is missing.
-        ValueError
-            When an array has the wrong shape.
-        """
-        state = cls(
-            heading=float(arrays["heading"]),
-            bias=float(arrays["bias"]),
-            P=np.array(arrays["P"], dtype=np.float64),
-            last_t_ms=float(arrays["last_t_ms"]),
-            last_rate=float(arrays["last_rate"]),
-            gravity=np.array(arrays["gravity"], dtype=np.float64),
-            gravity_t_ms=float(arrays["gravity_t_ms"]),
-            last_magnetic=np.array(arrays["last_magnetic"], dtype=np.float64),
-            gyro_heading=float(arrays["gyro_heading"]),
-            window=np.array(arrays["window"], dtype=np.float64).reshape(-1, 4),
-            qsmf=bool(arrays["qsmf"]),
-            initialized=bool(arrays["initialized"]),
-        )
-        shapes = (state.P.shape, state.gravity.shape, state.last_magnetic.shape)
-        if shapes != ((2, 2), (3,), (4,)):
-            raise ValueError(f"heading state has shapes {shapes}")
-        return state
 
 
 def initial_heading(params: HeadingParams) -> HeadingState:
