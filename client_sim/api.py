@@ -234,13 +234,14 @@ class ApiClient:
                 self._device_key = str(made["key"])
             return self._device_key
 
-    async def create_session(self, site_id: str, engine: str) -> Session:
-        body = await self._call(
-            "POST",
-            "/v1/sessions",
-            token=await self.device_key(),
-            body={"site_id": site_id, "engine": engine},
-        )
+    async def create_session(
+        self, site_id: str, engine: str, params: Mapping[str, Any] | None = None
+    ) -> Session:
+        """Open a session; ``params`` override the engine's parameters (nested)."""
+        request: dict[str, Any] = {"site_id": site_id, "engine": engine}
+        if params:
+            request["params"] = dict(params)
+        body = await self._call("POST", "/v1/sessions", token=await self.device_key(), body=request)
         return Session(
             id=str(body["id"]),
             token=str(body["token"]),

@@ -38,13 +38,15 @@ async def replay_over_http(
     on_progress: Callable[[str, int, int], None] | None = None,
     concurrency: int = 4,
     upload_reports: list[dict[str, Any]] | None = None,
+    params: Mapping[str, Any] | None = None,
 ) -> list[list[dict[str, Any]]]:
     """Provision a site with ``levels``, their floor ``plans`` (GeoJSON by level), the
     survey and the ``magnetic_points`` (``MagneticPointIn`` bodies by level), replay each
     trace (a list of batches, each a list of wire events) in its own session; the fixes
     per trace. ``uploads`` (floor level, ILC 2.0 trace text) go through ``/v1/uploads``
     before the replay, which waits until the service has settled every one of them; their
-    final states are appended to ``upload_reports``."""
+    final states are appended to ``upload_reports``. Every session runs the engine with
+    ``params`` over its defaults (nested overrides, as ``POST /v1/sessions`` takes them)."""
     async with httpx.AsyncClient(base_url=base_url, timeout=REQUEST_TIMEOUT_S) as http:
         api = ApiClient(http, admin_key)
         site = await api.create_site(site_name)
@@ -78,7 +80,7 @@ async def replay_over_http(
         async def one(batches: Sequence[Sequence[Mapping[str, Any]]]) -> list[dict[str, Any]]:
             nonlocal finished
             async with gate:
-                session = await api.create_session(site["id"], engine)
+                session = await api.create_session(site["id"], engine, params)
                 fixes: list[dict[str, Any]] = []
                 for seq, batch in enumerate(batches, start=1):
                     result = await api.post_batch(session, seq, list(batch))

@@ -82,11 +82,10 @@ def evaluate_ilc(
     from server.lab.ilc_evaluation import evaluate_ilc
     from server.lab.replay import in_process_replayer
     from server.lab.service_replay import http_replayer, summarise_crowd
+    from server.positioning.params import assignments as nested
 
     if via_http and not admin_key:
         raise typer.BadParameter("--via-http needs --admin-key (or INDOORPOS_ADMIN_KEY)")
-    if via_http and param:
-        raise typer.BadParameter("sessions run engines on their defaults", param_hint="--param")
     overrides = dict(p.partition("=")[::2] for p in param or [])
     chosen = {}
     for name in engine:
@@ -95,8 +94,6 @@ def evaluate_ilc(
         except (KeyError, ValueError) as e:
             raise typer.BadParameter(str(e.args[0]), param_hint="--param") from None
 
-    if map_source is MapSource.crowd and param:
-        raise typer.BadParameter("crowd maps are replayed through sessions", param_hint="--param")
     runs = []
     crowd_reports: list[list[dict[str, Any]]] = []
     with contextlib.ExitStack() as stack, progress_bar() as bar:
@@ -112,7 +109,7 @@ def evaluate_ilc(
                 reports = []
                 crowd_reports.append(reports)
             replayer = (
-                http_replayer(service[0], service[1], progress, reports)
+                http_replayer(service[0], service[1], progress, reports, nested(param or []))
                 if service is not None
                 else in_process_replayer(split_seed, progress, chosen[name])
             )

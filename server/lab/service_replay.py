@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import lzma
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -31,12 +31,14 @@ def http_replayer(
     admin_key: str,
     progress: Progress,
     crowd_reports: list[dict[str, Any]] | None = None,
+    params: Mapping[str, Any] | None = None,
 ) -> Replayer:
     """Replay through a running service: training scans go up as a survey (with the floor
     plans and the magnetometer samples when the engine reads them), each test trace
     becomes one session's batches. With ``crowd_reports`` the training traces go up as
     crowd uploads instead (every waypoint dropped but the first and last) and the service
-    builds the maps from them; the uploads' final states are appended to the list."""
+    builds the maps from them; the uploads' final states are appended to the list. The
+    sessions run with ``params`` (nested overrides of the engine's defaults)."""
 
     def run(
         engine: str, maps: SiteMaps, training: TrainingSurvey, traces: list[list[Event]]
@@ -61,6 +63,7 @@ def http_replayer(
                 uploads=uploads,
                 on_progress=progress,
                 upload_reports=crowd_reports,
+                params=params,
             )
         )
         index = {level: i for i, level in enumerate(levels)}

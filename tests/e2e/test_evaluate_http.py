@@ -54,3 +54,35 @@ def test_crowd_maps_come_close_to_the_survey_maps(tmp_path: Path) -> None:
     assert statuses.get("done", 0) >= 0.8 * a["train_paths"]
     assert b["n_points"] == a["n_points"]
     assert b["mean_m"] < 1.6 * a["mean_m"]
+
+
+@pytest.mark.skipif(not FLOOR.is_dir(), reason="../shared/data is not beside the project")
+def test_a_parameter_reaches_the_sessions(live_url: str, tmp_path: Path) -> None:
+    """``--param`` with ``--via-http`` opens the sessions with those parameters: the same
+    figures as the in-process replay with them, not those of the defaults."""
+    runner = CliRunner()
+    base = ["evaluate", "ilc", str(FLOOR), "--engine", "wknn", "--json"]
+    runs = {
+        "default": [*base, str(tmp_path / "default.json")],
+        "local": [*base, str(tmp_path / "local.json"), "--param", "k=1"],
+        "http": [
+            *base,
+            str(tmp_path / "http.json"),
+            "--param",
+            "k=1",
+            "--via-http",
+            live_url,
+            "--admin-key",
+            ADMIN_KEY,
+        ],
+    }
+    out = {}
+    for name, args in runs.items():
+        result = runner.invoke(app, args)
+        assert result.exit_code == 0, result.output
+        out[name] = json.loads((tmp_path / f"{name}.json").read_text())
+    assert out["http"]["mean_m"] == pytest.approx(out["local"]["mean_m"], rel=1e-6)
+    assert out["http"]["mean_m"] != pytest.approx(out["default"]["mean_m"], rel=1e-3)
+    refused = runner.invoke(app, [*base, str(tmp_path / "x.json"), "--param", "k=0"])
+    assert refused.exit_code != 0
+    assert "k: must be at least 1" in refused.output

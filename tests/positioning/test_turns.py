@@ -91,7 +91,10 @@ def test_turn_classification_is_incremental() -> None:
     [
         ({"window_steps": 1}, "window_steps"),
         ({"lambda_low_rad": 0.0}, "lambda_low_rad: must be greater than 0"),
-        ({"lambda_low_rad": 0.6, "lambda_high_rad": 0.5}, "lambda_high_rad: must be above lambda_low_rad"),
+        (
+            {"lambda_low_rad": 0.6, "lambda_high_rad": 0.5},
+            "lambda_high_rad: must be above lambda_low_rad",
+        ),
     ],
 )
 def test_turn_params_are_validated(kwargs: dict[str, float], message: str) -> None:
