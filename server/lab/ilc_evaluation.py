@@ -26,7 +26,7 @@ from server.lab.scoring import PathResult, estimates_at_waypoints, summarize
 from server.lab.split import SplitPaths, restrict, split_site
 from server.lab.training_maps import build_site_maps
 from server.positioning.engines import get_engine
-from server.positioning.engines.base import SiteMaps
+from server.positioning.sitemaps import SiteMaps
 
 
 @dataclass(frozen=True)

@@ -39,10 +39,10 @@ from server.lab.replay import replay, trace_events
 from server.lab.scoring import PathResult, estimates_at_waypoints, summarize
 from server.lab.training_maps import LabelledField, LabelledScans, learned_fix_error, site_floors
 from server.positioning.engines import get_engine
-from server.positioning.engines.base import SiteMaps
 from server.positioning.events import Fix
 from server.positioning.fingerprint import in_place_order
 from server.positioning.metrics import ipin_score
+from server.positioning.sitemaps import SiteMaps
 
 VALIDATION_REPETITIONS = frozenset({1, 2})
 """Repetitions read with ``validation``."""

@@ -18,8 +18,8 @@ from server.datasets.walk import Walk
 from server.lab.progress import Progress
 from server.lab.training_maps import TrainingSurvey
 from server.positioning.engines import get_engine
-from server.positioning.engines.base import SiteMaps
 from server.positioning.events import Event, Fix, StepEvent
+from server.positioning.sitemaps import SiteMaps
 from server.positioning.step_tracker import TrackerParams
 from server.services.traces import walk_steps
 

@@ -22,7 +22,6 @@ from server.datasets.ilc_trace import read_trace
 from server.datasets.walk import Walk
 from server.lab.progress import Progress
 from server.positioning import fix_error
-from server.positioning.engines.base import FloorRef, SiteMaps
 from server.positioning.events import BleEvent, WifiEvent, radio_key
 from server.positioning.fingerprint import RadioMap, in_place_order
 from server.positioning.fix_error import FixErrorModel
@@ -34,6 +33,7 @@ from server.positioning.mapping.gridding import build_radio_map
 from server.positioning.mapping.labelled import interpolate_track
 from server.positioning.mapping.magnetic_gridding import grid_from_samples
 from server.positioning.mapping.matrices import readings_matrix
+from server.positioning.sitemaps import FloorRef, SiteMaps
 
 # Traces sample the walk every few metres; 1 m cells keep that resolution and merge only
 # scans taken at nearly the same spot (the same cell size as surveys).

@@ -14,7 +14,6 @@ import numpy as np
 
 from server.datasets.uji import Fingerprints
 from server.lab.progress import Progress
-from server.positioning.engines.base import FloorRef
 from server.positioning.engines.step_ekf import StepEkfParams
 from server.positioning.events import RadioReading, radio_key
 from server.positioning.fingerprint import MISSING_DBM, RadioMap, scan_vector, wknn
@@ -26,6 +25,7 @@ from server.positioning.mapping.device_offsets import (
     scan_readings,
 )
 from server.positioning.metrics import error_report
+from server.positioning.sitemaps import FloorRef
 
 # the floor under the fingerprint variance that the engines use
 MIN_FIX_VAR_M2 = StepEkfParams().min_fix_var_m2

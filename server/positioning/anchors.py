@@ -20,8 +20,8 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-from server.positioning.engines.base import Anchor
 from server.positioning.events import radio_key
+from server.positioning.sitemaps import Anchor
 
 DEFAULT_RSSI_DBM = -65.0
 

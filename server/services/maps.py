@@ -16,7 +16,6 @@ import numpy as np
 from sqlalchemy.ext.asyncio import AsyncSession
 
 from server.positioning.anchors import anchors_from_plan
-from server.positioning.engines.base import FloorRef, SiteMaps
 from server.positioning.events import radio_key
 from server.positioning.fingerprint import MISSING_DBM, RadioMap, in_place_order
 from server.positioning.floorplan import FloorPlan
@@ -26,6 +25,7 @@ from server.positioning.mapping.device_offsets import DeviceOffset
 from server.positioning.mapping.gridding import build_radio_map, fold_radio_maps
 from server.positioning.mapping.magnetic_gridding import MagneticSamples
 from server.positioning.mapping.matrices import merge_radio_maps, readings_matrix
+from server.positioning.sitemaps import FloorRef, SiteMaps
 from server.services.device_offsets import building_offsets
 from server.services.errors import Invalid, NotFound
 from server.services.magnetic_maps import fold_sources

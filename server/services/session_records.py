@@ -18,8 +18,9 @@ from typing import Any
 import numpy as np
 
 from server.positioning import state_codec
-from server.positioning.engines.base import Engine, SiteMaps
+from server.positioning.engines.base import Engine
 from server.positioning.events import Event, Fix, ImuEvent
+from server.positioning.sitemaps import SiteMaps
 from server.storage.codec import array_to_str, decode_arrays, encode_arrays, str_to_array
 
 ENGINE_PREFIX = "engine/"

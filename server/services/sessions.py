@@ -38,8 +38,8 @@ import numpy as np
 import orjson
 
 from server.positioning.engines import get_engine
-from server.positioning.engines.base import SiteMaps
 from server.positioning.events import Event, ImuEvent, StepEvent
+from server.positioning.sitemaps import SiteMaps
 from server.services import engine_settings, limits, telemetry, traces, uploads
 from server.services.device_offsets import on_common_level
 from server.services.errors import Conflict, Forbidden, Invalid

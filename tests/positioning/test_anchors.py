@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 from server.positioning.anchors import anchors_from_plan
-from server.positioning.engines.base import Anchor
+from server.positioning.sitemaps import Anchor
 
 
 def point(x: Any, y: Any, **props: Any) -> dict[str, Any]:

@@ -59,11 +59,11 @@ from numpy.typing import NDArray
 
 from server.positioning.engines import pdr_fusion as pf
 from server.positioning.engines import radio_fusion as rf
-from server.positioning.engines.base import Anchor, SiteMaps
 from server.positioning.events import BleEvent, Fix, radio_key
 from server.positioning.fingerprint import RadioMap, WknnFix, wknn
 from server.positioning.kalman import update, wrap_angle
 from server.positioning.params import AtLeastOne, NonNegative, Positive
+from server.positioning.sitemaps import Anchor, SiteMaps
 from server.positioning.state_codec import shape
 from server.positioning.step_tracker import Scan, Step, TrackerParams, initial_tracker
 

@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from server.positioning.engines import dispatch
-from server.positioning.engines.base import EngineSpec, SiteMaps
+from server.positioning.engines.base import EngineSpec
 from server.positioning.engines.radio_fusion import (
     EMPTY,
     Matched,
@@ -43,6 +43,7 @@ from server.positioning.engines.radio_fusion import (
 from server.positioning.events import BleEvent, Event, Fix, WifiEvent
 from server.positioning.kalman import predict_ekf, wrap_angle
 from server.positioning.params import AtLeastOne, NonNegative, Positive
+from server.positioning.sitemaps import SiteMaps
 from server.positioning.state_codec import shape
 from server.positioning.step_tracker import Scan, Step, TrackerParams, TrackerState, timeline
 

@@ -50,9 +50,10 @@ from server.positioning import floorplan, magnetic, particle
 from server.positioning import particle_cloud as pc
 from server.positioning.engines import dispatch
 from server.positioning.engines import radio_fusion as rf
-from server.positioning.engines.base import EngineSpec, SiteMaps
+from server.positioning.engines.base import EngineSpec
 from server.positioning.events import BleEvent, Event, Fix, MagEvent, StepEvent, WifiEvent
 from server.positioning.params import AtLeastOne, NonNegative, OpenShare, Positive
+from server.positioning.sitemaps import SiteMaps
 from server.positioning.step_tracker import (
     Scan,
     Step,

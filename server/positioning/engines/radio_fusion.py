@@ -24,11 +24,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from server.positioning import floor_filter
-from server.positioning.engines.base import SiteMaps
 from server.positioning.events import Fix, WifiEvent
 from server.positioning.fingerprint import ScanVector, WknnFix, scan_vector, wknn
 from server.positioning.kalman import Update, update, wrap_angle
 from server.positioning.params import AtLeastOne, NonNegative, Params, Positive
+from server.positioning.sitemaps import SiteMaps
 from server.positioning.step_tracker import Scan
 
 FloatArray = NDArray[np.float64]

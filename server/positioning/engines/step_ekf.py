@@ -61,11 +61,12 @@ from numpy.typing import NDArray
 from server.positioning.engines import dispatch
 from server.positioning.engines import pdr_fusion as pf
 from server.positioning.engines import radio_fusion as rf
-from server.positioning.engines.base import EngineSpec, SiteMaps
+from server.positioning.engines.base import EngineSpec
 from server.positioning.events import BleEvent, Event, Fix, StepEvent, WifiEvent
 from server.positioning.fingerprint import WknnFix
 from server.positioning.kalman import predict_ekf, update, wrap_angle
 from server.positioning.params import NonNegative, Positive
+from server.positioning.sitemaps import SiteMaps
 from server.positioning.state_codec import shape
 
 FloatArray = NDArray[np.float64]

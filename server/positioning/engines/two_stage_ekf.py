@@ -56,11 +56,11 @@ from numpy.typing import NDArray
 from server.positioning import pdr
 from server.positioning.engines import pdr_fusion as pf
 from server.positioning.engines import radio_fusion as rf
-from server.positioning.engines.base import SiteMaps
 from server.positioning.events import Fix
 from server.positioning.fingerprint import wknn
 from server.positioning.kalman import update, wrap_angle
 from server.positioning.params import NonNegative, Positive
+from server.positioning.sitemaps import SiteMaps
 from server.positioning.step_tracker import Scan, Step, TrackerParams, initial_tracker
 
 FloatArray = NDArray[np.float64]

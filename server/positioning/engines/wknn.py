@@ -27,8 +27,9 @@ from numpy.typing import NDArray
 
 from server.positioning.engines import dispatch
 from server.positioning.engines import radio_fusion as rf
-from server.positioning.engines.base import EngineSpec, SiteMaps
+from server.positioning.engines.base import EngineSpec
 from server.positioning.events import BleEvent, Event, Fix, WifiEvent
+from server.positioning.sitemaps import SiteMaps
 
 
 @dataclass(frozen=True)

@@ -17,11 +17,11 @@ from server.positioning import state_codec
 from server.positioning.engines import everywhere_ekf as ev
 from server.positioning.engines import get_engine
 from server.positioning.engines import two_stage_ekf as ts
-from server.positioning.engines.base import Anchor, FloorRef, SiteMaps
 from server.positioning.engines.pdr_fusion import FilterState, step_motion
 from server.positioning.events import BleEvent, Fix, RadioReading, WifiEvent, radio_key
 from server.positioning.fingerprint import RadioMap
 from server.positioning.kalman import predict
+from server.positioning.sitemaps import Anchor, FloorRef, SiteMaps
 from server.positioning.step_tracker import Scan, Step
 
 T0 = 1_700_000_000_000

@@ -11,12 +11,12 @@ import numpy as np
 
 from server.positioning import state_codec
 from server.positioning.engines import pf_magnetic as pf
-from server.positioning.engines.base import FloorRef, SiteMaps
 from server.positioning.events import Event, MagEvent, RadioReading, StepEvent, WifiEvent, radio_key
 from server.positioning.fingerprint import RadioMap
 from server.positioning.floorplan_geojson import plan_from_geojson
 from server.positioning.magnetic import MagneticMap
 from server.positioning.mapping.magnetic_gridding import grid_from_samples
+from server.positioning.sitemaps import FloorRef, SiteMaps
 
 T0 = 1_700_000_000_000
 LENGTH_M, WIDTH_M = 60.0, 3.0

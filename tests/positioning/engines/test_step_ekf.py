@@ -23,7 +23,6 @@ from numpy.typing import NDArray
 
 from server.positioning import state_codec
 from server.positioning.engines import ENGINES, get_engine
-from server.positioning.engines.base import FloorRef, SiteMaps
 from server.positioning.engines.step_ekf import (
     SPEC,
     StepEkfParams,
@@ -43,6 +42,7 @@ from server.positioning.events import (
 from server.positioning.fingerprint import scan_vector, wknn
 from server.positioning.kalman import wrap_angle
 from server.positioning.mapping.gridding import build_radio_map
+from server.positioning.sitemaps import FloorRef, SiteMaps
 
 FloatArray = NDArray[np.float64]
 

@@ -15,7 +15,6 @@ import pytest
 
 from server.positioning import fix_error, state_codec
 from server.positioning.engines import ENGINES, get_engine
-from server.positioning.engines.base import FloorRef, SiteMaps
 from server.positioning.engines.step_ekf import StepEkfParams
 from server.positioning.engines.wknn import SPEC, WknnParams, WknnState, initial_state, run
 from server.positioning.events import (
@@ -28,6 +27,7 @@ from server.positioning.events import (
     WifiEvent,
 )
 from server.positioning.fingerprint import MISSING_DBM, RadioMap, scan_vector, wknn
+from server.positioning.sitemaps import FloorRef, SiteMaps
 
 GRID = np.array([(x, y) for y in (0.0, 2.0, 4.0) for x in (0.0, 2.0, 4.0)])
 # (key, x, y, floor) of each emitter
