@@ -119,11 +119,6 @@ def initial_state(params: EverywhereParams) -> EverywhereState:
         tracker=initial_tracker(params.tracker),
         x=np.zeros(4),
         P=np.diag([params.min_fix_var_m2] * 2 + [params.p0_scale, math.pi**2]),
-        floor=-1,
-        initialized=False,
-        heading_known=False,
-        last_phone_heading=math.nan,
-        rejects=0,
         fp=np.full((2, 2), np.nan),
         walked_m=0.0,
         straight=False,
@@ -215,29 +210,23 @@ def _on_scan(
     start = pf.begin_scan(maps, event, state, params)
     if start is None or maps.radio is None:
         return state, None
-    m, diagnostics, rejects = start.matched, start.diagnostics, start.rejects
-    whole = m.whole
-    state = replace(state, floor=whole.floor, floor_logp=m.floor_logp, floor_t_ms=m.t_ms)
+    m, diagnostics, state = start.matched, start.diagnostics, start.state
     if start.restart:
-        x, P = pf.place(state.x, state.P, m)
-        new = _remember_fp(replace(state, x=x, P=P, initialized=True, rejects=0), *_xy(whole))
+        new = _remember_fp(state, *_xy(m.whole))
         return new, pf.state_fix(new, m.t_ms, m.kind, diagnostics)
 
     used = m
     aided = state.straight and state.walked_m > 0.0 and not np.isnan(state.fp).any()
     if aided:
         penalty = aiding_penalty(maps.radio, state.fp, state.walked_m, params)
-        on_floor = maps.radio.rp_floor == whole.floor
+        on_floor = maps.radio.rp_floor == m.whole.floor
         aided_fix = wknn(maps.radio, m.scan, k=params.k, candidates=on_floor, penalty_db=penalty)
         used = rf.refined(m, aided_fix)
         diagnostics["aided"] = 1.0
-    found = used.whole
-    u = rf.position_update(state.x, state.P, used)
-    diagnostics["mahalanobis2"] = u.mahalanobis2
-    if u.mahalanobis2 > params.gate_chi2:
-        # outside the innovation gate: the fix is not used (begin_scan counts it)
-        return replace(state, rejects=rejects), None
-    state = _remember_fp(replace(state, x=u.x, P=u.P, rejects=rejects), *_xy(found))
+    state, accepted = pf.update_position(state, used, start.rejects, params.gate_chi2, diagnostics)
+    if not accepted:
+        return state, None
+    state = _remember_fp(state, *_xy(used.whole))
     return state, pf.state_fix(state, m.t_ms, m.kind, diagnostics)
 
 

@@ -79,11 +79,11 @@ class FilterState:
     tracker: TrackerState
     x: FloatArray = field(metadata=shape(4))  # [x_m, y_m, ., heading_rad]
     P: FloatArray = field(metadata=shape(4, 4))
-    floor: int
-    initialized: bool
-    heading_known: bool
-    last_phone_heading: float  # heading of the previous step (NaN before any)
-    rejects: int
+    floor: int = -1  # floor index of the estimate; -1 while uninitialised
+    initialized: bool = False  # False until the first fix
+    heading_known: bool = False  # the map-frame heading is known
+    last_phone_heading: float = math.nan  # heading of the previous step (NaN before any)
+    rejects: int = 0  # whole-map fixes in a row outside the gate
     # the floor filter after its last scan (empty: none yet)
     floor_logp: FloatArray = field(default_factory=lambda: EMPTY)
     floor_t_ms: int = 0  # time of that scan
@@ -282,31 +282,48 @@ def turn_in_place(
 
 
 @dataclass(frozen=True)
-class ScanStart:
-    """What every scan does first (see the module docstring, steps 1-2)."""
+class ScanStart(Generic[F]):
+    """What every scan does first (see the module docstring)."""
 
+    state: F  # on the scan's floor; placed at the whole-map fix when ``restart``
     matched: Matched
     diagnostics: dict[str, float]
     rejects: int  # consecutive whole-map fixes outside the gate, this one included
-    restart: bool  # place the filter at the whole-map fix
+    restart: bool  # the filter was placed at the whole-map fix
 
 
-def begin_scan(
-    maps: SiteMaps, event: Scan, state: FilterState, params: KalmanParams
-) -> ScanStart | None:
-    """Match the scan on the whole map and decide floor and restart; None when it
-    matches nothing. The new floor is ``matched.whole.floor``, the floor filter after
-    the scan ``matched.floor_logp``."""
+def begin_scan(maps: SiteMaps, event: Scan, state: F, params: KalmanParams) -> ScanStart[F] | None:
+    """Match the scan on the whole map, move the filter to the floor it chose (with the
+    floor filter after it) and decide whether to restart there; None when it matches
+    nothing."""
     m = match(maps, event, params, state.floor_logp, state.floor_t_ms)
     if m is None:
         return None
     diagnostics = {"n_matched": float(m.scan.n_matched), "fix_var_m2": m.var_m2}
     if state.initialized and m.whole.floor != state.floor:
         diagnostics["floor_change"] = 1.0
-    if not state.initialized:
-        return ScanStart(m, diagnostics, 0, True)
-    rejects = rejects_after(state.x, state.P, m, state.rejects, params.gate_chi2)
-    if rejects >= params.max_rejects:
-        diagnostics["reinitialised"] = 1.0
-        return ScanStart(m, diagnostics, 0, True)
-    return ScanStart(m, diagnostics, rejects, False)
+    restart, rejects = True, 0
+    if state.initialized:
+        rejects = rejects_after(state.x, state.P, m, state.rejects, params.gate_chi2)
+        restart = rejects >= params.max_rejects
+        if restart:
+            diagnostics["reinitialised"] = 1.0
+            rejects = 0
+    state = replace(state, floor=m.whole.floor, floor_logp=m.floor_logp, floor_t_ms=m.t_ms)
+    if restart:
+        x, P = place(state.x, state.P, m)
+        state = replace(state, x=x, P=P, initialized=True, rejects=0)
+    return ScanStart(state, m, diagnostics, rejects, restart)
+
+
+def update_position(
+    state: F, used: Matched, rejects: int, gate_chi2: float, diagnostics: dict[str, float]
+) -> tuple[F, bool]:
+    """The position updated by a fix of the scan unless it falls outside the innovation
+    gate (then it is not used: ``begin_scan`` counted it in ``rejects``); whether it was
+    used."""
+    u = position_update(state.x, state.P, used)
+    diagnostics["mahalanobis2"] = u.mahalanobis2
+    if u.mahalanobis2 > gate_chi2:
+        return replace(state, rejects=rejects), False
+    return replace(state, x=u.x, P=u.P, rejects=rejects), True

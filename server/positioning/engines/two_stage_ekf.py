@@ -119,11 +119,6 @@ def initial_state(params: TwoStageParams) -> TwoStageState:
         tracker=initial_tracker(params.tracker),
         x=np.array([0.0, 0.0, params.initial_step_m, 0.0]),
         P=np.diag([params.min_fix_var_m2] * 2 + [params.p0_step_m2, math.pi**2]),
-        floor=-1,
-        initialized=False,
-        heading_known=False,
-        last_phone_heading=math.nan,
-        rejects=0,
         fixes=np.full((params.heading_fixes, 3), np.nan),
         turn_t_ms=-math.inf,
     )
@@ -183,26 +178,20 @@ def _on_scan(
     start = pf.begin_scan(maps, event, state, params)
     if start is None or maps.radio is None:
         return state, None
-    m, diagnostics, rejects = start.matched, start.diagnostics, start.rejects
-    whole = m.whole
-    state = replace(state, floor=whole.floor, floor_logp=m.floor_logp, floor_t_ms=m.t_ms)
+    m, diagnostics, state = start.matched, start.diagnostics, start.state
     if start.restart:
-        x, P = pf.place(state.x, state.P, m)
-        new = replace(state, x=x, P=P, initialized=True, rejects=0)
-        new = _remember(new, m.t_ms, whole.x_m, whole.y_m)
+        new = _remember(state, m.t_ms, m.whole.x_m, m.whole.y_m)
         return new, pf.state_fix(new, m.t_ms, m.kind, diagnostics)
 
     near = _partition(maps, state.x, params.partition_radius_m)
-    near &= maps.radio.rp_floor == whole.floor
+    near &= maps.radio.rp_floor == m.whole.floor
     in_partition = wknn(maps.radio, m.scan, k=params.k, candidates=near)
     diagnostics["partition"] = 1.0 if in_partition is not None else 0.0
-    u = rf.position_update(state.x, state.P, rf.refined(m, in_partition))
-    diagnostics["mahalanobis2"] = u.mahalanobis2
-    if u.mahalanobis2 > params.gate_chi2:
-        # outside the innovation gate: the fix is not used (begin_scan counts it)
-        return replace(state, rejects=rejects), None
-    state = replace(state, x=u.x, P=u.P, rejects=rejects)
-    state = _remember(state, m.t_ms, whole.x_m, whole.y_m)
+    used = rf.refined(m, in_partition)
+    state, accepted = pf.update_position(state, used, start.rejects, params.gate_chi2, diagnostics)
+    if not accepted:
+        return state, None
+    state = _remember(state, m.t_ms, m.whole.x_m, m.whole.y_m)
 
     heading = _wifi_heading(state.fixes, state.turn_t_ms, params.min_heading_span_m)
     if heading is not None:
