@@ -35,7 +35,7 @@ at the new positions and the observed magnitude enter the windows, and::
                                                                                          (b)
     w_i^t = K w_i^{t-1} / max(MMSE(i, t), T)                                             (c)
 
-(``server.positioning.magnetic.mmse``). Until the window is full the mean runs over the
+(``server.positioning.magnetic_distance.mmse``). Until the window is full the mean runs over the
 steps it holds; with fewer than two magnitudes the weights are left alone. Weights are
 kept as normalised logarithms: ``log w_i <- log w_i + log K - log max(MMSE, T)``, then
 ``log w_i -= log sum_j exp(log w_j)``. ``K`` multiplies every weight alike, so it cancels
@@ -49,7 +49,7 @@ reachable place, so it has no such rule.
 
 DTW baseline (section IV-B, the Magicol method [11]): the same filter and window, with
 the classic DTW distance ``D_i`` between the ``W + 1`` observed and the particle's ``W + 1``
-map magnitudes (``server.positioning.magnetic.dtw_distance``) in place of the MMSE::
+map magnitudes (``server.positioning.magnetic_distance.dtw_distance``) in place of the MMSE::
 
     w_i^t = K w_i^{t-1} / max(D_i / (W + 1), T)
 

@@ -1,10 +1,11 @@
 """Magnetic maps: survey samples in, the floor's next grid version out.
 
-Each survey is gridded on its own (``magnetic.grid_from_sources``, 0.5 m cells on the
-lattice of whole cells) and folded into the floor's current grid with the pairwise
-moment update (``magnetic.merge_grids``), so a version holds the statistics of every
-sample surveyed so far and the order of the surveys does not matter. Versions of a
-building are written one at a time (the building row is locked).
+Each survey is gridded on its own (``mapping.magnetic_gridding.grid_from_sources``,
+0.5 m cells on the lattice of whole cells) and folded into the floor's current grid with
+the pairwise moment update (``mapping.magnetic_gridding.merge_grids``), so a version
+holds the statistics of every sample surveyed so far and the order of the surveys does
+not matter. Versions of a building are written one at a time (the building row is
+locked).
 """
 
 from __future__ import annotations
@@ -53,8 +54,8 @@ def survey_sources(
     points: Sequence[MagneticPointData], lines: Sequence[MagneticLineData]
 ) -> list[MagneticSamples]:
     """The positioned samples of a survey: its points, then each line's samples placed by
-    time (``magnetic.samples_along_line``). A line none of whose samples falls between its
-    start and end times is refused, naming it."""
+    time (``mapping.magnetic_gridding.samples_along_line``). A line none of whose
+    samples falls between its start and end times is refused, naming it."""
     sources = []
     if points:
         nan = float("nan")
@@ -98,7 +99,7 @@ async def fold_sources(
 ) -> MagneticMapVersion:
     """Grid the sources and store them merged with the floor's current grid as its next
     version. The caller holds the building lock. Invalid (about ``field``) when the grid
-    would be larger than ``magnetic.MAX_GRID_CELLS``, before it is allocated."""
+    would be larger than ``mapping.magnetic_gridding.MAX_GRID_CELLS``, before it is allocated."""
     current = await map_repo.latest_magnetic_map(s, floor_id)
 
     def build() -> MagneticGrid:
@@ -117,7 +118,7 @@ def check_within_plan(
 ) -> None:
     """Refuse (naming it) a survey point or line end farther than ``PLAN_MARGIN_M`` outside
     the floor plan's walkable extent; floors without a plan are bounded by the grid size
-    alone (``magnetic.MAX_GRID_CELLS``)."""
+    alone (``mapping.magnetic_gridding.MAX_GRID_CELLS``)."""
     extent = plan_extent(floor.plan_geojson)
     if extent is None:
         return

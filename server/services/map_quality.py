@@ -11,7 +11,7 @@ Figures
   metres whose centre is walkable), the share holding an RP of this floor (RPs are the
   means of the points of one 1 m cell, so an RP lies in its cell). ``magnetic``: of the
   walkable cells of the magnetic grid's lattice (0.5 m), the share with a known field
-  (``magnetic.known_share``, with the grid laid over the whole plan first, so that
+  (``mapping.magnetic_gridding.known_share``, with the grid laid over the whole plan first, so that
   walkable cells the grid does not reach count as unknown). Without a usable plan both
   are over the map's own extent: the 1 m cells of the RPs' bounding box, the grid's cells.
 * Cells. Per RP: RSS readings folded into it (all emitters) and emitters heard; per

@@ -326,7 +326,7 @@ def test_state_round_trip_and_size_at_3000_particles() -> None:
     assert_same(back, p)
 
 
-def test_from_arrays_refuses_wrong_shapes() -> None:
+def test_the_codec_refuses_a_wrong_cloud() -> None:
     arrays = state_codec.to_arrays(cloud([(0.0, 0.0)] * 3))
     with pytest.raises(ValueError, match="mags"):
         state_codec.from_arrays(Particles, {**arrays, "mags": np.zeros((3, 4), dtype=np.float64)})

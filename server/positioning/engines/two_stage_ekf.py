@@ -1,8 +1,8 @@
 """``two_stage_ekf``: Cui et al.'s WiFi/MEMS integration from raw phone sensors.
 
-Stage one (``papers/002_*`` section 6.1, eq 9-17) is the attitude-determination EKF of
-``server.positioning.attitude``: gyro-driven Euler angles corrected by gravity, whose yaw
-gives the phone heading. Steps come from the smoothed-magnitude peak detector
+Stage one (``papers/002_*`` section 6.1, eq 9-17) is the attitude-determination EKF
+of ``server.positioning.sensors.attitude_ekf``: gyro-driven Euler angles corrected by
+gravity, whose yaw gives the phone heading. Steps come from the smoothed-magnitude peak detector
 (``papers/002_*`` eq 5-7) with Weinberg step lengths (eq 8), see ``server.positioning.pdr``.
 
 Stage two is the position-tracking EKF on ``B = [x, y, S, psi]`` (eq 18): position,
@@ -25,7 +25,7 @@ lost (``max_rejects`` scans in a row whose whole-map fix fails the innovation ga
 The WiFi heading (section 4.2): a least-squares line through the last four WKNN
 positions, pointing from the oldest to the newest, measures ``psi`` when no step since the
 oldest of them was part of a turn (the gyro turn detection of section 4.2, here the
-turn labels of ``server.positioning.pdr``) and the four positions span at least
+turn labels of ``server.positioning.turns``) and the four positions span at least
 ``min_heading_span_m``. Where the phone knows north (its compass or rotation vector),
 ``psi`` starts from that heading turned into the building frame (magnetic declination is
 not corrected: a few degrees in most places); otherwise it waits for the first WiFi
