@@ -25,6 +25,14 @@ class MapSource(StrEnum):
     crowd = "crowd"
 
 
+def _write_json(json_path: Path, runs: Sequence[Any]) -> None:
+    """The runs' summaries (one, or ``{"runs": [...]}``) and every scored point."""
+    payload = runs[0].summary if len(runs) == 1 else {"runs": [r.summary for r in runs]}
+    json_path.write_text(json.dumps(payload, indent=2) + "\n")
+    console.print(f"metrics written to {json_path}")
+    _write_points(json_path, runs)
+
+
 def _write_points(json_path: Path, runs: Sequence[Any]) -> None:
     """The per-point errors of each run beside the summary: ``out.points.csv`` (one
     engine) or ``out.<engine>.points.csv``."""
@@ -156,10 +164,7 @@ def evaluate_ilc(
             table.add_row(*row)
         console.print(table)
     if json_path is not None:
-        payload = runs[0].summary if len(runs) == 1 else {"runs": [r.summary for r in runs]}
-        json_path.write_text(json.dumps(payload, indent=2) + "\n")
-        console.print(f"metrics written to {json_path}")
-        _write_points(json_path, runs)
+        _write_json(json_path, runs)
     if plots is not None:
         from server.lab.plots import write_ilc_plots
 
@@ -236,10 +241,7 @@ def evaluate_ipin(
             )
         console.print(table)
     if json_path is not None:
-        payload = runs[0].summary if len(runs) == 1 else {"runs": [r.summary for r in runs]}
-        json_path.write_text(json.dumps(payload, indent=2) + "\n")
-        console.print(f"metrics written to {json_path}")
-        _write_points(json_path, runs)
+        _write_json(json_path, runs)
 
 
 class StepDetector(StrEnum):
