@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -133,4 +134,12 @@ def fix_from_wire(body: Mapping[str, Any], floor_index: Mapping[int, int]) -> Fi
         cov=(float(cov[0]), float(cov[1]), float(cov[2]), float(cov[3])),
         source=str(body["source"]),
         diagnostics=dict(body.get("diagnostics", {})),
+        accuracy_68_m=_number(body.get("accuracy_68_m")),
+        accuracy_95_m=_number(body.get("accuracy_95_m")),
+        floor_prob=_number(body.get("floor_prob")),
     )
+
+
+def _number(value: object) -> float:
+    """A wire number, NaN for null."""
+    return math.nan if value is None else float(value)  # type: ignore[arg-type]

@@ -20,12 +20,16 @@ async def locate(
     principal.require("device", body.site_id)
     await limits.check(rt, "locate", address, principal.key_id)
     found = await service.locate(rt, body.site_id, wifi_pairs(body.wifi), ble_pairs(body.ble))
+    fix = found.fix
     return LocateOut(
-        x_m=found.x_m,
-        y_m=found.y_m,
-        floor=found.floor,
+        x_m=fix.x_m,
+        y_m=fix.y_m,
+        floor=found.level,
         building_id=found.building_id,
         floor_id=found.floor_id,
-        cov_m2=(found.var_m2, 0.0, 0.0, found.var_m2),
-        uncertainty_m=found.var_m2**0.5,
+        cov_m2=fix.cov,
+        uncertainty_m=fix.uncertainty_m,
+        accuracy_68_m=fix.accuracy_68_m,
+        accuracy_95_m=fix.accuracy_95_m,
+        floor_prob=fix.floor_prob,
     )

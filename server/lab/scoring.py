@@ -34,6 +34,9 @@ class WaypointEstimates:
     est_floor: NDArray[np.int64]
     sigma_m: NDArray[np.float64]
     t_ms: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    # the fix's radii holding 68 % and 95 % of the errors (NaN where it gives none)
+    accuracy_68_m: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+    accuracy_95_m: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
 
 
 def estimates_at_waypoints(
@@ -43,6 +46,8 @@ def estimates_at_waypoints(
     est = np.full((n, 2), np.nan)
     est_floor = np.full(n, -1, dtype=np.int64)
     sigma = np.full(n, np.nan)
+    r68 = np.full(n, np.nan)
+    r95 = np.full(n, np.nan)
     if fixes:
         fix_t = np.array([f.t_ms for f in fixes], dtype=np.int64)
         order = np.argsort(fix_t, kind="stable")
@@ -56,6 +61,7 @@ def estimates_at_waypoints(
             est[row] = (fix.x_m, fix.y_m)
             est_floor[row] = fix.floor
             sigma[row] = fix.uncertainty_m
+            r68[row], r95[row] = fix.accuracy_68_m, fix.accuracy_95_m
     return WaypointEstimates(
         true_xy_m=trace.waypoint_xy_m.astype(np.float64),
         true_floor=np.full(n, floor_index, dtype=np.int64),
@@ -63,6 +69,8 @@ def estimates_at_waypoints(
         est_floor=est_floor,
         sigma_m=sigma,
         t_ms=trace.waypoint_t_ms.astype(np.int64),
+        accuracy_68_m=r68,
+        accuracy_95_m=r95,
     )
 
 
@@ -85,13 +93,23 @@ def _stack(paths: Sequence[PathResult]) -> WaypointEstimates:
         est_xy_m=cat("est_xy_m", np.float64, (0, 2)),
         est_floor=cat("est_floor", np.int64, (0,)),
         sigma_m=cat("sigma_m", np.float64, (0,)),
+        accuracy_68_m=cat("accuracy_68_m", np.float64, (0,)),
+        accuracy_95_m=cat("accuracy_95_m", np.float64, (0,)),
     )
 
 
 def _report(paths: Sequence[PathResult]) -> dict[str, Any]:
     est = _stack(paths)
+    n = est.true_floor.size
+    radii = est.accuracy_68_m.size == n and est.accuracy_95_m.size == n
     report = error_report(
-        est.est_xy_m, est.true_xy_m, est.est_floor, est.true_floor, sigma_m=est.sigma_m
+        est.est_xy_m,
+        est.true_xy_m,
+        est.est_floor,
+        est.true_floor,
+        sigma_m=est.sigma_m,
+        accuracy_68_m=est.accuracy_68_m if radii else None,
+        accuracy_95_m=est.accuracy_95_m if radii else None,
     )
     return report.to_dict()
 
@@ -142,6 +160,8 @@ POINT_COLUMNS = (
     "est_floor",
     "sigma_m",
     "error_m",
+    "accuracy_68_m",
+    "accuracy_95_m",
 )
 
 
@@ -171,10 +191,19 @@ def write_points(paths: Sequence[PathResult], out: Path) -> int:
                         int(e.est_floor[i]) if known else "",
                         f"{e.sigma_m[i]:.3f}" if known else "",
                         f"{error:.3f}" if error is not None else "",
+                        _cell(e.accuracy_68_m, i, known),
+                        _cell(e.accuracy_95_m, i, known),
                     ]
                 )
                 rows += 1
     return rows
+
+
+def _cell(values: NDArray[np.float64], i: int, known: bool) -> str:
+    """A radius as a CSV cell: empty without an estimate or a radius."""
+    if not known or i >= values.size or not np.isfinite(values[i]):
+        return ""
+    return f"{values[i]:.3f}"
 
 
 def errors_m(paths: Sequence[PathResult]) -> list[float]:

@@ -124,7 +124,9 @@ class Fix:
     """A position estimate.
 
     ``cov`` is the 2x2 position covariance in m² flattened row-major
-    (xx, xy, yx, yy); ``floor`` is the index into the site's floor list.
+    (xx, xy, yx, yy); ``floor`` is the index into the site's floor list. The radii that
+    hold 68 % and 95 % of the errors and the probability of the floor are set by
+    ``accuracy.calibrated`` (NaN before).
     """
 
     t_ms: int
@@ -135,6 +137,9 @@ class Fix:
     cov: tuple[float, float, float, float]
     source: str  # what produced it: "step", "wifi", "ble"
     diagnostics: dict[str, float] = field(default_factory=dict)
+    accuracy_68_m: float = math.nan
+    accuracy_95_m: float = math.nan
+    floor_prob: float = math.nan
 
     @property
     def uncertainty_m(self) -> float:

@@ -51,6 +51,13 @@ distribution, so a calibrated uncertainty gives::
 
 Shares well below these mean the engine is over-confident; well above, timid. Rows whose
 ``sigma_i`` is not finite take no part in these two shares.
+
+When each fix carries the radii it says hold 68 % and 95 % of the errors
+(``Fix.accuracy_68_m``, ``accuracy_95_m``; ``server.positioning.accuracy``),
+``within_68`` and ``within_95`` are the shares of rows inside them (0.68 and 0.95 when
+they are right), and ``error_correlation`` is Pearson's correlation between the 68 %
+radius and the error over the rows (``papers/000_*`` Table III: how well a predicted
+accuracy follows the actual error; 0 when it tells nothing).
 """
 
 from __future__ import annotations
@@ -91,6 +98,11 @@ class ErrorReport:
     within_1sigma, within_2sigma : float or None
         Share of errors within 1 σ and 2 σ of their fix; None without sigma or without a
         row with a finite sigma.
+    within_68, within_95 : float or None
+        Share of errors within the fix's 68 % and 95 % radius; None without them.
+    error_correlation : float or None
+        Correlation of the 68 % radius with the error; None without radii, with fewer
+        than three rows or when either does not vary.
     """
 
     n_points: int
@@ -108,6 +120,9 @@ class ErrorReport:
     evaal_mean_m: float | None
     within_1sigma: float | None
     within_2sigma: float | None
+    within_68: float | None = None
+    within_95: float | None = None
+    error_correlation: float | None = None
 
     def to_dict(self) -> dict[str, int | float | None]:
         """The fields by name, as JSON-ready Python ints, floats and None."""
@@ -141,6 +156,8 @@ def error_report(
     true_floor: ArrayLike,
     *,
     sigma_m: ArrayLike | None = None,
+    accuracy_68_m: ArrayLike | None = None,
+    accuracy_95_m: ArrayLike | None = None,
     est_building: ArrayLike | None = None,
     true_building: ArrayLike | None = None,
     floor_penalty_m: float = 4.0,
@@ -158,6 +175,8 @@ def error_report(
         Estimated and true floors (any integer labels; only equality matters).
     sigma_m : array_like, shape (n,), optional
         1-σ radius (per-axis standard deviation) of each estimate in metres.
+    accuracy_68_m, accuracy_95_m : array_like, shape (n,), optional
+        The radii each estimate says hold 68 % and 95 % of the errors, in metres.
     est_building, true_building : array_like, shape (n,), int, optional
         Estimated and true buildings; give both or neither.
     floor_penalty_m, building_penalty_m : float
@@ -211,6 +230,17 @@ def error_report(
         within_1sigma = _share(e[known] <= sigma[known])
         within_2sigma = _share(e[known] <= 2.0 * sigma[known])
 
+    within_68 = within_95 = correlation = None
+    if accuracy_68_m is not None:
+        r68 = _rows("accuracy_68_m", accuracy_68_m, n, np.float64)[found]
+        known = np.isfinite(r68)
+        within_68 = _share(e[known] <= r68[known])
+        correlation = _correlation(r68[known], e[known])
+    if accuracy_95_m is not None:
+        r95 = _rows("accuracy_95_m", accuracy_95_m, n, np.float64)[found]
+        known = np.isfinite(r95)
+        within_95 = _share(e[known] <= r95[known])
+
     stats: list[float | None] = [None] * 8
     if has_rows:
         p50, p75, p80, p90, p95 = np.percentile(e, _PERCENTILES).tolist()
@@ -233,7 +263,16 @@ def error_report(
         evaal_mean_m=evaal_mean_m,
         within_1sigma=within_1sigma,
         within_2sigma=within_2sigma,
+        within_68=within_68,
+        within_95=within_95,
+        error_correlation=correlation,
     )
+
+
+def _correlation(a: FloatArray, b: FloatArray) -> float | None:
+    if a.size < 3 or float(np.std(a)) == 0.0 or float(np.std(b)) == 0.0:
+        return None
+    return float(np.corrcoef(a, b)[0, 1])
 
 
 def ipin_score(

@@ -331,7 +331,8 @@ def _resample(p: Particles, w: FloatArray, rng: np.random.Generator) -> Particle
 
 
 def estimate(p: Particles) -> Estimate:
-    """Weighted mean, weighted covariance, majority floor by weight and ``N_eff``.
+    """Weighted mean, weighted covariance, majority floor by weight (and the weight on
+    it) and ``N_eff``.
 
     Raises
     ------
@@ -347,12 +348,16 @@ def estimate(p: Particles) -> Estimate:
     cov = (d * w[:, None]).T @ d
     cov = 0.5 * (cov + cov.T)
     first = p.floor[0]
+    floor_prob = 1.0
     if (p.floor == first).all():  # one floor: no need to sort them
         floor = int(first)
     else:
         floors, which = np.unique(p.floor, return_inverse=True)
-        floor = int(floors[np.argmax(np.bincount(which, weights=w))])
-    return Estimate(xy=mean, cov=cov, floor=floor, ess=float(1.0 / np.dot(w, w)))
+        per_floor = np.bincount(which, weights=w)
+        floor = int(floors[np.argmax(per_floor)])
+        floor_prob = float(per_floor.max())
+    ess = float(1.0 / np.dot(w, w))
+    return Estimate(xy=mean, cov=cov, floor=floor, ess=ess, floor_prob=floor_prob)
 
 
 def step(

@@ -137,12 +137,15 @@ class Estimate:
         Floor holding the largest total weight.
     ess : float
         Effective sample size ``1 / sum w_i^2``.
+    floor_prob : float
+        Share of the weight on ``floor``.
     """
 
     xy: FloatArray
     cov: FloatArray
     floor: int
     ess: float
+    floor_prob: float = 1.0
 
 
 def from_points(xy: ArrayLike, floor: int, window: int) -> Particles:

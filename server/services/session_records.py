@@ -11,6 +11,7 @@ goes on from a fresh engine state (``services.sessions``).
 from __future__ import annotations
 
 import hashlib
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -169,7 +170,14 @@ def fix_to_wire(fix: Fix, maps: SiteMaps, engine: str) -> dict[str, Any]:
         "heading_rad": fix.heading_rad,
         "cov_m2": list(fix.cov),
         "uncertainty_m": fix.uncertainty_m,
+        "accuracy_68_m": _finite(fix.accuracy_68_m),
+        "accuracy_95_m": _finite(fix.accuracy_95_m),
+        "floor_prob": _finite(fix.floor_prob),
         "source": fix.source,
         "engine": engine,
         "diagnostics": fix.diagnostics,
     }
+
+
+def _finite(value: float) -> float | None:
+    return value if math.isfinite(value) else None

@@ -22,5 +22,11 @@ class LocateOut(Strict):
     floor: int
     building_id: str
     floor_id: str
-    cov_m2: Annotated[tuple[float, float, float, float], LAX_ARRAY]
-    uncertainty_m: float
+    cov_m2: Annotated[tuple[float, float, float, float], LAX_ARRAY] = Field(
+        description="position covariance xx, xy, yx, yy in m², calibrated (its 68 % circle "
+        "is accuracy_68_m)"
+    )
+    uncertainty_m: float = Field(description="root of the mean of the two variances (m)")
+    accuracy_68_m: float = Field(description="radius (m) that holds 68 % of the errors")
+    accuracy_95_m: float = Field(description="radius (m) that holds 95 % of the errors")
+    floor_prob: float = Field(description="probability that the floor is right")

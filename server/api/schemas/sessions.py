@@ -27,7 +27,20 @@ class FixOut(Strict):
     cov_m2: Annotated[tuple[float, float, float, float], LAX_ARRAY] = Field(
         description="position covariance xx, xy, yx, yy in m²"
     )
-    uncertainty_m: float
+    uncertainty_m: float = Field(
+        description="root of the mean of the two position variances of cov_m2 (m)"
+    )
+    accuracy_68_m: float | None = Field(
+        None,
+        description="radius (m) that holds 68 % of the errors, calibrated on recorded walks "
+        "(what Android reports as a location's accuracy)",
+    )
+    accuracy_95_m: float | None = Field(
+        None,
+        description="radius (m) that holds 95 % of the errors (what the W3C geolocation API "
+        "reports as accuracy)",
+    )
+    floor_prob: float | None = Field(None, description="probability that the floor is right")
     source: str
     engine: str
     diagnostics: dict[str, float] = Field(default_factory=dict)

@@ -16,12 +16,13 @@ from typing import Generic, Protocol, TypeVar
 import numpy as np
 
 from server.positioning import state_codec
+from server.positioning.accuracy import EngineParams, calibrated
 from server.positioning.events import Event, Fix
 from server.positioning.params import Params, build
 from server.positioning.sitemaps import SiteMaps
 
 S = TypeVar("S")
-P = TypeVar("P", bound=Params)
+P = TypeVar("P", bound=EngineParams)
 
 Arrays = Mapping[str, np.ndarray]
 
@@ -63,10 +64,13 @@ class EngineSpec(Generic[S, P]):
         params: Params,
         rng: np.random.Generator,
     ) -> tuple[object, list[Fix]]:
-        """``run`` for a state and parameters held as opaque objects."""
+        """``run`` for a state and parameters held as opaque objects, its fixes with the
+        radii that hold 68 % and 95 % of the errors (``accuracy.calibrated``)."""
         if not isinstance(state, self.state_type):
             raise TypeError(f"{self.name} runs on {self.state_type.__name__} states")
-        return self.run(state, events, maps, self._own_params(params), rng)
+        own = self._own_params(params)
+        new, fixes = self.run(state, events, maps, own, rng)
+        return new, [calibrated(f, own.accuracy) for f in fixes]
 
     def encode(self, state: object) -> dict[str, np.ndarray]:
         """The state as named arrays (``state_codec``)."""
@@ -92,8 +96,8 @@ class Engine(Protocol):
     @property
     def uses(self) -> frozenset[str]: ...
     @property
-    def params_type(self) -> type[Params]: ...
-    def params(self, overrides: Mapping[str, object] | None = None) -> Params: ...
+    def params_type(self) -> type[EngineParams]: ...
+    def params(self, overrides: Mapping[str, object] | None = None) -> EngineParams: ...
     def start(self, params: Params) -> object: ...
     def step(
         self,

@@ -196,7 +196,8 @@ def _fix(
 ) -> Fix:
     est = particle.estimate(cloud)
     c = est.cov
-    diag = {**diag, "ess": est.ess}
+    # the scan's floor filter where a scan made the fix, else the weight on the floor
+    diag = {"floor_prob": est.floor_prob, **diag, "ess": est.ess}
     return Fix(
         t_ms=t_ms,
         x_m=float(est.xy[0]),

@@ -24,10 +24,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from server.positioning import floor_filter
+from server.positioning.accuracy import EngineParams
 from server.positioning.events import Fix, WifiEvent
 from server.positioning.fingerprint import ScanVector, WknnFix, scan_vector, wknn
 from server.positioning.kalman import Update, update, wrap_angle
-from server.positioning.params import AtLeastOne, NonNegative, Params, Positive
+from server.positioning.params import AtLeastOne, NonNegative, Positive
 from server.positioning.sitemaps import SiteMaps
 from server.positioning.step_tracker import Scan
 
@@ -40,7 +41,7 @@ EMPTY = np.zeros(0)
 
 
 @dataclass(frozen=True)
-class RadioParams(Params):
+class RadioParams(EngineParams):
     """What every engine that matches scans shares: WKNN, the evidence a fix needs, the
     floor filter (``floor_filter``) and the floor under the fix variance."""
 
