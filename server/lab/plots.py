@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from server.lab.scoring import errors_m
+from server.lab.scoring import PathResult, errors_m
 from server.positioning.magnetic import MagneticGrid
 from server.positioning.mapping.magnetic_gridding import known_share
 from server.positioning.metrics import error_cdf
@@ -355,11 +355,63 @@ def plot_magnetic_grid(
     return _save(fig, out)
 
 
+NOMINAL = np.linspace(0.05, 0.95, 19)
+
+
+def plot_reliability(
+    runs: Mapping[str, tuple[Sequence[float], Sequence[float]]], out: Path, title: str
+) -> Path:
+    """Predicted against observed coverage per engine: for each nominal share ``p`` the
+    share of errors within the radius ``sqrt(-2 ln(1 - p)) σ`` of the fix's reported
+    (calibrated) covariance, a 2-D Gaussian's ``p`` radius; a calibrated engine lies on the
+    diagonal at 68 %, and above it where its errors have a heavier tail.
+
+    Parameters
+    ----------
+    runs : mapping of name to (errors_m, sigma_m)
+        Per engine the error at each scored point and the reported 1-σ of its fix.
+    """
+    fig = _figure(5.5, 5.0)
+    ax = fig.add_subplot()
+    ax.plot([0, 1], [0, 1], color="0.6", linestyle="--", linewidth=1, label="calibrated")
+    for name, (errors, sigma) in runs.items():
+        e = np.asarray(errors, dtype=np.float64)
+        s = np.asarray(sigma, dtype=np.float64)
+        keep = np.isfinite(e) & np.isfinite(s)
+        if not keep.any():
+            continue
+        radius = np.sqrt(-2.0 * np.log(1.0 - NOMINAL))
+        observed = [(e[keep] <= r * s[keep]).mean() for r in radius]
+        ax.plot(NOMINAL, observed, marker="o", markersize=3, label=name)
+    for level in (0.68, 0.95):
+        ax.axvline(level, color="0.85", linewidth=1)
+    ax.set_xlim(0, 1)
+    ax.set_ylim(0, 1)
+    ax.set_xlabel("predicted share within the radius")
+    ax.set_ylabel("observed share within the radius")
+    ax.set_title(title)
+    ax.legend(loc="lower right", fontsize="small")
+    ax.set_aspect("equal")
+    return _save(fig, out)
+
+
+def _errors_and_sigma(paths: Sequence[PathResult]) -> tuple[list[float], list[float]]:
+    errors: list[float] = []
+    sigma: list[float] = []
+    for p in paths:
+        e = p.estimates
+        known = np.isfinite(e.est_xy_m).all(axis=1)
+        errors += np.hypot(*(e.est_xy_m[known] - e.true_xy_m[known]).T).tolist()
+        sigma += e.sigma_m[known].tolist()
+    return errors, sigma
+
+
 def write_ilc_plots(evaluations: Sequence[IlcEvaluation], out_dir: Path) -> list[Path]:
     """The error CDF of every engine on one figure, per engine and test path the floor
     plan with the truth and the estimated track, and, when an engine read a magnetic map,
     per floor the map on the floor plan (``magnetic_<floor>.png``; the maps come from the
-    same training traces for every engine, so once)."""
+    same training traces for every engine, so once), and the reliability of the reported
+    uncertainty (``reliability.png``, ``plot_reliability``)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     site = evaluations[0].site.name
     written = [
@@ -367,7 +419,12 @@ def write_ilc_plots(evaluations: Sequence[IlcEvaluation], out_dir: Path) -> list
             {e.summary["engine"]: errors_m(e.paths) for e in evaluations},
             out_dir / "error_cdf.png",
             title=f"ILC {site}: horizontal error at waypoints",
-        )
+        ),
+        plot_reliability(
+            {e.summary["engine"]: _errors_and_sigma(e.paths) for e in evaluations},
+            out_dir / "reliability.png",
+            title=f"ILC {site}: reported uncertainty against the errors",
+        ),
     ]
     for evaluation in evaluations:
         engine = evaluation.summary["engine"]

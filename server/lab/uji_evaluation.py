@@ -3,6 +3,12 @@
 ``evaluate_uji``: every training fingerprint is a reference point (no gridding: the
 published baselines match against raw fingerprints), floors are (building, floor) pairs, so
 the floor choice of WKNN also picks the building.
+
+Each fix's uncertainty is what the service would report for it: the variance a fix with
+that many matched access points is worth, learned on the training set alone by leaving
+spots out (``held_out_errors``: the training spots dealt into folds, each fold located on a
+map of the others, as ``mapping.fix_calibration`` does with paths), then the ``wknn``
+engine's calibrated 68 % and 95 % radii of it (``accuracy``).
 """
 
 from __future__ import annotations
@@ -11,12 +17,16 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from server.datasets.uji import Fingerprints
 from server.lab.progress import Progress
+from server.positioning import fix_error
+from server.positioning.accuracy import calibrated
 from server.positioning.engines.step_ekf import StepEkfParams
-from server.positioning.events import RadioReading, radio_key
-from server.positioning.fingerprint import MISSING_DBM, RadioMap, scan_vector, wknn
+from server.positioning.engines.wknn import WknnParams
+from server.positioning.events import Fix, RadioReading, radio_key
+from server.positioning.fingerprint import MISSING_DBM, RadioMap, WknnFix, scan_vector, wknn
 from server.positioning.mapping.device_offsets import (
     apply_offsets,
     cell_ids,
@@ -51,6 +61,70 @@ def fingerprint_map(train: Fingerprints) -> tuple[RadioMap, tuple[FloorRef, ...]
     )
     floors = tuple(FloorRef(str(b), f"{b}:{f}", f) for b, f in pairs)
     return radio, floors
+
+
+def held_out_errors(
+    train: Fingerprints, *, k: int = 4, folds: int = 5, max_per_fold: int = 1500, seed: int = 0
+) -> tuple[list[str], list[int], list[float]]:
+    """Kinds, matched access points and horizontal errors (NaN on a wrong floor) of
+    training fingerprints located on maps of the other folds' spots (a spot: one
+    building, floor and position; its repeated captures stay together, so a fingerprint
+    never meets its own twin)."""
+    rng = np.random.default_rng(seed)
+    spots = np.unique(
+        np.column_stack([train.building, train.floor, np.round(train.xy_m, 1)]),
+        axis=0,
+        return_inverse=True,
+    )[1].ravel()
+    fold_of_spot = rng.permutation(int(spots.max()) + 1) % folds
+    fold = fold_of_spot[spots]
+    kinds: list[str] = []
+    matched: list[int] = []
+    errors: list[float] = []
+    for f in range(folds):
+        test = np.flatnonzero(fold == f)
+        if test.size > max_per_fold:
+            test = np.sort(rng.choice(test, max_per_fold, replace=False))
+        part = _rows(train, np.flatnonzero(fold != f))
+        radio, floors = fingerprint_map(part)
+        for row in test.tolist():
+            fix = wknn(radio, scan_vector(radio, _readings(train, row), "wifi"), k=k)
+            if fix is None:
+                continue
+            ref = floors[fix.floor]
+            right = (int(ref.building_id), ref.level) == (
+                int(train.building[row]),
+                int(train.floor[row]),
+            )
+            error = float(np.hypot(*(np.array([fix.x_m, fix.y_m]) - train.xy_m[row])))
+            kinds.append("wifi")
+            matched.append(fix.n_matched)
+            errors.append(error if right else float("nan"))
+    return kinds, matched, errors
+
+
+def _rows(data: Fingerprints, rows: NDArray[np.intp]) -> Fingerprints:
+    return replace(
+        data,
+        rssi_dbm=data.rssi_dbm[rows],
+        xy_m=data.xy_m[rows],
+        floor=data.floor[rows],
+        building=data.building[rows],
+        t_s=data.t_s[rows],
+        phone_id=data.phone_id[rows],
+    )
+
+
+def _readings(data: Fingerprints, row: int) -> list[RadioReading]:
+    heard = ~np.isnan(data.rssi_dbm[row])
+    return [
+        RadioReading(data.emitters[j], float(data.rssi_dbm[row, j]))
+        for j in np.flatnonzero(heard).tolist()
+    ]
+
+
+def _fix_of(found: WknnFix, var_m2: float) -> Fix:
+    return Fix(0, found.x_m, found.y_m, found.floor, None, (var_m2, 0.0, 0.0, var_m2), "wifi")
 
 
 # Co-location for per-phone offsets: UJIIndoorLoc was recorded at 933 fixed spots (in rooms
@@ -117,6 +191,10 @@ def evaluate_uji(
     est_floor = np.full(n, -1, dtype=np.int64)
     est_building = np.full(n, -1, dtype=np.int64)
     sigma = np.full(n, np.nan)
+    r68 = np.full(n, np.nan)
+    r95 = np.full(n, np.nan)
+    model = fix_error.fit(*held_out_errors(train, k=k))
+    accuracy = WknnParams().accuracy
     for row in range(n):
         heard = ~np.isnan(test.rssi_dbm[row])
         readings = [
@@ -128,7 +206,10 @@ def evaluate_uji(
             est[row] = (fix.x_m, fix.y_m)
             est_floor[row] = floors[fix.floor].level
             est_building[row] = int(floors[fix.floor].building_id)
-            sigma[row] = np.sqrt(max(fix.var_m2, MIN_FIX_VAR_M2))
+            var = max(model.variance("wifi", fix.n_matched), MIN_FIX_VAR_M2)
+            reported = calibrated(_fix_of(fix, var), accuracy)
+            sigma[row] = reported.uncertainty_m
+            r68[row], r95[row] = reported.accuracy_68_m, reported.accuracy_95_m
         if progress and (row % 50 == 0 or row == n - 1):
             progress("locate", row + 1, n)
     report = error_report(
@@ -137,6 +218,8 @@ def evaluate_uji(
         est_floor,
         test.floor,
         sigma_m=sigma,
+        accuracy_68_m=r68,
+        accuracy_95_m=r95,
         est_building=est_building,
         true_building=test.building,
     )

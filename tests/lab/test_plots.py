@@ -15,7 +15,14 @@ from matplotlib.image import imread
 
 from server.datasets.ilc import read_site
 from server.lab.ilc_evaluation import IlcEvaluation
-from server.lab.plots import DPI, plot_error_cdf, plot_magnetic_grid, plot_track, write_ilc_plots
+from server.lab.plots import (
+    DPI,
+    plot_error_cdf,
+    plot_magnetic_grid,
+    plot_reliability,
+    plot_track,
+    write_ilc_plots,
+)
 from server.lab.scoring import summarize
 from server.lab.split import split_site
 from server.lab.training_maps import build_site_maps
@@ -211,5 +218,22 @@ def test_magnetic_maps_are_drawn_per_floor(tmp_path: Path) -> None:
     assert 0.0 < coverage < 1.0  # four walks cover some of the corridors
     run = IlcEvaluation(site, maps, split, (), summary)
     written = write_ilc_plots([run], tmp_path)
-    assert written[1:] == [tmp_path / "magnetic_F4.png"]
-    assert written[1].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert written[2:] == [tmp_path / "magnetic_F4.png"]
+    assert written[2].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_the_reliability_plot_draws_each_engine(tmp_path: Path) -> None:
+    rng = np.random.default_rng(4)
+    sigma = rng.uniform(1.0, 5.0, 400)
+    calibrated = np.hypot(*(rng.normal(0.0, 1.0, (2, 400)) * sigma))
+    out = plot_reliability(
+        {
+            "calibrated": (calibrated.tolist(), sigma.tolist()),
+            "bold": ([9.0] * 400, sigma.tolist()),
+        },
+        tmp_path / "reliability.png",
+        title="t",
+    )
+    png = out.read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    assert len(png) > 10_000

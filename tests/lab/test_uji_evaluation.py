@@ -44,3 +44,12 @@ def test_uji_offsets_leave_a_set_of_one_phone_alone() -> None:
     assert corrected["device_offsets"] == {}  # nothing co-located: nothing to estimate
     assert corrected["test_rows_corrected"] == 0
     assert corrected["mean_m"] == plain["mean_m"]
+
+
+def test_uji_fixes_report_radii_learned_on_the_training_spots() -> None:
+    train, test = uji_offset_sets()
+    kinds, matched, errors = uji_evaluation.held_out_errors(train)
+    assert len(kinds) == len(matched) == len(errors) > 0
+    assert all(m >= 1 for m in matched)
+    report = uji_evaluation.evaluate_uji(train, test, "wknn")
+    assert 0.0 <= report["within_68"] <= report["within_95"] <= 1.0
