@@ -5,16 +5,19 @@ An engine's own covariance is what its filter believes, and the filters believe 
 Every fix therefore reports radii calibrated on recorded walks: with ``σ`` the root of
 the mean of the engine's two position variances, ::
 
-    accuracy_68_m = scale_68 · 1.5096 σ        accuracy_95_m = scale_95 · 2.4477 σ
+    accuracy_68_m = sqrt(floor_68_m² + (scale_68 · 1.5096 σ)²)
+    accuracy_95_m = sqrt(floor_95_m² + (scale_95 · 2.4477 σ)²)
 
 where 1.5096 and 2.4477 are the radii of an isotropic 2-D Gaussian of standard deviation
-``σ`` that hold 68 % and 95 % of it (``sqrt(-2 ln(1 - p))``), so that a scale of 1 trusts
-the engine. The scales are each engine's defaults, chosen on the inner validation splits
-of both development venues (``bench/accuracy.md``, "Calibrated uncertainty"): the
-quantiles of the observed errors over those radii, never the test paths. Two scales,
-because errors have heavier tails than a Gaussian: one covariance scale cannot make both
-radii right. The reported covariance is the engine's times ``scale_68²`` (its 68 % circle
-is ``accuracy_68_m``). Android reports the 68 % radius as a location's accuracy, the W3C
+``σ`` that hold 68 % and 95 % of it (``sqrt(-2 ln(1 - p))``), so that floors of 0 and
+scales of 1 trust the engine. The floor stands for the errors the engine's covariance does
+not see (the map's own: wrong reference points shared by neighbouring scans), which on
+the development venues hardly follow ``σ`` (correlations of 0.0-0.5). The four values are
+each engine's defaults, chosen on the inner validation splits of both development venues
+(``bench/accuracy.md``, "Calibrated uncertainty"), never the test paths. Two radii,
+because errors have heavier tails than a Gaussian: one covariance cannot make both right.
+The reported covariance is the engine's scaled so that its 68 % circle is
+``accuracy_68_m``. Android reports the 68 % radius as a location's accuracy, the W3C
 geolocation API the 95 % one.
 """
 
@@ -24,7 +27,7 @@ import math
 from dataclasses import dataclass, field, replace
 
 from server.positioning.events import Fix
-from server.positioning.params import Params, Positive
+from server.positioning.params import NonNegative, Params, Positive
 
 R68 = math.sqrt(-2.0 * math.log(1.0 - 0.68))  # 1.5096: P(|e| <= R68 σ) = 68 % in 2-D
 R95 = math.sqrt(-2.0 * math.log(1.0 - 0.95))  # 2.4477
@@ -32,11 +35,20 @@ R95 = math.sqrt(-2.0 * math.log(1.0 - 0.95))  # 2.4477
 
 @dataclass(frozen=True)
 class AccuracyParams(Params):
-    """Scales of the engine's own 68 % and 95 % radii (1: the engine's covariance as it
-    is)."""
+    """Floors and scales of the engine's own 68 % and 95 % radii (0 and 1: the engine's
+    covariance as it is)."""
 
+    floor_68_m: NonNegative = 0.0
     scale_68: Positive = 1.0
+    floor_95_m: NonNegative = 0.0
     scale_95: Positive = 1.0
+
+    def radii(self, sigma_m: float) -> tuple[float, float]:
+        """The 68 % and 95 % radii of a fix whose own 1-σ is ``sigma_m``."""
+        return (
+            math.hypot(self.floor_68_m, self.scale_68 * R68 * sigma_m),
+            math.hypot(self.floor_95_m, self.scale_95 * R95 * sigma_m),
+        )
 
 
 @dataclass(frozen=True)
@@ -51,11 +63,17 @@ def calibrated(fix: Fix, params: AccuracyParams) -> Fix:
     its floor probability (from ``diagnostics["floor_prob"]``, NaN where the engine gives
     none)."""
     sigma = fix.uncertainty_m
-    c = params.scale_68**2
+    r68, r95 = params.radii(sigma)
+    if sigma > 0:
+        c = (r68 / (R68 * sigma)) ** 2
+        cov = (fix.cov[0] * c, fix.cov[1] * c, fix.cov[2] * c, fix.cov[3] * c)
+    else:  # the engine claims certainty: a round covariance of the 68 % radius
+        var = (r68 / R68) ** 2
+        cov = (var, 0.0, 0.0, var)
     return replace(
         fix,
-        cov=(fix.cov[0] * c, fix.cov[1] * c, fix.cov[2] * c, fix.cov[3] * c),
-        accuracy_68_m=params.scale_68 * R68 * sigma,
-        accuracy_95_m=params.scale_95 * R95 * sigma,
+        cov=cov,
+        accuracy_68_m=r68,
+        accuracy_95_m=r95,
         floor_prob=fix.diagnostics.get("floor_prob", math.nan),
     )

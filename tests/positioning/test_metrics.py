@@ -27,6 +27,8 @@ TRUE_FLOOR = np.array([0, 0, 0, 0, 2])
 EST_BUILDING = np.array([1, 1, 2, 9, 1])  # row 2 in the wrong building (row 3 is missing)
 TRUE_BUILDING = np.ones(5, dtype=int)
 SIGMA = np.array([1.0, 4.0, 1.0, 1.0, NAN])
+R68 = np.array([0.5, 6.0, 0.5, 1.0, 12.0])
+R95 = np.array([1.0, 4.0, 2.0, 1.0, NAN])
 
 KEYS = {
     "n_points",
@@ -44,6 +46,9 @@ KEYS = {
     "evaal_mean_m",
     "within_1sigma",
     "within_2sigma",
+    "within_68",
+    "within_95",
+    "error_correlation",
 }
 
 
@@ -54,6 +59,8 @@ def full_report() -> ErrorReport:
         EST_FLOOR,
         TRUE_FLOOR,
         sigma_m=SIGMA,
+        accuracy_68_m=R68,
+        accuracy_95_m=R95,
         est_building=EST_BUILDING,
         true_building=TRUE_BUILDING,
     )
@@ -79,6 +86,13 @@ def test_every_key_by_hand() -> None:
         "evaal_mean_m": (0 + (5 + 4) + (1 + 50) + 10) / 4,
         "within_1sigma": 2 / 3,  # row 4 has no sigma: 0 <= 1, 5 > 4, 1 <= 1
         "within_2sigma": 1.0,  # 5 <= 8
+        "within_68": 3 / 4,  # 0 <= 0.5, 5 <= 6, 1 > 0.5, 10 <= 12
+        "within_95": 2 / 3,  # row 4 has no radius: 0 <= 1, 5 > 4, 1 <= 2
+        # Pearson's r of the radii 0.5, 6, 0.5, 12 (mean 4.75) and errors 0, 5, 1, 10 (4)
+        "error_correlation": (
+            (-4.25 * -4 + 1.25 * 1 + -4.25 * -3 + 7.25 * 6)
+            / math.sqrt((4.25**2 * 2 + 1.25**2 + 7.25**2) * (16 + 1 + 9 + 36))
+        ),
     }
     assert r == pytest.approx(expected, rel=1e-12)
 

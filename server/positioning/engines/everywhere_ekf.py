@@ -57,6 +57,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import NDArray
 
+from server.positioning.accuracy import AccuracyParams
 from server.positioning.engines import pdr_fusion as pf
 from server.positioning.engines import radio_fusion as rf
 from server.positioning.events import BleEvent, Fix, radio_key
@@ -78,6 +79,10 @@ class EverywhereParams(pf.StepFusionParams):
     """Parameters of ``everywhere_ekf``; the position noise per step (0.1 m² rather than
     papers/002_* eq 22's 0.01) and the restart after 3 gated fixes in a row rather than 6
     are ``KalmanParams``'s, chosen on both development venues."""
+
+    # the radii that hold 68 % and 95 % of the errors (accuracy.py), chosen on the inner
+    # validation splits of ILC site2 and the IPIN logs (bench/accuracy.md)
+    accuracy: AccuracyParams = field(default_factory=lambda: AccuracyParams(13.0, 1.00, 22.0, 4.60))
 
     # the phone's rotation-vector heading where it sends one, else Mansour's gyro +
     # compass fusion: on the inner validation splits IPIN P75 15.9 m against 23.0 m,

@@ -48,6 +48,7 @@ from numpy.typing import NDArray
 
 from server.positioning import floorplan, magnetic, particle
 from server.positioning import particle_cloud as pc
+from server.positioning.accuracy import AccuracyParams
 from server.positioning.engines import dispatch
 from server.positioning.engines import radio_fusion as rf
 from server.positioning.engines.base import EngineSpec
@@ -71,6 +72,9 @@ MAG_MAX_AGE_MS = 1000  # a mag event this much older than a step does not belong
 
 @dataclass(frozen=True)
 class PfMagneticParams(rf.RadioParams):
+    # the radii that hold 68 % and 95 % of the errors (accuracy.py), chosen on the inner
+    # validation splits of ILC site2 and the IPIN logs (bench/accuracy.md)
+    accuracy: AccuracyParams = field(default_factory=lambda: AccuracyParams(14.0, 1.20, 21.0, 4.20))
     particles: pc.ParticleParams = field(default_factory=pc.ParticleParams)
     tracker: TrackerParams = field(default_factory=TrackerParams)
     # or "dtw", the baseline of papers/001_* IV-B; "none" (an ablation) leaves the

@@ -54,6 +54,7 @@ from annotated_types import Ge
 from numpy.typing import NDArray
 
 from server.positioning import pdr
+from server.positioning.accuracy import AccuracyParams
 from server.positioning.engines import pdr_fusion as pf
 from server.positioning.engines import radio_fusion as rf
 from server.positioning.events import Fix
@@ -85,6 +86,10 @@ class TwoStageParams(pf.StepFusionParams):
     """Parameters of ``two_stage_ekf``; the position noise per step is 0.1 m² rather than
     papers/002_* eq 22's 0.01, and 3 gated fixes in a row restart rather than 6
     (``KalmanParams``, chosen on both development venues)."""
+
+    # the radii that hold 68 % and 95 % of the errors (accuracy.py), chosen on the inner
+    # validation splits of ILC site2 and the IPIN logs (bench/accuracy.md)
+    accuracy: AccuracyParams = field(default_factory=lambda: AccuracyParams(14.0, 1.00, 28.0, 3.80))
 
     tracker: TrackerParams = field(default_factory=_cui_tracker)
     partition_radius_m: Positive = 2.5  # papers/002_* section 4.1

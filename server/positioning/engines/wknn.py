@@ -25,6 +25,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import NDArray
 
+from server.positioning.accuracy import AccuracyParams
 from server.positioning.engines import dispatch
 from server.positioning.engines import radio_fusion as rf
 from server.positioning.engines.base import EngineSpec
@@ -35,6 +36,10 @@ from server.positioning.sitemaps import SiteMaps
 @dataclass(frozen=True)
 class WknnParams(rf.RadioParams):
     """Parameters of the ``wknn`` engine: those every scan-matching engine shares."""
+
+    # the radii that hold 68 % and 95 % of the errors (accuracy.py), chosen on the inner
+    # validation splits of ILC site2 and the IPIN logs (bench/accuracy.md)
+    accuracy: AccuracyParams = field(default_factory=lambda: AccuracyParams(8.0, 1.30, 22.0, 2.30))
 
 
 @dataclass(frozen=True)
