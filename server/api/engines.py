@@ -31,6 +31,7 @@ def _read(settings: EngineSettings) -> EngineSettingsRead:
         engine=settings.engine,
         params=settings.overrides,
         effective=settings.effective,
+        problem=settings.problem,
     )
 
 

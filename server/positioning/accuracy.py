@@ -25,9 +25,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import Annotated
+
+from annotated_types import Ge, Gt, Le
 
 from server.positioning.events import Fix
-from server.positioning.params import NonNegative, Params, Positive
+from server.positioning.params import ParamError, Params
 
 R68 = math.sqrt(-2.0 * math.log(1.0 - 0.68))  # 1.5096: P(|e| <= R68 σ) = 68 % in 2-D
 R95 = math.sqrt(-2.0 * math.log(1.0 - 0.95))  # 2.4477
@@ -38,10 +41,17 @@ class AccuracyParams(Params):
     """Floors and scales of the engine's own 68 % and 95 % radii (0 and 1: the engine's
     covariance as it is)."""
 
-    floor_68_m: NonNegative = 0.0
-    scale_68: Positive = 1.0
-    floor_95_m: NonNegative = 0.0
-    scale_95: Positive = 1.0
+    floor_68_m: Annotated[float, Ge(0), Le(1000)] = 0.0
+    scale_68: Annotated[float, Gt(0), Le(100)] = 1.0
+    floor_95_m: Annotated[float, Ge(0), Le(1000)] = 0.0
+    scale_95: Annotated[float, Gt(0), Le(100)] = 1.0
+
+    def check(self) -> None:
+        """The 95 % radius is never the smaller one."""
+        if self.floor_95_m < self.floor_68_m:
+            raise ParamError("floor_95_m", "must not be below floor_68_m")
+        if self.scale_95 * R95 < self.scale_68 * R68:
+            raise ParamError("scale_95", f"must be at least scale_68 x {R68 / R95:.4f}")
 
     def radii(self, sigma_m: float) -> tuple[float, float]:
         """The 68 % and 95 % radii of a fix whose own 1-σ is ``sigma_m``."""
@@ -64,11 +74,12 @@ def calibrated(fix: Fix, params: AccuracyParams) -> Fix:
     none)."""
     sigma = fix.uncertainty_m
     r68, r95 = params.radii(sigma)
-    if sigma > 0:
-        c = (r68 / (R68 * sigma)) ** 2
+    var = (r68 / R68) ** 2  # the mean variance of the reported covariance
+    mean_var = (fix.cov[0] + fix.cov[3]) / 2.0
+    if mean_var > 1e-9 * var:
+        c = var / mean_var
         cov = (fix.cov[0] * c, fix.cov[1] * c, fix.cov[2] * c, fix.cov[3] * c)
     else:  # the engine claims certainty: a round covariance of the 68 % radius
-        var = (r68 / R68) ** 2
         cov = (var, 0.0, 0.0, var)
     return replace(
         fix,

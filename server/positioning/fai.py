@@ -48,13 +48,14 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
+from annotated_types import Ge, Le
 from numpy.typing import NDArray
 
 from server.positioning.fingerprint import MISSING_DBM, RadioMap, ScanVector
-from server.positioning.params import AtLeastOne, NonNegative, Params, Positive
+from server.positioning.params import NonNegative, Params, Positive
 
 FloatArray = NDArray[np.float64]
 
@@ -73,8 +74,8 @@ class FaiParams(Params):
     rho_ss: NonNegative = 0.2  # eq 26
     rho_sd: NonNegative = 0.3
     rho_wd: NonNegative = 0.5
-    kappa: AtLeastOne = 5  # eq 12 and 24
-    kappa_d: AtLeastOne = 5  # eq 23
+    kappa: Annotated[int, Ge(1), Le(100)] = 5  # eq 12 and 24
+    kappa_d: Annotated[int, Ge(1), Le(100)] = 5  # eq 23
     min_sd_db: Positive = 4.0  # the least RSS spread of a reference point, eq 11
 
 

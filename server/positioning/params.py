@@ -31,6 +31,10 @@ AtLeastOne = Annotated[int, at.Ge(1)]
 NonNegativeInt = Annotated[int, at.Ge(0)]
 Share = Annotated[float, at.Ge(0), at.Le(1)]  # a fraction in [0, 1]
 OpenShare = Annotated[float, at.Gt(0), at.Lt(1)]  # a fraction in (0, 1)
+# no parameter is larger than these: beyond them a number is a mistake (and, for floats,
+# near overflow in the arithmetic that uses it)
+MAX_ABS_INT = 2**53
+MAX_ABS_FLOAT = 1e12
 
 
 class ParamError(ValueError):
@@ -128,11 +132,17 @@ def _check_value(base: object, bounds: tuple[object, ...], value: object) -> str
     if base is int:
         if not isinstance(value, int) or isinstance(value, bool):
             return "must be an integer"
+        if abs(value) > MAX_ABS_INT:
+            return f"must be at most {MAX_ABS_INT} in size"
     elif base is float:
         if not _is_number(value):
             return "must be a number"
+        if isinstance(value, int) and abs(value) > MAX_ABS_INT:
+            return f"must be at most {MAX_ABS_FLOAT:g} in size"
         if not math.isfinite(value):  # type: ignore[arg-type]
             return "must be finite"
+        if abs(value) > MAX_ABS_FLOAT:  # type: ignore[arg-type]
+            return f"must be at most {MAX_ABS_FLOAT:g} in size"
     elif base is str:
         return None if isinstance(value, str) else "must be a string"
     elif isinstance(base, type):
@@ -170,7 +180,7 @@ def _coerce(base: object, value: object) -> object:
     origin = typing.get_origin(base)
     if origin is Annotated:
         return _coerce(typing.get_args(base)[0], value)
-    if base is float and _is_number(value):
+    if base is float and _is_number(value) and abs(value) <= MAX_ABS_INT:  # type: ignore[arg-type]
         return float(value)  # type: ignore[arg-type]
     if origin is tuple and isinstance(value, list | tuple):
         args = typing.get_args(base)

@@ -16,7 +16,7 @@ import numpy as np
 from annotated_types import Ge, Le
 from numpy.typing import ArrayLike, NDArray
 
-from server.positioning.params import AtLeastOne, NonNegative, Params, Positive, Share
+from server.positioning.params import NonNegative, Params, Positive, Share
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -40,7 +40,9 @@ class ParticleParams(Params):
     # particle count N, papers/001_* section IV-A; at most MAX_PARTICLES, which keeps a
     # session's step under some 20 ms and its stored state under 1 MB
     n: Annotated[int, Ge(1), Le(MAX_PARTICLES)] = 3000
-    window: AtLeastOne = 3  # sliding window W in steps, eq (b); section IV-B, Figure 8
+    # sliding window W in steps, eq (b); section IV-B, Figure 8 (at most 50: the state
+    # holds N x (W + 1) magnitudes)
+    window: Annotated[int, Ge(1), Le(50)] = 3
     k: Positive = 70.0  # award parameter K, eq (c); section IV-B, Figure 9 (cancels, see above)
     t: Positive = 0.05  # award threshold T in µT, eq (c); section IV-B, Figure 10
     # delta of Algorithm 1 line 8 (the paper gives no value): 14 % of a 0.7 m step, above

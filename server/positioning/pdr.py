@@ -57,9 +57,10 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
+from annotated_types import Ge, Le
 from numpy.typing import NDArray
 from scipy.signal import lfilter
 
@@ -81,8 +82,10 @@ class PdrParams(Params):
 
     detector: Detector = "mansour"
     length_model: LengthModel = "mansour"
-    grid_ms: AtLeastOne = 20  # 50 Hz grid, the rate of the phones in papers/003_* and ILC 2.0
-    half_window: AtLeastOne = 5  # N of papers/002_* eq 7: 11 samples, 0.22 s
+    grid_ms: Annotated[int, Ge(5), Le(1000)] = (
+        20  # 50 Hz grid, the rate of the phones in papers/003_* and ILC 2.0
+    )
+    half_window: Annotated[int, Ge(1), Le(100)] = 5  # N of papers/002_* eq 7: 11 samples, 0.22 s
     gravity_tau_s: Positive = 5.0
     vertical_tau_s: Positive = 1.0  # low-pass giving the vertical for the "mansour" signal
     threshold_ms2: Positive = 0.65  # papers/003_* III

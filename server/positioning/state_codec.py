@@ -6,12 +6,14 @@ fixed shape declared by ``field(metadata=shape(4, 4))``, ``-1`` for any length),
 another such dataclass, possibly ``| None``. :func:`to_arrays` turns a state into
 ``{name: ndarray}`` (scalars as 0-d arrays, nested parts under ``"<field>."``), which the
 storage layer writes as dtype + shape + raw bytes; :func:`from_arrays` inverts it exactly
-and refuses, with :class:`StateError`, arrays that are missing or of another dtype or
-shape. A state class may define ``check_decoded(self)`` for what its fields cannot say (a cloud's
-positions are finite); it runs after decoding.
+and refuses, with :class:`StateError`, arrays that are missing, unknown, or of another
+dtype or shape (an int field must hold an integer, a bool 0 or 1). A state class may
+define ``check_decoded(self)`` for what its fields cannot say (a cloud's positions are
+finite); it runs after decoding.
 
 ``LAYOUT`` numbers this encoding: states written under another number are not decoded
-(the session layer starts them afresh).
+(the session layer starts them afresh). Bump it when a state's fields change: a state of
+other fields is refused rather than read wrongly.
 """
 
 from __future__ import annotations
@@ -112,15 +114,27 @@ def to_arrays(state: object, prefix: str = "") -> dict[str, np.ndarray]:
     return out
 
 
-def from_arrays(cls: type[T], arrays: Mapping[str, np.ndarray], prefix: str = "") -> T:
+def from_arrays(cls: type[T], arrays: Mapping[str, np.ndarray]) -> T:
     """The state of class ``cls`` that ``to_arrays`` turned into ``arrays``.
 
     Raises
     ------
     StateError
-        When an array is missing, has another shape than its field declares, or the
-        state refuses the values.
+        When an array is missing, unknown, of another dtype kind or shape than its field
+        declares, or the state refuses the values.
     """
+    used: set[str] = set()
+    state = _decode(cls, arrays, "", used)
+    unknown = sorted(set(arrays) - used)
+    if unknown:
+        raise StateError(f"{cls.__name__} state has unknown arrays: {', '.join(unknown[:5])}")
+    return state
+
+
+_SCALAR_KINDS = {"int": "iub", "bool": "iub", "float": "f"}
+
+
+def _decode(cls: type[T], arrays: Mapping[str, np.ndarray], prefix: str, used: set[str]) -> T:
     values: dict[str, object] = {}
     for f in _fields(cls):
         key = prefix + f.name
@@ -130,10 +144,11 @@ def from_arrays(cls: type[T], arrays: Mapping[str, np.ndarray], prefix: str = ""
             if f.optional and not present:
                 values[f.name] = None
             else:
-                values[f.name] = from_arrays(f.part, arrays, key + ".")
+                values[f.name] = _decode(f.part, arrays, key + ".", used)
             continue
         if key not in arrays:
             raise StateError(f"{cls.__name__} state lacks {key!r}")
+        used.add(key)
         array = np.asarray(arrays[key])
         if f.kind == "array":
             if array.dtype != f.dtype:
@@ -145,14 +160,17 @@ def from_arrays(cls: type[T], arrays: Mapping[str, np.ndarray], prefix: str = ""
             ):
                 raise StateError(f"{key} must have shape {f.dims}, got {value.shape}")
             values[f.name] = value
-        elif array.shape != ():
-            raise StateError(f"{key} must be a single value, got shape {array.shape}")
-        elif f.kind == "int":
+            continue
+        if array.shape != () or array.dtype.kind not in _SCALAR_KINDS[f.kind]:
+            raise StateError(f"{key} must be one {f.kind}, got {array.dtype} of {array.shape}")
+        if f.kind == "int":
             values[f.name] = int(array)
         elif f.kind == "float":
             values[f.name] = float(array)
-        else:
+        elif int(array) in (0, 1):
             values[f.name] = bool(array)
+        else:
+            raise StateError(f"{key} must be 0 or 1, got {int(array)}")
     try:
         state = cls(**values)
         check = getattr(state, "check_decoded", None)

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from typing import Annotated
 
 import numpy as np
-from annotated_types import Ge
+from annotated_types import Ge, Le
 from numpy.typing import NDArray
 
 from server.positioning.params import ParamError, Params, Positive
@@ -30,7 +30,7 @@ STRAIGHT, SUSPECT, TURN = 0, 1, 2
 class TurnParams(Params):
     """``papers/003_*`` section III turn detection; the paper gives no λ values."""
 
-    window_steps: Annotated[int, Ge(2)] = 5
+    window_steps: Annotated[int, Ge(2), Le(100)] = 5
     lambda_low_rad: Positive = math.radians(10.0)  # λ_l: heading sway allowed on a straight
     lambda_high_rad: Positive = math.radians(30.0)  # λ_h: total change that makes a turn
 

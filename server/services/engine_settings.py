@@ -12,6 +12,7 @@ engine's parameter model (``server.positioning.params``): a bad field is a 422 n
 from __future__ import annotations
 
 import functools
+import logging
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -26,6 +27,8 @@ from server.services.errors import Invalid, NotFound
 from server.services.sites import get_site
 from server.storage.repositories import engine_settings as repo
 
+logger = logging.getLogger(__name__)
+
 
 @dataclass(frozen=True)
 class EngineSettings:
@@ -33,6 +36,8 @@ class EngineSettings:
     engine: str
     overrides: dict[str, Any]  # what the site set
     effective: dict[str, Any]  # every parameter a new session of the site starts with
+    # why the stored overrides are not used (a newer server's parameters refuse them)
+    problem: str | None = None
 
 
 def engine_of(name: str, field: str = "engine") -> Engine:
@@ -54,7 +59,13 @@ def checked(engine: Engine, overrides: Mapping[str, Any], field: str = "params")
 
 @functools.lru_cache(maxsize=512)
 def _parsed(engine: str, overrides_json: bytes) -> Params:
-    return get_engine(engine).params(orjson.loads(overrides_json))
+    spec = get_engine(engine)
+    try:
+        return spec.params(orjson.loads(overrides_json))
+    except ParamError as e:
+        # valid when the session started; a newer server's parameters refuse them
+        logger.warning("%s parameters %s no longer valid (%s): defaults", engine, overrides_json, e)
+        return spec.params()
 
 
 def canonical(overrides: Mapping[str, Any]) -> bytes:
@@ -70,8 +81,18 @@ def session_params(engine: str, overrides_json: bytes) -> Params:
 
 
 async def site_overrides(s: AsyncSession, site_id: str, engine: str) -> dict[str, Any]:
+    """The site's overrides for ``engine``; none when it set none or when what it set is
+    no longer valid (a newer server's parameters refuse it: logged, and ``GET`` of the
+    settings says why)."""
     row = await repo.get_engine_setting(s, site_id, engine)
-    return dict(row.params) if row is not None else {}
+    if row is None:
+        return {}
+    try:
+        get_engine(engine).params(row.params)
+    except (KeyError, ParamError) as e:
+        logger.warning("site %s: %s settings no longer valid (%s), not used", site_id, engine, e)
+        return {}
+    return dict(row.params)
 
 
 async def for_new_session(
@@ -85,23 +106,26 @@ async def for_new_session(
     return canonical(merged)
 
 
+def _settings(site_id: str, engine: str, stored: dict[str, Any]) -> EngineSettings:
+    spec = get_engine(engine)
+    try:
+        return EngineSettings(site_id, engine, stored, as_dict(spec.params(stored)))
+    except ParamError as e:
+        return EngineSettings(site_id, engine, stored, defaults(engine), problem=str(e))
+
+
 async def get_settings(s: AsyncSession, site_id: str, engine: str) -> EngineSettings:
     await get_site(s, site_id)
-    spec = engine_of(engine, field="name")
-    overrides = await site_overrides(s, site_id, engine)
-    return EngineSettings(site_id, engine, overrides, as_dict(checked(spec, overrides)))
+    engine_of(engine, field="name")
+    row = await repo.get_engine_setting(s, site_id, engine)
+    return _settings(site_id, engine, dict(row.params) if row is not None else {})
 
 
 async def list_settings(s: AsyncSession, site_id: str) -> list[EngineSettings]:
     """Every registered engine with the site's overrides (empty where it set none)."""
     await get_site(s, site_id)
     rows = {row.engine: dict(row.params) for row in await repo.list_engine_settings(s, site_id)}
-    return [
-        EngineSettings(
-            site_id, name, rows.get(name, {}), as_dict(checked(spec, rows.get(name, {})))
-        )
-        for name, spec in sorted(ENGINES.items())
-    ]
+    return [_settings(site_id, name, rows.get(name, {})) for name in sorted(ENGINES)]
 
 
 async def put_settings(

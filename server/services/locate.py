@@ -2,9 +2,9 @@
 
 The scan is located as a ``wknn`` session's first scan would be (``engines.wknn``: at
 least three matched map emitters, the floor from the scan's likelihood of each floor,
-the fix's variance learned from the map's training data), so its uncertainty is the same
-calibrated one (``accuracy``): 68 % and 95 % radii and the floor's probability. WiFi is
-tried first; BLE when the WiFi scan gives no fix.
+the fix's variance learned from the map's training data, the site's ``wknn`` settings),
+so its uncertainty is the same calibrated one (``accuracy``): 68 % and 95 % radii and
+the floor's probability. WiFi is tried first; BLE when the WiFi scan gives no fix.
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ import numpy as np
 
 from server.positioning.engines import wknn
 from server.positioning.events import BleEvent, Fix, RadioReading, WifiEvent
+from server.services import engine_settings
 from server.services.errors import Invalid, NotFound
 from server.services.maps import site_maps
 from server.services.runtime import Runtime
@@ -39,10 +40,11 @@ async def locate(
         raise Invalid("send at least one WiFi or BLE reading", field="wifi")
     async with rt.transaction() as s:
         maps = await site_maps(s, rt.maps, site_id)
+        overrides = await engine_settings.site_overrides(s, site_id, wknn.SPEC.name)
     if maps.radio is None:
         raise NotFound(f"site {site_id} has no radio map yet", field="site_id")
     engine = wknn.SPEC
-    params = wknn.WknnParams()
+    params = engine.params(overrides)  # the site's wknn settings, as its sessions
     scans = (
         WifiEvent(0, tuple(RadioReading(e, r) for e, r in wifi)),
         BleEvent(0, tuple(RadioReading(e, r) for e, r in ble)),

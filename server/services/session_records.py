@@ -22,6 +22,7 @@ from server.positioning import state_codec
 from server.positioning.engines.base import Engine
 from server.positioning.events import Event, Fix, ImuEvent
 from server.positioning.sitemaps import SiteMaps
+from server.positioning.state_codec import StateError
 from server.storage.codec import array_to_str, decode_arrays, encode_arrays, str_to_array
 
 ENGINE_PREFIX = "engine/"
@@ -107,8 +108,8 @@ class SessionState:
 
     @classmethod
     def from_bytes(cls, data: bytes, engine: Engine) -> SessionState:
-        """Raises :class:`StaleEngineState` for an engine state of another layout (the
-        rest of the record is read as ``stale.record``)."""
+        """Raises :class:`StaleEngineState` for an engine state of another layout or one
+        the engine's state class refuses (``state_codec.StateError``)."""
         a = decode_arrays(data)
         offsets = a["replies/offsets"].tolist()
         body = a["replies/body"].tobytes()
@@ -127,9 +128,13 @@ class SessionState:
         layout = int(a["engine_layout"]) if "engine_layout" in a else 1
         if layout != state_codec.LAYOUT:
             raise StaleEngineState(f"engine state of layout {layout}, not {state_codec.LAYOUT}")
+        try:
+            engine_state = engine.decode(engine_arrays)
+        except StateError as e:
+            raise StaleEngineState(str(e)) from None
         return cls(
             last_seq=int(a["last_seq"]),
-            engine_state=engine.decode(engine_arrays),
+            engine_state=engine_state,
             replies=replies,
             last_fix=a["last_fix"].tobytes(),
             rebuilt_seq=int(a["rebuilt_seq"]) if "rebuilt_seq" in a else 0,

@@ -245,10 +245,11 @@ async def _load_decoded(
         version = stored.version
         try:
             state = SessionState.from_bytes(stored.state, get_engine(meta.engine))
-        except StaleEngineState:
-            # written by an older server: go on from a fresh engine state, as after a
-            # rebuild (the next batch is answered reinitialised)
-            logger.warning("session %s: engine state of an older layout, restarted", session_id)
+        except StaleEngineState as e:
+            # written by an older server (or not a state of this engine): go on from a
+            # fresh engine state, as after a rebuild (the next batch is answered
+            # reinitialised; a retry of an earlier batch is applied again)
+            logger.warning("session %s: engine state not readable (%s), restarted", session_id, e)
             state = _fresh_state(meta, last_seq=-1)
         rt.states.put(session_id, version, meta, state)
     if not hmac.compare_digest(meta.token_digest, _digest(token)):

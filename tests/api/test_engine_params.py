@@ -11,6 +11,7 @@ from server.positioning.engines import get_engine
 from server.positioning.engines.pf_magnetic import PfMagneticState
 from server.positioning.particle_cloud import Particles
 from server.services.session_records import SessionState
+from server.storage.repositories.engine_settings import put_engine_setting
 from tests.api.test_session_rebuild import lose_the_store
 from tests.api.toy_site import ToySite, build_toy_site, rssi_at
 
@@ -82,6 +83,14 @@ async def test_a_session_runs_with_its_own_params(
         ({"particles": 5}, "params.particles"),
         ({"weighting": "magic"}, "params.weighting"),
         ({"tracker": {"steps": {"threshold_ms2": -1.0}}}, "params.tracker.steps.threshold_ms2"),
+        # sizes a session could otherwise blow up
+        ({"particles": {"window": 100_000}}, "params.particles.window"),
+        ({"tracker": {"turns": {"window_steps": 10**6}}}, "params.tracker.turns.window_steps"),
+        ({"tracker": {"fusion": {"window_s": 3600.0}}}, "params.tracker.fusion.window_s"),
+        ({"floor_sd_db": 10**400}, "params.floor_sd_db"),
+        ({"k": 2**64}, "params.k"),
+        ({"accuracy": {"scale_68": 1e200}}, "params.accuracy.scale_68"),
+        ({"accuracy": {"floor_68_m": 50.0}}, "params.accuracy.floor_95_m"),
     ],
 )
 async def test_a_bad_parameter_is_refused_naming_its_field(
@@ -170,3 +179,40 @@ def test_an_engine_state_of_the_old_layout_is_not_decoded() -> None:
     del arrays["engine_layout"]  # as the servers before the state codec wrote them
     with pytest.raises(StaleEngineState):
         SessionState.from_bytes(encode_arrays(arrays), spec)
+
+
+async def test_stored_settings_a_newer_server_refuses_are_not_used(
+    client: httpx.AsyncClient, app: FastAPI, site: ToySite, admin: dict[str, str]
+) -> None:
+    """Settings valid once and refused now (a parameter renamed) leave new sessions on
+    the defaults, and the settings say why."""
+    rt = app.state.runtime
+    async with rt.transaction() as s:
+        await put_engine_setting(s, site.site_id, "pf_magnetic", {"particles": {"nn": 800}})
+    created = await open_pf(client, site, {"particles": {"n": 700}})
+    assert created.status_code == 201, created.text
+    await start_cloud(client, created)
+    assert await cloud_size(app, created.json()["id"]) == 700
+    r = await client.get(f"/v1/sites/{site.site_id}/engines/pf_magnetic", headers=admin)
+    assert r.status_code == 200, r.text
+    assert "particles.nn" in r.json()["problem"]
+    assert r.json()["effective"]["particles"]["n"] == 3000
+
+
+async def test_locate_reports_with_the_sites_wknn_settings(
+    client: httpx.AsyncClient, site: ToySite, admin: dict[str, str]
+) -> None:
+    body = {"site_id": site.site_id, "wifi": rssi_at(4.0, 5.0, 0)}
+    before = await client.post("/v1/locate", json=body, headers=site.device)
+    assert before.status_code == 200, before.text
+    assert before.json()["accuracy_68_m"] < before.json()["accuracy_95_m"]
+    accuracy = {"floor_68_m": 40.0, "scale_68": 1.0, "floor_95_m": 60.0, "scale_95": 2.0}
+    r = await client.put(
+        f"/v1/sites/{site.site_id}/engines/wknn",
+        json={"params": {"accuracy": accuracy}},
+        headers=admin,
+    )
+    assert r.status_code == 200, r.text
+    after = await client.post("/v1/locate", json=body, headers=site.device)
+    assert after.json()["accuracy_68_m"] >= 40.0
+    assert after.json()["accuracy_95_m"] >= 60.0

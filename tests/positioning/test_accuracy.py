@@ -37,11 +37,12 @@ def test_the_identity_calibration_gives_a_gaussians_radii() -> None:
     st.floats(0.0, 30.0),
     st.floats(0.1, 8.0),
     st.floats(0.0, 30.0),
-    st.floats(0.1, 8.0),
+    st.floats(1.0, 3.0),
 )
 def test_the_reported_covariance_has_the_68_radius(
-    var: float, floor68: float, scale68: float, floor95: float, scale95: float
+    var: float, floor68: float, scale68: float, more95: float, ratio95: float
 ) -> None:
+    floor95, scale95 = floor68 + more95, scale68 * ratio95
     params = AccuracyParams(floor68, scale68, floor95, scale95)
     out = calibrated(fix(var), params)
     sigma = math.sqrt(var)
@@ -52,7 +53,7 @@ def test_the_reported_covariance_has_the_68_radius(
 
 
 def test_an_engine_sure_to_the_metre_still_reports_its_floor() -> None:
-    out = calibrated(fix(0.0), AccuracyParams(floor_68_m=6.0))
+    out = calibrated(fix(0.0), AccuracyParams(floor_68_m=6.0, floor_95_m=10.0))
     assert out.accuracy_68_m == 6.0
     assert out.uncertainty_m * R68 == pytest.approx(6.0)
 
@@ -62,3 +63,10 @@ def test_bounds_are_checked() -> None:
         AccuracyParams(floor_68_m=-1.0)
     with pytest.raises(ParamError, match="scale_95"):
         AccuracyParams(scale_95=0.0)
+    # the 95 % radius is never the smaller one, nor absurdly large
+    with pytest.raises(ParamError, match="floor_95_m: must not be below floor_68_m"):
+        AccuracyParams(floor_68_m=50.0, floor_95_m=20.0)
+    with pytest.raises(ParamError, match="scale_95: must be at least"):
+        AccuracyParams(scale_68=2.0, scale_95=1.0)
+    with pytest.raises(ParamError, match="scale_68: must be at most 100"):
+        AccuracyParams(scale_68=200.0, scale_95=400.0)

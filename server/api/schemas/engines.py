@@ -38,6 +38,11 @@ class EngineSettingsRead(Strict):
         description="every parameter a new session of the site with this engine starts "
         "with (its own params go over these)"
     )
+    problem: str | None = Field(
+        None,
+        description="why the stored params are not used (a newer server refuses them; "
+        "new sessions start from the defaults until they are set again)",
+    )
 
 
 class EngineSettingsList(Strict):

@@ -19,8 +19,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import Annotated
 
 import numpy as np
+from annotated_types import Ge, Le
 from numpy.typing import NDArray
 
 from server.positioning import floor_filter
@@ -45,7 +47,7 @@ class RadioParams(EngineParams):
     """What every engine that matches scans shares: WKNN, the evidence a fix needs, the
     floor filter (``floor_filter``) and the floor under the fix variance."""
 
-    k: AtLeastOne = 4  # WKNN neighbours K, papers/002_* eq 3
+    k: Annotated[int, Ge(1), Le(100)] = 4  # WKNN neighbours K, papers/002_* eq 3
     # scans that match fewer map emitters give no fix: one or two beacons tie with
     # hundreds of reference points all over the building
     min_matched: AtLeastOne = 3

@@ -50,7 +50,7 @@ from dataclasses import dataclass, field, replace
 from typing import Annotated
 
 import numpy as np
-from annotated_types import Ge
+from annotated_types import Ge, Le
 from numpy.typing import NDArray
 
 from server.positioning import pdr
@@ -98,7 +98,7 @@ class TwoStageParams(pf.StepFusionParams):
     p0_step_m2: Positive = 0.01  # papers/002_* eq 20
     r_step_m2: Positive = 0.01  # variance of the Weinberg length as a measurement of S
     r_wifi_heading_rad2: Positive = math.radians(20.0) ** 2
-    heading_fixes: Annotated[int, Ge(2)] = 4  # papers/002_* section 4.2
+    heading_fixes: Annotated[int, Ge(2), Le(100)] = 4  # papers/002_* section 4.2
     # the WiFi heading only starts a heading the phone does not give; updating a known
     # one with it made the inner validation splits worse on both venues (IPIN P75 16.6
     # against 22.7 m without the updates, ILC site2 16.4 against 16.6 m; bench/accuracy.md)

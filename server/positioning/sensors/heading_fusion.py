@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 from typing import Annotated
 
 import numpy as np
-from annotated_types import Ge
+from annotated_types import Ge, Gt, Le
 from numpy.typing import NDArray
 
 from server.positioning.params import Params, Positive
@@ -59,7 +59,7 @@ class HeadingParams(Params):
     at about 50 Hz with 0.3-0.6 µT of noise.
     """
 
-    window_s: Positive = 1.0  # QSMF sliding window, s
+    window_s: Annotated[float, Gt(0), Le(10)] = 1.0  # QSMF sliding window, s
     # std of |B| over the window below which the field is quasi-static, µT: about twice the
     # noise of phone magnetometers (0.3-0.6 µT rms), while indoor disturbances change |B|
     # by several µT over a metre, i.e. within a second of walking
@@ -83,9 +83,8 @@ class HeadingParams(Params):
     # synthetic walk of the tests 7.5 deg/min at 0.5 s, 3.9 at 1 s, 2.0 at 2 s) which the
     # bias state must absorb; a longer tau lags behind changes of how the phone is held
     gravity_tau_s: Positive = 1.0
-    window_entries: Annotated[int, Ge(2)] = (
-        50  # samples kept per window (ring buffer spacing window_s / this)
-    )
+    # samples kept per window (ring buffer spacing window_s / this)
+    window_entries: Annotated[int, Ge(2), Le(1000)] = 50
 
 
 @dataclass(frozen=True)

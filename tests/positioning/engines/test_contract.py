@@ -79,6 +79,12 @@ def test_the_state_survives_the_codec_exactly(name: str, events: list[list[Event
     other = np.float32 if arrays[key].dtype != np.float32 else np.float64
     with pytest.raises(state_codec.StateError, match=key):
         engine.decode({**arrays, key: arrays[key].astype(other)})
+    # nor one with an array it does not know, or a number where a count belongs
+    with pytest.raises(state_codec.StateError, match="unknown arrays: stray"):
+        engine.decode({**arrays, "stray": np.zeros(1)})
+    count = next(k for k, v in arrays.items() if v.ndim == 0 and v.dtype == np.int64)
+    with pytest.raises(state_codec.StateError, match=count):
+        engine.decode({**arrays, count: np.array(2.7)})
 
 
 @pytest.mark.parametrize("name", sorted(ENGINES))
