@@ -8,8 +8,9 @@ is as likely at ``i`` as ::
 
     zeta(q | l_i) = prod_j N(q_j; mu_ij, sigma_ij^2)                        (10-11)
 
-over the emitters both heard (``sigma_ij`` at least ``min_sd_db``: a reference point
-heard once has no spread of its own); the fix is the likelihood-weighted mean of the
+over the map's columns of the scan's kind, an emitter not heard reading ``MISSING_DBM``
+on either side as in the WKNN signal distance (``sigma_ij`` at least ``min_sd_db``: a
+reference point heard once has no spread of its own); the fix is the likelihood-weighted mean of the
 ``kappa`` most likely points (eq 12). ``log_likelihoods`` computes the logarithms (their
 products underflow otherwise).
 
@@ -29,8 +30,8 @@ The three indicators, each a predicted error in metres:
   one side, or too few, give a large value; with fewer than two, or a singular ``H^T H``,
   it is infinite.
 * **WD** (database, eq 23-24): a reference point's DSF is the mean geographical distance
-  to the ``kappa_d`` reference points whose features are most like its own, by the
-  likelihood of their means under its Gaussian model (eq 23 prints the likelihoods; the
+  to the ``kappa_d`` reference points of its floor whose features are most like its own,
+  by the likelihood of their means under its Gaussian model (eq 23 prints the likelihoods; the
   text and the reference it extends define the DSF as the mean distance, which is what
   predicts an error in metres). The WD of a fix is the likelihood-weighted mean of the DSF
   of the ``kappa`` points it used (``spreads``, ``weighted_spread``).
@@ -96,26 +97,34 @@ class Indicators:
         return float(getattr(self, strategy))
 
 
+def _sd(
+    radio: RadioMap, rows: NDArray[np.intp], cols: NDArray[np.intp], min_sd_db: float
+) -> FloatArray:
+    """``sigma_ij`` of eq 11: the points' RSS spread, at least ``min_sd_db`` (an emitter a
+    point did not hear has no spread of its own there)."""
+    var = radio.var_db2[np.ix_(rows, cols)].astype(np.float64)
+    return np.sqrt(np.maximum(var, min_sd_db**2))
+
+
 def log_likelihoods(
     radio: RadioMap, scan: ScanVector, candidates: NDArray[np.bool_], min_sd_db: float
 ) -> FloatArray:
-    """``log zeta(q | l_i)`` of each candidate reference point (eq 11, over the emitters
-    the scan and the point both heard; ``-inf`` for a point sharing none or not a
-    candidate)."""
-    heard = scan.mask & (scan.rssi_dbm > MISSING_DBM)
+    """``log zeta(q | l_i)`` of each candidate reference point (eq 11) over the columns of
+    the scan's kind, an emitter not heard reading ``MISSING_DBM`` on either side, as the
+    WKNN signal distance counts it (``fingerprint``); ``-inf`` for a point that is not a
+    candidate or shares no heard emitter with the scan."""
     out = np.full(radio.rp_xy.shape[0], -np.inf)
     rows = np.flatnonzero(candidates)
+    heard = scan.mask & (scan.rssi_dbm > MISSING_DBM)
     if rows.size == 0 or not heard.any():
         return out
-    cols = np.flatnonzero(heard)
+    cols = np.flatnonzero(scan.mask)
     mean = radio.mean_dbm[np.ix_(rows, cols)].astype(np.float64)
-    var = radio.var_db2[np.ix_(rows, cols)].astype(np.float64)
-    known = mean > MISSING_DBM
-    sd = np.sqrt(np.maximum(var, min_sd_db**2))
+    sd = _sd(radio, rows, cols, min_sd_db)
     z = (scan.rssi_dbm[cols].astype(np.float64) - mean) / sd
-    terms = np.where(known, -0.5 * z**2 - np.log(sd) - _LOG_SQRT_2PI, 0.0)
-    shared = known.any(axis=1)
-    out[rows] = np.where(shared, terms.sum(axis=1), -np.inf)
+    ll = (-0.5 * z**2 - np.log(sd) - _LOG_SQRT_2PI).sum(axis=1)
+    shared = (mean[:, heard[cols]] > MISSING_DBM).any(axis=1)
+    out[rows] = np.where(shared, ll, -np.inf)
     return out
 
 
@@ -171,33 +180,32 @@ def geometry(device_xy: Sequence[float], emitter_xy: FloatArray, alpha: float) -
     return float(alpha * math.sqrt(M[0, 0] + M[1, 1]))  # eq 22
 
 
-def spreads(radio: RadioMap, kappa_d: int, min_sd_db: float, chunk: int = 256) -> FloatArray:
+def spreads(radio: RadioMap, kappa_d: int, min_sd_db: float) -> FloatArray:
     """DSF of every reference point (eq 23, see the module docstring): the mean distance
-    to the ``kappa_d`` points of its floor whose means are most likely under its model
-    (NaN for a point with no such neighbour)."""
+    to the ``kappa_d`` other points of its floor whose means are most likely under its
+    model, over the emitters heard on the floor (NaN for a point alone on its floor).
+
+    The log-likelihood of point ``k``'s means under point ``i``'s model is, but for a
+    term of ``i`` alone, ``-1/2 sum_j a_ij (m_kj - m_ij)^2`` with ``a_ij = 1 / sigma_ij^2``;
+    expanded, its ``k``-dependent part is two matrix products per floor."""
     n = radio.rp_xy.shape[0]
     out = np.full(n, np.nan)
     xy = radio.rp_xy.astype(np.float64)
-    mean = radio.mean_dbm.astype(np.float64)
-    heard = mean > MISSING_DBM
-    sd = np.sqrt(np.maximum(radio.var_db2.astype(np.float64), min_sd_db**2))
     for floor in np.unique(radio.rp_floor):
         rows = np.flatnonzero(radio.rp_floor == floor)
-        for start in range(0, rows.size, chunk):
-            mine = rows[start : start + chunk]
-            # log-likelihood of each other point's means under each of mine, over the
-            # emitters both heard: (len(mine), len(rows))
-            z = (mean[None, rows, :] - mean[mine, None, :]) / sd[mine, None, :]
-            both = heard[mine, None, :] & heard[None, rows, :]
-            ll = np.where(both, -0.5 * z**2 - np.log(sd[mine, None, :]), 0.0).sum(axis=2)
-            ll[~both.any(axis=2)] = -np.inf
-            ll[np.arange(mine.size), np.searchsorted(rows, mine)] = -np.inf  # not itself
-            for a, i in enumerate(mine.tolist()):
-                finite = np.flatnonzero(np.isfinite(ll[a]))
-                if finite.size == 0:
-                    continue
-                near = rows[finite[np.argsort(-ll[a, finite], kind="stable")[:kappa_d]]]
-                out[i] = float(np.hypot(*(xy[near] - xy[i]).T).mean())
+        if rows.size < 2:
+            continue
+        heard = (radio.mean_dbm[rows] > MISSING_DBM).any(axis=0)
+        cols = np.flatnonzero(heard)
+        m = radio.mean_dbm[np.ix_(rows, cols)].astype(np.float64)
+        a = 1.0 / _sd(radio, rows, cols, min_sd_db) ** 2
+        # cost[i, k] = sum_j a_ij m_kj^2 - 2 a_ij m_ij m_kj  (lower: more alike)
+        cost = a @ (m**2).T - 2.0 * (a * m) @ m.T
+        np.fill_diagonal(cost, np.inf)
+        take = min(kappa_d, rows.size - 1)
+        near = np.argpartition(cost, take - 1, axis=1)[:, :take]
+        d = np.hypot(*(xy[rows[near]] - xy[rows][:, None, :]).transpose(2, 0, 1))
+        out[rows] = d.mean(axis=1)
     return out
 
 
