@@ -24,7 +24,7 @@ from server.lab.progress import Progress
 from server.lab.replay import Replayer, in_process_replayer, trace_events
 from server.lab.scoring import PathResult, estimates_at_waypoints, summarize
 from server.lab.split import SplitPaths, restrict, split_site
-from server.lab.training_maps import build_site_maps
+from server.lab.training_maps import build_site_maps, with_fai_maps
 from server.positioning.engines import get_engine
 from server.positioning.sitemaps import SiteMaps
 
@@ -59,6 +59,7 @@ def evaluate_ilc(
         split = split_site(training_only, split_seed + 1, train_fraction)
     uses = get_engine(engine).uses
     maps, survey, bad_lines = build_site_maps(site, split.train, progress, magnetic="mag" in uses)
+    maps = with_fai_maps(maps, engine)
     traces = []
     for done, (floor_index, path) in enumerate(split.test, start=1):
         trace = read_trace(path, site.floors[floor_index].name)

@@ -37,7 +37,13 @@ from server.lab.engine_params import engine_params
 from server.lab.progress import Progress
 from server.lab.replay import replay, trace_events
 from server.lab.scoring import PathResult, estimates_at_waypoints, summarize
-from server.lab.training_maps import LabelledField, LabelledScans, learned_fix_error, site_floors
+from server.lab.training_maps import (
+    LabelledField,
+    LabelledScans,
+    learned_fix_error,
+    site_floors,
+    with_fai_maps,
+)
 from server.positioning.engines import get_engine
 from server.positioning.events import Fix
 from server.positioning.fingerprint import in_place_order
@@ -203,6 +209,7 @@ def evaluate_ipin(
     for trial in fold_trials:
         train = [log for log in logs if log.trial != trial]
         maps = fold_maps(venue, train, magnetic=magnetic, version=f"not-trial-{trial}")
+        maps = with_fai_maps(maps, engine)
         test = [log for log in logs if log.trial == trial]
         for log in test:
             fixes = replay(

@@ -23,11 +23,13 @@ from server.datasets.walk import Walk
 from server.lab.progress import Progress
 from server.positioning import fix_error
 from server.positioning.events import BleEvent, WifiEvent, radio_key
+from server.positioning.fai import FaiParams
 from server.positioning.fingerprint import RadioMap, in_place_order
 from server.positioning.fix_error import FixErrorModel
 from server.positioning.floorplan import FloorPlan
 from server.positioning.floorplan_geojson import plan_from_geojson
 from server.positioning.magnetic import MagneticGrid, MagneticMap
+from server.positioning.mapping.fai_maps import build_fai_maps
 from server.positioning.mapping.fix_calibration import learn_fix_error
 from server.positioning.mapping.gridding import build_radio_map
 from server.positioning.mapping.labelled import interpolate_track
@@ -155,6 +157,18 @@ class TrainingSurvey:
 def site_plans(site: IlcSite) -> tuple[FloorPlan | None, ...]:
     """Each floor's plan as walkable space and walls (None where a floor has no plan)."""
     return tuple(plan_from_geojson(f.plan) if f.plan else None for f in site.floors)
+
+
+# engines that read the fingerprinting accuracy indicators' data (``SiteMaps.fai``)
+NEEDS_FAI_MAPS = frozenset({"fai_ekf"})
+
+
+def with_fai_maps(maps: SiteMaps, engine: str) -> SiteMaps:
+    """The maps with what the accuracy indicators read of the radio map, for an engine
+    that uses them (``mapping.fai_maps``; about half a minute for an ILC floor)."""
+    if engine not in NEEDS_FAI_MAPS or maps.radio is None:
+        return maps
+    return replace(maps, fai=build_fai_maps(maps.radio, FaiParams()))
 
 
 def build_site_maps(

@@ -81,6 +81,27 @@ class FaiParams(Params):
 
 
 @dataclass(frozen=True)
+class FaiMaps:
+    """What the indicators read of a radio map (``mapping.fai_maps.build_fai_maps``).
+
+    Attributes
+    ----------
+    emitter_xy : ndarray, shape (n_em, 2)
+        Fitted position of each map column's emitter (eq 15-18); NaN where it was not
+        fitted.
+    p0_dbm, exponent : ndarray, shape (n_em,)
+        Its path-loss model (``P0`` at 1 m, ``gamma``); NaN where not fitted.
+    dsf_m : ndarray, shape (n_rp,)
+        DSF of each reference point (eq 23, ``spreads``); NaN where it has none.
+    """
+
+    emitter_xy: FloatArray
+    p0_dbm: FloatArray
+    exponent: FloatArray
+    dsf_m: FloatArray
+
+
+@dataclass(frozen=True)
 class Indicators:
     """The three indicators of one fix and their combinations, in metres."""
 
@@ -223,6 +244,32 @@ def weighted_spread(dsf: FloatArray, points: NDArray[np.int64], weights: FloatAr
 def with_location_uncertainty(value_m: float, sigma_sm_m: float) -> float:
     """Eq 25: an indicator with the reference points' own location uncertainty."""
     return math.hypot(value_m, sigma_sm_m)
+
+
+def indicators(
+    fai_maps: FaiMaps,
+    scan: ScanVector,
+    fix_xy: Sequence[float],
+    points: NDArray[np.int64],
+    weights: FloatArray,
+    params: FaiParams,
+    sigma_sm_m: float = 0.0,
+) -> Indicators:
+    """SS, SD and WD of a fix at ``fix_xy`` made of the reference ``points`` with
+    ``weights`` from ``scan`` (eq 13-25), and their combinations (eq 26-27). Emitters
+    without a fitted model take no part in SS and SD."""
+    heard = np.flatnonzero(scan.mask & (scan.rssi_dbm > MISSING_DBM))
+    fitted = heard[np.isfinite(fai_maps.exponent[heard]) & (fai_maps.exponent[heard] > 0)]
+    ss = signal_strength(
+        scan.rssi_dbm[fitted].astype(np.float64).tolist(),
+        fai_maps.p0_dbm[fitted].tolist(),
+        fai_maps.exponent[fitted].tolist(),
+        params.alpha_ss,
+    )
+    sd = geometry(fix_xy, fai_maps.emitter_xy[fitted], params.alpha_sd)
+    wd = weighted_spread(fai_maps.dsf_m, points, weights)
+    ss, sd, wd = (with_location_uncertainty(v, sigma_sm_m) for v in (ss, sd, wd))
+    return combine(ss, sd, wd, params)
 
 
 def combine(ss: float, sd: float, wd: float, params: FaiParams) -> Indicators:

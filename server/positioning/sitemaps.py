@@ -7,6 +7,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from server.positioning import fix_error
+from server.positioning.fai import FaiMaps
 from server.positioning.fingerprint import RadioMap
 from server.positioning.fix_error import FixErrorModel
 from server.positioning.floorplan import FloorPlan
@@ -52,3 +53,6 @@ class SiteMaps:
     # how far a radio fix is from the truth by its evidence (learned from the map's
     # training data where it was; fix_error.DEFAULT otherwise)
     fix_error: FixErrorModel = fix_error.DEFAULT
+    # what the fingerprinting accuracy indicators read of the radio map (fai_ekf); None:
+    # not built, the indicators that need it are not computed
+    fai: FaiMaps | None = None

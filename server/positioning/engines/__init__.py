@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from server.positioning.engines import (
     everywhere_ekf,
+    fai_ekf,
     pf_magnetic,
     step_ekf,
     two_stage_ekf,
@@ -19,6 +20,7 @@ ENGINES: dict[str, Engine] = {
     spec.name: spec
     for spec in (
         everywhere_ekf.SPEC,
+        fai_ekf.SPEC,
         pf_magnetic.SPEC,
         step_ekf.SPEC,
         two_stage_ekf.SPEC,

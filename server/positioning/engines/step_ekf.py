@@ -52,8 +52,9 @@ step sets psi to that step's heading (variance ``p0_heading_rad2``) before its p
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from typing import TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -233,19 +234,34 @@ def _on_step(
     return new, _fix(new, event.t_ms, "step", {"step_length_m": float(x[2])})
 
 
+P = TypeVar("P", bound=StepEkfParams)
+# the variance of a scan's position fix, and what to report of how it was found
+FixVariance = Callable[[rf.Matched, SiteMaps, P], tuple[float, dict[str, float]]]
+
+
+def learned_variance(
+    m: rf.Matched, maps: SiteMaps, params: StepEkfParams
+) -> tuple[float, dict[str, float]]:
+    """What a fix of this kind and evidence is worth on the map (``radio_fusion.match``)."""
+    del maps, params
+    return m.var_m2, {}
+
+
 def _on_scan(
     state: StepEkfState,
     event: WifiEvent | BleEvent,
     kind: str,
     maps: SiteMaps,
-    params: StepEkfParams,
+    params: P,
+    variance: FixVariance[P],
 ) -> tuple[StepEkfState, Fix | None]:
     m = rf.match(maps, event, params, state.floor_logp, state.floor_t_ms)
     if m is None:
         return replace(state, last_t_ms=event.t_ms), None
-    found, var_m2 = m.whole, m.var_m2
+    found = m.whole
+    var_m2, reported = variance(m, maps, params)
     state = replace(state, floor_logp=m.floor_logp, floor_t_ms=m.t_ms)
-    diagnostics = {"fix_var_m2": var_m2, "n_matched": float(m.scan.n_matched)}
+    diagnostics = {"fix_var_m2": var_m2, "n_matched": float(m.scan.n_matched), **reported}
 
     if not state.initialized or found.floor != state.floor:
         if state.initialized:
@@ -267,41 +283,43 @@ def _on_scan(
     return new, _fix(new, event.t_ms, kind, diagnostics)
 
 
-def run(
-    state: StepEkfState,
-    events: Sequence[Event],
-    maps: SiteMaps,
-    params: StepEkfParams,
-    rng: np.random.Generator,
-) -> tuple[StepEkfState, list[Fix]]:
-    """Process a batch of events in time order.
+def runner(
+    variance: FixVariance[P],
+) -> Callable[
+    [StepEkfState, Sequence[Event], SiteMaps, P, np.random.Generator],
+    tuple[StepEkfState, list[Fix]],
+]:
+    """The engine's ``run`` with the variance of each scan's fix from ``variance`` (the
+    learned one here; ``fai_ekf``: the fingerprinting accuracy indicators)."""
 
-    Parameters
-    ----------
-    state : StepEkfState
-        State after the previous batch (``initial_state`` for a new session).
-    events : sequence of Event
-        Sorted by ``t_ms`` here (stably, so equal times keep their order). Magnetometer
-        events are ignored.
-    maps : SiteMaps
-        ``maps.radio`` is matched by WKNN; without it scans are skipped.
-    params : StepEkfParams
-    rng : numpy.random.Generator
-        Unused: the filter is deterministic.
+    def run(
+        state: StepEkfState,
+        events: Sequence[Event],
+        maps: SiteMaps,
+        params: P,
+        rng: np.random.Generator,
+    ) -> tuple[StepEkfState, list[Fix]]:
+        """Process a batch of events in time order (stably, so equal times keep their
+        order); magnetometer events are ignored, ``rng`` is unused (deterministic). One
+        fix per step once initialised and one per accepted or re-initialising scan."""
+        del rng  # engines share one signature; this one draws no random numbers
 
-    Returns
-    -------
-    state : StepEkfState
-    fixes : list of Fix
-        One per step (once initialised) and one per accepted or re-initialising scan.
-    """
-    del rng  # engines share one signature; this one draws no random numbers
-    routes = [
-        dispatch.on(StepEvent, lambda st, e: _on_step(st, e, params)),
-        dispatch.on(WifiEvent, lambda st, e: _on_scan(st, e, "wifi", maps, params)),
-        dispatch.on(BleEvent, lambda st, e: _on_scan(st, e, "ble", maps, params)),
-    ]
-    return dispatch.walk(state, dispatch.in_time_order(events), routes)
+        def scan(
+            kind: str,
+        ) -> Callable[[StepEkfState, WifiEvent | BleEvent], tuple[StepEkfState, Fix | None]]:
+            return lambda st, e: _on_scan(st, e, kind, maps, params, variance)
+
+        routes = [
+            dispatch.on(StepEvent, lambda st, e: _on_step(st, e, params)),
+            dispatch.on(WifiEvent, scan("wifi")),
+            dispatch.on(BleEvent, scan("ble")),
+        ]
+        return dispatch.walk(state, dispatch.in_time_order(events), routes)
+
+    return run
+
+
+run = runner(learned_variance)
 
 
 SPEC = EngineSpec(

@@ -402,7 +402,8 @@ def test_registry() -> None:
     assert SPEC.uses == frozenset({"step", "wifi", "ble"})
     assert SPEC.state_type is StepEkfState
     with pytest.raises(
-        KeyError, match="known engines: everywhere_ekf, pf_magnetic, step_ekf, two_stage_ekf, wknn"
+        KeyError,
+        match="known engines: everywhere_ekf, fai_ekf, pf_magnetic, step_ekf, two_stage_ekf, wknn",
     ):
         get_engine("nope")
 
