@@ -39,12 +39,14 @@ import lzma
 import re
 import tarfile
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import IO, Literal
 
 import numpy as np
 from numpy.typing import NDArray
+
+from server.positioning.events import RadioReading
 
 NOT_HEARD_DBM = 100.0  # what both UJI sets write for an access point not heard
 
@@ -89,6 +91,26 @@ class Fingerprints:
 
     def __len__(self) -> int:
         return int(self.rssi_dbm.shape[0])
+
+    def rows(self, which: NDArray[np.intp] | NDArray[np.bool_]) -> Fingerprints:
+        """The fingerprints of these rows (indices or a mask), same access points."""
+        return replace(
+            self,
+            rssi_dbm=self.rssi_dbm[which],
+            xy_m=self.xy_m[which],
+            floor=self.floor[which],
+            building=self.building[which],
+            t_s=self.t_s[which],
+            phone_id=self.phone_id[which],
+        )
+
+    def readings(self, row: int) -> list[RadioReading]:
+        """What fingerprint ``row`` heard, as readings."""
+        heard = ~np.isnan(self.rssi_dbm[row])
+        return [
+            RadioReading(self.emitters[j], float(self.rssi_dbm[row, j]))
+            for j in np.flatnonzero(heard).tolist()
+        ]
 
 
 @dataclass(frozen=True, eq=False)

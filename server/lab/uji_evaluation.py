@@ -17,7 +17,6 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from server.datasets.uji import Fingerprints
 from server.lab.progress import Progress
@@ -25,7 +24,7 @@ from server.positioning import fix_error
 from server.positioning.accuracy import calibrated
 from server.positioning.engines.step_ekf import StepEkfParams
 from server.positioning.engines.wknn import WknnParams
-from server.positioning.events import Fix, RadioReading, radio_key
+from server.positioning.events import Fix, radio_key
 from server.positioning.fingerprint import MISSING_DBM, RadioMap, WknnFix, scan_vector, wknn
 from server.positioning.mapping.device_offsets import (
     apply_offsets,
@@ -85,10 +84,10 @@ def held_out_errors(
         test = np.flatnonzero(fold == f)
         if test.size > max_per_fold:
             test = np.sort(rng.choice(test, max_per_fold, replace=False))
-        part = _rows(train, np.flatnonzero(fold != f))
+        part = train.rows(np.flatnonzero(fold != f))
         radio, floors = fingerprint_map(part)
         for row in test.tolist():
-            fix = wknn(radio, scan_vector(radio, _readings(train, row), "wifi"), k=k)
+            fix = wknn(radio, scan_vector(radio, train.readings(row), "wifi"), k=k)
             if fix is None:
                 continue
             ref = floors[fix.floor]
@@ -101,26 +100,6 @@ def held_out_errors(
             matched.append(fix.n_matched)
             errors.append(error if right else float("nan"))
     return kinds, matched, errors
-
-
-def _rows(data: Fingerprints, rows: NDArray[np.intp]) -> Fingerprints:
-    return replace(
-        data,
-        rssi_dbm=data.rssi_dbm[rows],
-        xy_m=data.xy_m[rows],
-        floor=data.floor[rows],
-        building=data.building[rows],
-        t_s=data.t_s[rows],
-        phone_id=data.phone_id[rows],
-    )
-
-
-def _readings(data: Fingerprints, row: int) -> list[RadioReading]:
-    heard = ~np.isnan(data.rssi_dbm[row])
-    return [
-        RadioReading(data.emitters[j], float(data.rssi_dbm[row, j]))
-        for j in np.flatnonzero(heard).tolist()
-    ]
 
 
 def _fix_of(found: WknnFix, var_m2: float) -> Fix:
@@ -196,12 +175,7 @@ def evaluate_uji(
     model = fix_error.fit(*held_out_errors(train, k=k))
     accuracy = WknnParams().accuracy
     for row in range(n):
-        heard = ~np.isnan(test.rssi_dbm[row])
-        readings = [
-            RadioReading(test.emitters[j], float(test.rssi_dbm[row, j]))
-            for j in np.flatnonzero(heard).tolist()
-        ]
-        fix = wknn(radio, scan_vector(radio, readings, "wifi"), k=k)
+        fix = wknn(radio, scan_vector(radio, test.readings(row), "wifi"), k=k)
         if fix is not None:
             est[row] = (fix.x_m, fix.y_m)
             est_floor[row] = floors[fix.floor].level

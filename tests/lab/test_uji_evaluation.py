@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import pytest
 
 from server.lab import uji_evaluation
@@ -30,15 +28,7 @@ def test_uji_phone_offsets_are_estimated_on_training_and_reduce_the_error() -> N
 def test_uji_offsets_leave_a_set_of_one_phone_alone() -> None:
     train, test = uji_offset_sets()
     only = train.phone_id == 1
-    one_phone = replace(
-        train,
-        rssi_dbm=train.rssi_dbm[only],
-        xy_m=train.xy_m[only],
-        floor=train.floor[only],
-        building=train.building[only],
-        t_s=train.t_s[only],
-        phone_id=train.phone_id[only],
-    )
+    one_phone = train.rows(only)
     corrected = uji_evaluation.evaluate_uji(one_phone, test, "wknn", device_offsets=True)
     plain = uji_evaluation.evaluate_uji(one_phone, test, "wknn")
     assert corrected["device_offsets"] == {}  # nothing co-located: nothing to estimate
