@@ -142,6 +142,8 @@ def evaluate_ilc(
             run.summary["params"] = overrides
         if reports is not None:
             summarise_crowd(run.summary, reports)
+        if via_http or reports is not None:  # the service's maps learn no radio error
+            run.summary.pop("radio_error_68_m", None)
         title = f"ILC {run.site.name} · {run.summary['engine']}"
         per_floor: dict[str, dict[str, object]] = run.summary.get("per_floor", {})
         print_report(title, {k: v for k, v in run.summary.items() if k != "per_floor"})
@@ -188,8 +190,8 @@ def evaluate_ipin(
         bool,
         typer.Option(
             "--validation",
-            help="read only repetitions 01 and 02 of every trial (maps and scoring), "
-            "for choosing parameters",
+            help="read only repetitions 01 and 03 of every trial (one per phone; maps and "
+            "scoring), for choosing parameters",
         ),
     ] = False,
     param: Annotated[

@@ -90,6 +90,7 @@ def evaluate_ilc(
         test_paths=len(split.test),
         floors=len(site.floors),
         reference_points=int(maps.radio.rp_xy.shape[0]) if maps.radio else 0,
+        radio_error_68_m=maps.fix_error.error_68_m,
         bad_lines=bad_lines,
     )
     return IlcEvaluation(site, maps, split, tuple(results), summary)

@@ -2,8 +2,9 @@
 
 Each trace is cut into batches of ``BATCH_MS`` of phone time: its WiFi and BLE scans, and
 for engines that read raw motion samples its IMU samples in blocks of ``BATCH_MS``
-(``trace_events``). The engine never sees waypoints or the true floor and searches every
-floor of the site.
+(``trace_events``), and for engines that read magnetometer readings without raw samples
+the field magnitude a phone would post (``PHONE_MAG_MS``). The engine never sees
+waypoints or the true floor and searches every floor of the site.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from server.datasets.walk import Walk
 from server.lab.progress import Progress
 from server.lab.training_maps import TrainingSurvey
 from server.positioning.engines import get_engine
-from server.positioning.events import Event, Fix, StepEvent
+from server.positioning.events import Event, Fix, MagEvent, StepEvent
 from server.positioning.sitemaps import SiteMaps
 from server.positioning.step_tracker import TrackerParams
 from server.services.traces import walk_steps
@@ -32,15 +33,42 @@ PHONE_STEPS = TrackerParams(heading="rotation")
 read ``step`` events and not raw samples): the project's step tracker with the phone's
 rotation-vector heading, as a phone SDK would run it."""
 
+PHONE_MAG_MS = 100
+"""A phone posting magnetometer readings (for engines that read ``mag`` events and not
+raw samples) sends the mean field magnitude of each such span."""
+
+
+def mag_events(trace: Walk, span_ms: int = PHONE_MAG_MS) -> list[MagEvent]:
+    """The mean field magnitude of the trace's magnetometer samples per ``span_ms``, each
+    at the last sample time of its span."""
+    samples = trace.magnetic
+    if samples.shape[0] == 0:
+        return []
+    strength = np.linalg.norm(samples[:, 1:4], axis=1)
+    keep = np.isfinite(strength)
+    t, strength = samples[keep, 0].astype(np.int64), strength[keep]
+    if t.size == 0:
+        return []
+    span = (t - t[0]) // span_ms
+    starts = np.flatnonzero(np.r_[True, span[1:] != span[:-1]])
+    ends = np.r_[starts[1:], t.size]
+    means = np.add.reduceat(strength, starts) / (ends - starts)
+    return [
+        MagEvent(int(t[e - 1]), magnitude_ut=float(m)) for e, m in zip(ends, means, strict=True)
+    ]
+
 
 def trace_events(trace: Walk, engine: str) -> list[Event]:
     """What a phone running ``engine`` posts of a trace: its scans and, when the engine
     reads raw motion samples (``"imu"`` in its ``uses``), the IMU blocks too; an engine
     that reads steps but not raw samples gets the steps a phone would detect
-    (``PHONE_STEPS``; those with a north-referenced heading). What an engine would
-    ignore is left out, so replay stays fast."""
+    (``PHONE_STEPS``; those with a north-referenced heading), and one that reads ``mag``
+    but not raw samples the magnitudes of ``mag_events``. What an engine would ignore is
+    left out, so replay stays fast."""
     uses = get_engine(engine).uses
     events = trace.events(imu="imu" in uses, block_ms=BATCH_MS)
+    if "mag" in uses and "imu" not in uses:
+        events += mag_events(trace)
     if "step" in uses and "imu" not in uses:
         steps = walk_steps(trace, PHONE_STEPS)
         events += [
@@ -50,7 +78,7 @@ def trace_events(trace: Walk, engine: str) -> list[Event]:
             )
             if math.isfinite(heading)
         ]
-        events.sort(key=lambda e: e.t_ms)
+    events.sort(key=lambda e: e.t_ms)  # stable: the scans' and blocks' order is kept
     return events
 
 

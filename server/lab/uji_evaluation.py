@@ -181,7 +181,7 @@ def evaluate_uji(
             est_floor[row] = floors[fix.floor].level
             est_building[row] = int(floors[fix.floor].building_id)
             var = max(model.variance("wifi", fix.n_matched), MIN_FIX_VAR_M2)
-            reported = calibrated(_fix_of(fix, var), accuracy)
+            reported = calibrated(_fix_of(fix, var), accuracy, model.error_68_m)
             sigma[row] = reported.uncertainty_m
             r68[row], r95[row] = reported.accuracy_68_m, reported.accuracy_95_m
         if progress and (row % 50 == 0 or row == n - 1):
@@ -203,6 +203,7 @@ def evaluate_uji(
         "dataset": "uji",
         "train_points": int(train.rssi_dbm.shape[0]),
         "device_offsets_applied": device_offsets,
+        "radio_error_68_m": model.error_68_m,
         **extra,
         **report.to_dict(),
     }

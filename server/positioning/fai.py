@@ -78,6 +78,14 @@ class FaiParams(Params):
     kappa: Annotated[int, Ge(1), Le(100)] = 5  # eq 12 and 24
     kappa_d: Annotated[int, Ge(1), Le(100)] = 5  # eq 23
     min_sd_db: Positive = 4.0  # the least RSS spread of a reference point, eq 11
+    # magnetic profiles (``magnetic_matching``; section IV-C: CT 5 m, alpha_ss^m 50)
+    strategy_mag: Strategy = "mcm"
+    ct_mag_m: Positive = 5.0
+    alpha_ss_mag: Positive = 50.0  # eq 13 with gradients in µT
+    mag_steps: Annotated[int, Ge(0), Le(50)] = 10  # steps per profile (0: no magnetic fixes)
+    mag_circle: Positive = 3.0  # search radius in the wireless fix's predicted errors
+    max_mag_radius_m: Annotated[float, Ge(1), Le(100)] = 50.0  # and at most this
+    mag_spacing_m: Annotated[float, Ge(0.25), Le(5)] = 0.5  # between candidate ends (a map cell)
 
 
 @dataclass(frozen=True)

@@ -57,6 +57,18 @@ def test_too_few_fixes_keep_the_default_and_nan_errors_are_ignored() -> None:
     model = fit(["wifi"] * 5, [5] * 5, [1.0, 2.0, np.nan, 3.0, 4.0])
     assert "wifi" not in model.sigma_m
     assert model.variance("wifi", 9) == fix_error.default_sigma_m(9) ** 2
+    assert model.error_68_m == fix_error.DEFAULT_ERROR_68_M
+
+
+def test_the_maps_radio_error_holds_68_percent_of_all_its_fixes() -> None:
+    rng = np.random.default_rng(3)
+    kinds = ["wifi"] * 3000 + ["ble"] * 1000
+    errors = np.concatenate([rayleigh(4.0, 3000, rng), rayleigh(15.0, 1000, rng), [np.nan] * 50])
+    model = fit([*kinds, *["ble"] * 50], np.full(errors.size, 5), errors)
+    known = errors[np.isfinite(errors)]
+    assert np.mean(known <= model.error_68_m) == pytest.approx(0.68, abs=0.001)
+    # between the two kinds' own 68 % radii (1.5096 σ)
+    assert 1.5096 * 4.0 < model.error_68_m < 1.5096 * 15.0
 
 
 def test_default_model_falls_with_evidence() -> None:

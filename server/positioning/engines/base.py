@@ -70,7 +70,7 @@ class EngineSpec(Generic[S, P]):
             raise TypeError(f"{self.name} runs on {self.state_type.__name__} states")
         own = self._own_params(params)
         new, fixes = self.run(state, events, maps, own, rng)
-        return new, [calibrated(f, own.accuracy) for f in fixes]
+        return new, [calibrated(f, own.accuracy, maps.fix_error.error_68_m) for f in fixes]
 
     def encode(self, state: object) -> dict[str, np.ndarray]:
         """The state as named arrays (``state_codec``)."""

@@ -82,7 +82,7 @@ class EverywhereParams(pf.StepFusionParams):
 
     # the radii that hold 68 % and 95 % of the errors (accuracy.py), chosen on the inner
     # validation splits of ILC site2 and the IPIN logs (bench/accuracy.md)
-    accuracy: AccuracyParams = field(default_factory=lambda: AccuracyParams(13.0, 1.00, 22.0, 4.60))
+    accuracy: AccuracyParams = field(default_factory=lambda: AccuracyParams(0.80, 0.20, 2.80, 0.20))
 
     # the phone's rotation-vector heading where it sends one, else Mansour's gyro +
     # compass fusion: on the inner validation splits IPIN P75 15.9 m against 23.0 m,

@@ -19,23 +19,44 @@ with none, or where the maps carry no indicator data (``SiteMaps.fai``), ``eta``
 ``ct_m``. ``eta^2`` is floored at ``min_fix_var_m2`` as every fix variance. With ``ct``
 and ``ct_m^2`` equal to the learned variance the engine is ``step_ekf``.
 
-Not here yet: DR/magnetic and DR/WiFi/magnetic (magnetic fingerprinting with its own
-indicators, eq 20), and the crowdsourced reference points' location uncertainty of eq 9
-(0: surveyed maps).
+DR/magnetic (``"mag"`` events, section III-A and the magnetic indicators): the field
+magnitude measured between two steps is that step's, placed at the step's middle on the
+dead-reckoned track (the filter's step length and heading). Every ``mag_steps`` steps
+(10, the paper's short-term trajectory) the profile is matched inside a circle around
+the last wireless fix carried along by dead reckoning, of ``mag_circle`` (3) times that
+fix's predicted error (``server.positioning.magnetic_matching``), and the match updates
+the position with ``eta`` from ``strategy_mag`` (default MCM, CT 5 m) over the magnetic
+SS and WD (SD needs field components a magnitude profile lacks), gated as the wireless
+fixes. The profile then starts again (profiles do not overlap, so no two updates share a
+step). With WiFi/BLE and a magnetic map both, this is the paper's DR/WiFi/magnetic
+integration; without a magnetic map for the floor, or without magnetometer events,
+DR/WiFi.
+
+Not here: the crowdsourced reference points' location uncertainty of eq 9 (0: surveyed
+maps).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
 
-from server.positioning import fai
+import numpy as np
+from numpy.typing import NDArray
+
+from server.positioning import fai, magnetic_matching
 from server.positioning.accuracy import AccuracyParams
+from server.positioning.engines import dispatch, step_ekf
 from server.positioning.engines import radio_fusion as rf
-from server.positioning.engines import step_ekf
 from server.positioning.engines.base import EngineSpec
+from server.positioning.events import BleEvent, Event, Fix, MagEvent, StepEvent, WifiEvent
 from server.positioning.fai import FaiParams
+from server.positioning.kalman import update
 from server.positioning.sitemaps import SiteMaps
+from server.positioning.state_codec import shape
+
+FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -43,8 +64,9 @@ class FaiEkfParams(step_ekf.StepEkfParams):
     """``step_ekf``'s parameters and the indicators'."""
 
     fai: FaiParams = field(default_factory=FaiParams)
-    # not yet calibrated on its own (bench/accuracy.md): step_ekf's radii
-    accuracy: AccuracyParams = field(default_factory=lambda: step_ekf.StepEkfParams().accuracy)
+    # the radii that hold 68 % and 95 % of the errors (accuracy.py), chosen on the inner
+    # validation splits of ILC site2 and the IPIN logs (bench/accuracy.md)
+    accuracy: AccuracyParams = field(default_factory=lambda: AccuracyParams(0.80, 0.80, 1.60, 5.80))
 
 
 def fai_variance(
@@ -70,15 +92,195 @@ def fai_variance(
     return max(eta**2, params.min_fix_var_m2), reported
 
 
-def initial_state(params: FaiEkfParams) -> step_ekf.StepEkfState:
-    return step_ekf.initial_state(params)
+def _no_rows() -> FloatArray:
+    return np.zeros((0, 2))
+
+
+@dataclass(frozen=True, kw_only=True)
+class FaiEkfState(step_ekf.StepEkfState):
+    """``step_ekf``'s state and the magnetic profile being gathered.
+
+    Attributes
+    ----------
+    dr_xy : ndarray, shape (2,)
+        Dead-reckoned position in the session's own frame (the sum of the filter's steps).
+    mag_sum_ut, mag_count :
+        Magnitudes measured since the last step: their sum and number.
+    profile_xy : ndarray, shape (n, 2)
+        The middle of each step of the profile on the dead-reckoned track, oldest first.
+    profile_ut : ndarray, shape (n,)
+        The mean magnitude measured before each of those steps.
+    radio_offset : ndarray, shape (2,)
+        The last wireless fix minus ``dr_xy`` at its time (NaN before any): the circle's
+        centre is ``dr_xy + radio_offset``.
+    radio_eta_m : float
+        That fix's predicted error (NaN before any).
+    """
+
+    dr_xy: FloatArray = field(default_factory=lambda: np.zeros(2), metadata=shape(2))
+    mag_sum_ut: float = 0.0
+    mag_count: int = 0
+    profile_xy: FloatArray = field(default_factory=_no_rows, metadata=shape(-1, 2))
+    profile_ut: FloatArray = field(default_factory=lambda: np.zeros(0), metadata=shape(-1))
+    radio_offset: FloatArray = field(default_factory=lambda: np.full(2, np.nan), metadata=shape(2))
+    radio_eta_m: float = math.nan
+
+
+def initial_state(params: FaiEkfParams) -> FaiEkfState:
+    base = step_ekf.initial_state(params)
+    return FaiEkfState(**{f: getattr(base, f) for f in base.__dataclass_fields__})
+
+
+def _cleared(state: FaiEkfState) -> FaiEkfState:
+    return replace(state, profile_xy=_no_rows(), profile_ut=np.zeros(0))
+
+
+def _on_mag(state: FaiEkfState, event: MagEvent) -> tuple[FaiEkfState, Fix | None]:
+    strength = event.magnitude_ut
+    if strength is None and event.field_ut is not None:
+        strength = math.hypot(*event.field_ut)
+    if strength is None or not math.isfinite(strength):
+        return state, None
+    return replace(
+        state, mag_sum_ut=state.mag_sum_ut + strength, mag_count=state.mag_count + 1
+    ), None
+
+
+def _on_scan(
+    state: FaiEkfState, event: WifiEvent | BleEvent, kind: str, maps: SiteMaps, params: FaiEkfParams
+) -> tuple[FaiEkfState, Fix | None]:
+    """``step_ekf``'s scan update with the FAI noise; the fix (before fusion) and its
+    predicted error become the magnetic search circle."""
+    used: list[tuple[rf.Matched, float]] = []
+
+    def variance(
+        m: rf.Matched, maps: SiteMaps, params: FaiEkfParams
+    ) -> tuple[float, dict[str, float]]:
+        var, reported = fai_variance(m, maps, params)
+        used.append((m, reported["fai_eta_m"]))
+        return var, reported
+
+    new, fix = step_ekf.on_scan(state, event, kind, maps, params, variance)
+    assert isinstance(new, FaiEkfState)
+    if not used:
+        return new, fix
+    restarted = not state.initialized or (
+        fix is not None
+        and ("reinitialised" in fix.diagnostics or "floor_change" in fix.diagnostics)
+    )
+    if restarted:  # the filter started (again, or on another floor): a new profile
+        new = _cleared(new)
+    m, eta = used[0]
+    offset = np.array([m.whole.x_m, m.whole.y_m]) - new.dr_xy
+    return replace(new, radio_offset=offset, radio_eta_m=eta), fix
+
+
+def _on_step(
+    state: FaiEkfState, event: StepEvent, maps: SiteMaps, params: FaiEkfParams
+) -> tuple[FaiEkfState, Fix | None]:
+    """``step_ekf``'s step; the step joins the profile with the magnitudes measured since
+    the last one, and a full profile is matched (module docstring)."""
+    new, fix = step_ekf.on_step(state, event, params)
+    assert isinstance(new, FaiEkfState)
+    if fix is None:  # no usable step, or no position yet
+        return replace(new, mag_sum_ut=0.0, mag_count=0), fix
+    step_m, psi = float(new.x[2]), float(new.x[3])
+    dr = new.dr_xy + step_m * np.array([math.sin(psi), math.cos(psi)])
+    new = replace(new, dr_xy=dr, mag_sum_ut=0.0, mag_count=0)
+    steps = params.fai.mag_steps
+    if steps == 0 or state.mag_count == 0:
+        return _cleared(new) if steps == 0 else new, fix
+    new = replace(
+        new,
+        # measured while walking the step: at its middle
+        profile_xy=np.vstack([new.profile_xy, (state.dr_xy + dr)[None, :] / 2.0]),
+        profile_ut=np.append(new.profile_ut, state.mag_sum_ut / state.mag_count),
+    )
+    if new.profile_ut.size < steps:
+        return new, fix
+    matched, mag_fix = _magnetic_update(new, maps, params, event.t_ms)
+    return _cleared(matched), mag_fix or fix
+
+
+def _magnetic_update(
+    state: FaiEkfState, maps: SiteMaps, params: FaiEkfParams, t_ms: int
+) -> tuple[FaiEkfState, Fix | None]:
+    """Match the full profile and update the position with it (module docstring)."""
+    p = params.fai
+    grids = maps.magnetic.grids if maps.magnetic is not None else ()
+    grid = grids[state.floor] if 0 <= state.floor < len(grids) else None
+    if grid is None or not math.isfinite(state.radio_eta_m):
+        return state, None
+    centre = state.dr_xy + state.radio_offset
+    found = magnetic_matching.match(
+        grid,
+        state.profile_xy - state.profile_xy[-1],
+        state.profile_ut,
+        (float(centre[0]), float(centre[1])),
+        min(p.mag_circle * state.radio_eta_m, p.max_mag_radius_m),
+        spacing_m=p.mag_spacing_m,
+        kappa=p.kappa,
+        kappa_d=p.kappa_d,
+        alpha_ss=p.alpha_ss_mag,
+    )
+    if found is None:
+        return state, None
+    ind = fai.combine(found.ss_m, math.nan, found.wd_m, p)
+    eta = ind.pick(p.strategy_mag, p.ct_mag_m)
+    if not math.isfinite(eta):
+        eta = p.ct_mag_m
+    var_m2 = max(eta**2, params.min_fix_var_m2)
+    # the profile ends halfway through the last step; the walker is at its end
+    z = np.array([found.x_m, found.y_m]) + state.dr_xy - state.profile_xy[-1]
+    u = update(state.x, state.P, z=z, H=step_ekf.H_POSITION, R=var_m2 * np.eye(2))
+    diagnostics = {
+        "fix_var_m2": var_m2,
+        "fai_eta_m": eta,
+        "mag_candidates": float(found.candidates),
+        "mahalanobis2": u.mahalanobis2,
+        **{
+            f"fai_mag_{k}": v
+            for k, v in (("ss", found.ss_m), ("wd", found.wd_m))
+            if math.isfinite(v)
+        },
+    }
+    if u.mahalanobis2 > params.gate_chi2:
+        return state, None
+    new = replace(state, x=u.x, P=u.P)
+    return new, step_ekf.state_fix(new, t_ms, "mag", diagnostics)
+
+
+def run(
+    state: FaiEkfState,
+    events: Sequence[Event],
+    maps: SiteMaps,
+    params: FaiEkfParams,
+    rng: np.random.Generator,
+) -> tuple[FaiEkfState, list[Fix]]:
+    """Process a batch of events in time order (stably); ``rng`` is unused. One fix per
+    step once initialised (the magnetic one where a profile matched) and one per accepted
+    or re-initialising scan."""
+    del rng  # deterministic
+
+    def scan(
+        kind: str,
+    ) -> Callable[[FaiEkfState, WifiEvent | BleEvent], tuple[FaiEkfState, Fix | None]]:
+        return lambda st, e: _on_scan(st, e, kind, maps, params)
+
+    routes = [
+        dispatch.on(StepEvent, lambda st, e: _on_step(st, e, maps, params)),
+        dispatch.on(WifiEvent, scan("wifi")),
+        dispatch.on(BleEvent, scan("ble")),
+        dispatch.on(MagEvent, _on_mag),
+    ]
+    return dispatch.walk(state, dispatch.in_time_order(events), routes)
 
 
 SPEC = EngineSpec(
     name="fai_ekf",
     params_type=FaiEkfParams,
-    state_type=step_ekf.StepEkfState,
+    state_type=FaiEkfState,
     initial_state=initial_state,
-    run=step_ekf.runner(fai_variance),
-    uses=frozenset({"step", "wifi", "ble"}),
+    run=run,
+    uses=frozenset({"step", "wifi", "ble", "mag"}),
 )

@@ -74,7 +74,7 @@ MAG_MAX_AGE_MS = 1000  # a mag event this much older than a step does not belong
 class PfMagneticParams(rf.RadioParams):
     # the radii that hold 68 % and 95 % of the errors (accuracy.py), chosen on the inner
     # validation splits of ILC site2 and the IPIN logs (bench/accuracy.md)
-    accuracy: AccuracyParams = field(default_factory=lambda: AccuracyParams(14.0, 1.20, 21.0, 4.20))
+    accuracy: AccuracyParams = field(default_factory=lambda: AccuracyParams(0.70, 1.60, 0.70, 5.20))
     particles: pc.ParticleParams = field(default_factory=pc.ParticleParams)
     tracker: TrackerParams = field(default_factory=TrackerParams)
     # or "dtw", the baseline of papers/001_* IV-B; "none" (an ablation) leaves the

@@ -73,7 +73,7 @@ from server.positioning.state_codec import shape
 
 FloatArray = NDArray[np.float64]
 
-_H_POSITION = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]])
+H_POSITION = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]])
 _H_STEP = np.array([[0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
 
 
@@ -86,7 +86,7 @@ class StepEkfParams(pf.KalmanParams):
 
     # the radii that hold 68 % and 95 % of the errors (accuracy.py), chosen on the inner
     # validation splits of ILC site2 and the IPIN logs (bench/accuracy.md)
-    accuracy: AccuracyParams = field(default_factory=lambda: AccuracyParams(7.0, 2.60, 28.0, 3.80))
+    accuracy: AccuracyParams = field(default_factory=lambda: AccuracyParams(0.75, 0.80, 1.65, 3.60))
 
     q_step_m2: NonNegative = 0.0001  # process noise on S per step, papers/002_* eq 22
     p0_step_m2: Positive = 0.01  # initial variance of S, papers/002_* eq 20
@@ -163,7 +163,7 @@ def _step_residual(z: FloatArray, z_pred: FloatArray) -> FloatArray:
     return y
 
 
-def _fix(state: StepEkfState, t_ms: int, source: str, diagnostics: dict[str, float]) -> Fix:
+def state_fix(state: StepEkfState, t_ms: int, source: str, diagnostics: dict[str, float]) -> Fix:
     heading_known = not math.isnan(state.last_step_heading_rad)
     return rf.to_fix(
         state.x, state.P, state.floor, heading_known, t_ms, source, diagnostics, state.floor_logp
@@ -196,7 +196,7 @@ def _start(
     )
 
 
-def _on_step(
+def on_step(
     state: StepEkfState, event: StepEvent, params: StepEkfParams
 ) -> tuple[StepEkfState, Fix | None]:
     if not (math.isfinite(event.length_m) and math.isfinite(event.heading_rad)):
@@ -231,7 +231,7 @@ def _on_step(
     x = u.x
     x[3] = wrap_angle(x[3])
     new = replace(state, x=x, P=u.P, last_t_ms=event.t_ms, last_step_heading_rad=heading)
-    return new, _fix(new, event.t_ms, "step", {"step_length_m": float(x[2])})
+    return new, state_fix(new, event.t_ms, "step", {"step_length_m": float(x[2])})
 
 
 P = TypeVar("P", bound=StepEkfParams)
@@ -247,7 +247,7 @@ def learned_variance(
     return m.var_m2, {}
 
 
-def _on_scan(
+def on_scan(
     state: StepEkfState,
     event: WifiEvent | BleEvent,
     kind: str,
@@ -267,9 +267,9 @@ def _on_scan(
         if state.initialized:
             diagnostics["floor_change"] = 1.0
         new = _start(state, found, var_m2, event.t_ms, params)
-        return new, _fix(new, event.t_ms, kind, diagnostics)
+        return new, state_fix(new, event.t_ms, kind, diagnostics)
 
-    u = update(state.x, state.P, z=[found.x_m, found.y_m], H=_H_POSITION, R=var_m2 * np.eye(2))
+    u = update(state.x, state.P, z=[found.x_m, found.y_m], H=H_POSITION, R=var_m2 * np.eye(2))
     diagnostics["mahalanobis2"] = u.mahalanobis2
     if u.mahalanobis2 > params.gate_chi2:
         rejects = state.rejects + 1
@@ -277,10 +277,10 @@ def _on_scan(
             return replace(state, last_t_ms=event.t_ms, rejects=rejects), None
         diagnostics["reinitialised"] = 1.0
         new = _start(state, found, var_m2, event.t_ms, params)
-        return new, _fix(new, event.t_ms, kind, diagnostics)
+        return new, state_fix(new, event.t_ms, kind, diagnostics)
 
     new = replace(state, x=u.x, P=u.P, last_t_ms=event.t_ms, rejects=0)
-    return new, _fix(new, event.t_ms, kind, diagnostics)
+    return new, state_fix(new, event.t_ms, kind, diagnostics)
 
 
 def runner(
@@ -307,10 +307,10 @@ def runner(
         def scan(
             kind: str,
         ) -> Callable[[StepEkfState, WifiEvent | BleEvent], tuple[StepEkfState, Fix | None]]:
-            return lambda st, e: _on_scan(st, e, kind, maps, params, variance)
+            return lambda st, e: on_scan(st, e, kind, maps, params, variance)
 
         routes = [
-            dispatch.on(StepEvent, lambda st, e: _on_step(st, e, params)),
+            dispatch.on(StepEvent, lambda st, e: on_step(st, e, params)),
             dispatch.on(WifiEvent, scan("wifi")),
             dispatch.on(BleEvent, scan("ble")),
         ]

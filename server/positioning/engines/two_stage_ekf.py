@@ -89,7 +89,7 @@ class TwoStageParams(pf.StepFusionParams):
 
     # the radii that hold 68 % and 95 % of the errors (accuracy.py), chosen on the inner
     # validation splits of ILC site2 and the IPIN logs (bench/accuracy.md)
-    accuracy: AccuracyParams = field(default_factory=lambda: AccuracyParams(14.0, 1.00, 28.0, 3.80))
+    accuracy: AccuracyParams = field(default_factory=lambda: AccuracyParams(0.85, 0.20, 1.40, 3.50))
 
     tracker: TrackerParams = field(default_factory=_cui_tracker)
     partition_radius_m: Positive = 2.5  # papers/002_* section 4.1

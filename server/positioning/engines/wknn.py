@@ -39,7 +39,7 @@ class WknnParams(rf.RadioParams):
 
     # the radii that hold 68 % and 95 % of the errors (accuracy.py), chosen on the inner
     # validation splits of ILC site2 and the IPIN logs (bench/accuracy.md)
-    accuracy: AccuracyParams = field(default_factory=lambda: AccuracyParams(8.0, 1.30, 22.0, 2.30))
+    accuracy: AccuracyParams = field(default_factory=lambda: AccuracyParams(0.90, 0.50, 0.90, 2.30))
 
 
 @dataclass(frozen=True)

@@ -8,13 +8,16 @@ from dataclasses import replace
 import numpy as np
 
 from server.positioning.engines import fai_ekf, step_ekf
-from server.positioning.events import radio_key
+from server.positioning.events import Event, MagEvent, RadioReading, StepEvent, WifiEvent, radio_key
 from server.positioning.fai import FaiParams
 from server.positioning.fingerprint import RadioMap
 from server.positioning.fix_error import EDGES, FixErrorModel
+from server.positioning.magnetic import MagneticMap
 from server.positioning.mapping.fai_maps import build_fai_maps
+from server.positioning.mapping.magnetic_gridding import grid_from_samples
+from server.positioning.sitemaps import SiteMaps
 from tests.positioning.engines.test_contract import batches
-from tests.positioning.engines.test_pf_magnetic import rssi, site_maps
+from tests.positioning.engines.test_pf_magnetic import LENGTH_M, T0, WIDTH_M, rssi, site_maps
 
 SIGMA_M = 5.0
 
@@ -24,7 +27,7 @@ def test_a_constant_fai_is_the_plain_step_ekf() -> None:
     model = FixErrorModel(sigma_m={"wifi": (SIGMA_M,) * len(EDGES)})
     maps = replace(site_maps(), fix_error=model)
     plain = step_ekf.StepEkfParams()
-    ct = fai_ekf.FaiEkfParams(fai=FaiParams(strategy="ct", ct_m=SIGMA_M))
+    ct = fai_ekf.FaiEkfParams(fai=FaiParams(strategy="ct", ct_m=SIGMA_M, mag_steps=0))
     rng = np.random.default_rng(0)
     a_state, b_state = step_ekf.initial_state(plain), fai_ekf.initial_state(ct)
     a_fixes, b_fixes = [], []
@@ -80,3 +83,75 @@ def test_the_indicators_set_each_scans_noise() -> None:
     for f in fixes["wd"]:
         assert f.diagnostics["fai_eta_m"] == f.diagnostics["fai_wd"]
     assert all(math.isfinite(f.x_m) for fs in fixes.values() for f in fs)
+
+
+def chirp_ut(x: np.ndarray) -> np.ndarray:
+    """A field whose shape along the corridor differs everywhere (a gradient profile,
+    blind to the level, finds no twin of a stretch elsewhere)."""
+    out: np.ndarray = 45.0 + 8.0 * np.sin(x**2 / 60.0) + 0.3 * x
+    return out
+
+
+def chirp_maps() -> SiteMaps:
+    maps = site_maps()
+    gx, gy = np.meshgrid(np.arange(0.0, LENGTH_M, 0.25), np.arange(0.0, WIDTH_M, 0.25))
+    xy = np.column_stack([gx.ravel(), gy.ravel()])
+    grid = grid_from_samples(xy, chirp_ut(xy[:, 0]), extent=(0.0, 0.0, LENGTH_M, WIDTH_M))
+    return replace(maps, magnetic=MagneticMap((grid,), "chirp"))
+
+
+def east_walk(wifi_bias_m: float) -> list[Event]:
+    """One WiFi scan heard ``wifi_bias_m`` east of the walker at x = 10 m, then 25 steps
+    of 0.7 m east along the corridor with the field measured halfway through each."""
+    events: list[Event] = []
+    reading = rssi(10.0 + wifi_bias_m, 1.5)
+    aps = [RadioReading(f"ap{i}", float(v)) for i, v in enumerate(reading)]
+    events.append(WifiEvent(T0, tuple(aps)))
+    for k in range(1, 26):
+        x = 10.0 + 0.7 * (k - 0.5)
+        field = float(chirp_ut(np.array([x]))[0])
+        events.append(MagEvent(T0 + 500 * k - 100, magnitude_ut=field))
+        events.append(StepEvent(T0 + 500 * k, 0.7, math.pi / 2))
+    return events
+
+
+def test_magnetic_profiles_pull_a_wrong_wifi_start_back() -> None:
+    maps = chirp_maps()
+    final = {}
+    for steps in (0, 10):
+        params = fai_ekf.FaiEkfParams(
+            fai=FaiParams(strategy="ct", strategy_mag="ct", mag_steps=steps)
+        )
+        _, fixes = fai_ekf.SPEC.run(
+            fai_ekf.initial_state(params), east_walk(6.0), maps, params, np.random.default_rng(0)
+        )
+        final[steps] = abs(fixes[-1].x_m - (10.0 + 0.7 * 25))
+        mag = [f for f in fixes if f.source == "mag"]
+        if steps == 0:
+            assert not mag
+            continue
+        # a profile every ten steps after the first fix; each within the circle of
+        # 3 x 6 m (CT) around the WiFi fix carried along
+        assert len(mag) == 2
+        for f in mag:
+            assert f.diagnostics["fai_eta_m"] == 5.0  # the magnetic CT
+            assert f.diagnostics["mag_candidates"] > 0
+    assert final[0] > 4.0  # dead reckoning keeps the WiFi start's error
+    assert final[10] < 0.5 * final[0]
+
+
+def test_the_magnetic_profile_survives_the_state_round_trip() -> None:
+    params = fai_ekf.FaiEkfParams()
+    state, _ = fai_ekf.SPEC.run(
+        fai_ekf.initial_state(params),
+        east_walk(0.0)[:12],
+        site_maps(),
+        params,
+        np.random.default_rng(0),
+    )
+    assert isinstance(state, fai_ekf.FaiEkfState)
+    assert state.profile_ut.size == 5
+    back = fai_ekf.SPEC.decode(fai_ekf.SPEC.encode(state))
+    assert isinstance(back, fai_ekf.FaiEkfState)
+    np.testing.assert_array_equal(back.profile_xy, state.profile_xy)
+    assert back.radio_eta_m == state.radio_eta_m
