@@ -57,6 +57,15 @@ class MagEvent:
     field_ut: tuple[float, float, float] | None = None
     magnitude_ut: float | None = None
 
+    @property
+    def strength_ut(self) -> float:
+        """The field magnitude: ``magnitude_ut``, else the vector's norm, else NaN."""
+        if self.magnitude_ut is not None:
+            return self.magnitude_ut
+        if self.field_ut is not None:
+            return math.hypot(*self.field_ut)
+        return math.nan
+
 
 def _no_samples(width: int) -> NDArray[np.float64]:
     return np.empty((0, width), dtype=np.float64)

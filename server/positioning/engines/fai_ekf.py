@@ -136,10 +136,8 @@ def _cleared(state: FaiEkfState) -> FaiEkfState:
 
 
 def _on_mag(state: FaiEkfState, event: MagEvent) -> tuple[FaiEkfState, Fix | None]:
-    strength = event.magnitude_ut
-    if strength is None and event.field_ut is not None:
-        strength = math.hypot(*event.field_ut)
-    if strength is None or not math.isfinite(strength):
+    strength = event.strength_ut
+    if not math.isfinite(strength):
         return state, None
     return replace(
         state, mag_sum_ut=state.mag_sum_ut + strength, mag_count=state.mag_count + 1

@@ -412,9 +412,7 @@ def _rank(item: Step | Scan | StepEvent | MagEvent) -> int:
 
 
 def _on_mag(state: PfMagneticState, event: MagEvent) -> tuple[PfMagneticState, Fix | None]:
-    strength = event.magnitude_ut
-    if strength is None and event.field_ut is not None:
-        strength = math.hypot(*event.field_ut)
+    strength = event.strength_ut
     return replace(state, mag_t_ms=float(event.t_ms), mag_ut=float(strength or math.nan)), None
 
 
