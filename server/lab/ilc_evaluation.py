@@ -14,7 +14,7 @@ at or before its timestamp (none yet: counted as missing; ``scoring``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +24,13 @@ from server.lab.progress import Progress
 from server.lab.replay import Replayer, in_process_replayer, trace_events
 from server.lab.scoring import PathResult, estimates_at_waypoints, summarize
 from server.lab.split import SplitPaths, restrict, split_site
-from server.lab.training_maps import build_site_maps, with_fai_maps
+from server.lab.training_maps import (
+    NEEDS_GRAPHS,
+    build_site_maps,
+    site_plans,
+    with_fai_maps,
+    with_graphs,
+)
 from server.positioning.engines import get_engine
 from server.positioning.sitemaps import SiteMaps
 
@@ -60,6 +66,9 @@ def evaluate_ilc(
     uses = get_engine(engine).uses
     maps, survey, bad_lines = build_site_maps(site, split.train, progress, magnetic="mag" in uses)
     maps = with_fai_maps(maps, engine)
+    if engine in NEEDS_GRAPHS:
+        maps = maps if maps.plans else replace(maps, plans=site_plans(site))
+        maps = with_graphs(maps, engine, [f.plan for f in site.floors], survey.walks)
     traces = []
     for done, (floor_index, path) in enumerate(split.test, start=1):
         trace = read_trace(path, site.floors[floor_index].name)

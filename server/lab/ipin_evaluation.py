@@ -46,6 +46,7 @@ from server.lab.training_maps import (
     learned_fix_error,
     site_floors,
     with_fai_maps,
+    with_graphs,
 )
 from server.positioning.engines import get_engine
 from server.positioning.events import Fix
@@ -115,6 +116,16 @@ def fold_maps(
     if magnetic:
         maps = replace(maps, magnetic=field.magnetic_map(venue.site))
     return maps
+
+
+def fold_walks(venue: IpinVenue, logs: Sequence[IpinLog]) -> dict[int, list[NDArray[np.float64]]]:
+    """The POSI positions of the logs, by floor index: the walks a fold's floor graphs
+    learn their moves from."""
+    walks: dict[int, list[NDArray[np.float64]]] = {}
+    for log in logs:
+        for floor_index, part in floor_parts(log.trace, venue):
+            walks.setdefault(floor_index, []).append(part.waypoint_xy_m)
+    return walks
 
 
 def score_log(log: IpinLog, venue: IpinVenue, fixes: Sequence[Fix]) -> PathResult:
@@ -213,6 +224,7 @@ def evaluate_ipin(
         train = [log for log in logs if log.trial != trial]
         maps = fold_maps(venue, train, magnetic=magnetic, version=f"not-trial-{trial}")
         maps = with_fai_maps(maps, engine)
+        maps = with_graphs(maps, engine, [], fold_walks(venue, train))
         test = [log for log in logs if log.trial == trial]
         for log in test:
             fixes = replay(

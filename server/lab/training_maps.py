@@ -9,7 +9,8 @@ built from is kept as a surveyor would upload it (``TrainingSurvey``).
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+import dataclasses
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -26,6 +27,7 @@ from server.positioning.events import BleEvent, WifiEvent, radio_key
 from server.positioning.fai import FaiParams
 from server.positioning.fingerprint import RadioMap, in_place_order
 from server.positioning.fix_error import FixErrorModel
+from server.positioning.floor_graph import site_graphs
 from server.positioning.floorplan import FloorPlan
 from server.positioning.floorplan_geojson import plan_from_geojson
 from server.positioning.magnetic import MagneticGrid, MagneticMap
@@ -152,11 +154,33 @@ class TrainingSurvey:
     field: LabelledField | None = None
     plans: tuple[dict[str, Any] | None, ...] = ()
     traces: tuple[tuple[int, Path], ...] = ()  # (floor index, file) of each training trace
+    # the waypoints of each training trace by floor index: the walks the floor graphs'
+    # moves are learned from (floor_graph.learn)
+    walks: Mapping[int, tuple[NDArray[np.float64], ...]] = dataclasses.field(default_factory=dict)
 
 
 def site_plans(site: IlcSite) -> tuple[FloorPlan | None, ...]:
     """Each floor's plan as walkable space and walls (None where a floor has no plan)."""
     return tuple(plan_from_geojson(f.plan) if f.plan else None for f in site.floors)
+
+
+# engines that read the floors' reference-point graphs (``SiteMaps.graphs``)
+NEEDS_GRAPHS = frozenset({"map_markov", "auto"})
+
+
+def with_graphs(
+    maps: SiteMaps,
+    engine: str,
+    geojsons: Sequence[Mapping[str, Any] | None],
+    walks: Mapping[int, Sequence[NDArray[np.float64]]],
+) -> SiteMaps:
+    """The maps with each floor's reference-point graph (from its plan, else over its
+    reference points; moves learned from the training walks), for an engine that reads
+    them."""
+    if engine not in NEEDS_GRAPHS:
+        return maps
+    graphs = site_graphs(maps.plans, geojsons, maps.radio, len(maps.floors), walks)
+    return replace(maps, graphs=graphs)
 
 
 # engines that read the fingerprinting accuracy indicators' data (``SiteMaps.fai``)
@@ -186,10 +210,12 @@ def build_site_maps(
     field_samples = LabelledField()
     bad_lines = 0
     train = list(train)
+    walks: dict[int, list[NDArray[np.float64]]] = {}
     for done, (floor_index, path) in enumerate(train, start=1):
         trace = read_trace(path, site.floors[floor_index].name)
         bad_lines += trace.bad_lines
         labelled.add_trace(trace, floor_index)
+        walks.setdefault(floor_index, []).append(trace.waypoint_xy_m)
         if magnetic:
             field_samples.add_trace(trace, floor_index)
         if progress:
@@ -198,8 +224,10 @@ def build_site_maps(
     maps = SiteMaps(
         site_floors(site), radio, version="train", fix_error=learned_fix_error(labelled)
     )
+    by_floor = {f: tuple(w) for f, w in walks.items()}
     if not magnetic:
-        return maps, TrainingSurvey(labelled, traces=tuple(train)), bad_lines
+        return maps, TrainingSurvey(labelled, traces=tuple(train), walks=by_floor), bad_lines
     maps = replace(maps, plans=site_plans(site), magnetic=field_samples.magnetic_map(site))
     plans = tuple(f.plan for f in site.floors)
-    return maps, TrainingSurvey(labelled, field_samples, plans, tuple(train)), bad_lines
+    survey = TrainingSurvey(labelled, field_samples, plans, tuple(train), by_floor)
+    return maps, survey, bad_lines

@@ -10,6 +10,7 @@ from server.positioning import fix_error
 from server.positioning.fai import FaiMaps
 from server.positioning.fingerprint import RadioMap
 from server.positioning.fix_error import FixErrorModel
+from server.positioning.floor_graph import FloorGraph
 from server.positioning.floorplan import FloorPlan
 from server.positioning.magnetic import MagneticMap
 
@@ -56,3 +57,6 @@ class SiteMaps:
     # what the fingerprinting accuracy indicators read of the radio map (fai_ekf); None:
     # not built, the indicators that need it are not computed
     fai: FaiMaps | None = None
+    # per floor index: the reference-point graph (floor_graph; map_markov); missing or
+    # None: none built
+    graphs: tuple[FloorGraph | None, ...] = ()

@@ -9,6 +9,7 @@ from __future__ import annotations
 from server.positioning.engines import (
     everywhere_ekf,
     fai_ekf,
+    map_markov,
     pf_magnetic,
     step_ekf,
     two_stage_ekf,
@@ -21,6 +22,7 @@ ENGINES: dict[str, Engine] = {
     for spec in (
         everywhere_ekf.SPEC,
         fai_ekf.SPEC,
+        map_markov.SPEC,
         pf_magnetic.SPEC,
         step_ekf.SPEC,
         two_stage_ekf.SPEC,

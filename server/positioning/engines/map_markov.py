@@ -1,0 +1,419 @@
+"""``map_markov``: WiFi fingerprints tracked over the floor's reference-point Markov chain,
+a constant-velocity Kalman filter and the phone's steps (Wang et al., ``papers/004_*``).
+
+Per WiFi/BLE scan (Algorithm 3, "Integration track"):
+
+1. the scan is matched on the whole map (``radio_fusion.match``: strongest signals,
+   floor filter, WKNN; eq 4-6 with the floor chosen as every engine here chooses it);
+   a session starts there, and restarts there on a floor change or when lost;
+2. prediction. The belief over the floor graph's vertices (``floor_graph``,
+   ``markov_chain``) moves by as many hops as the walker can have gone since the last
+   scan: the steps' length (times the personal scale) plus ``slack_m``, or
+   ``max_speed_mps`` times the time without steps, in the steps' direction weighted by
+   the reliability θ (eq 17-18). Where the estimate's vertex is a corridor one (not a
+   corner, junction, door or room: Algorithm 3's "else"), the Kalman prediction
+   narrows it: each vertex is weighed by a Gaussian around the predicted position;
+3. the state space Ω is the set of reference points attached to the vertices the belief
+   reached; each is weighed by the belief and the scan's likelihood (eq 14, ``sigma_db``),
+   and S' is the weighted mean of the ``k`` most probable (the kNN of eq 5-6 over Ω).
+   When the best signal distance in Ω is ``gate_db`` worse than the whole map's best
+   (or Ω is empty), the scan is not used; ``max_rejects`` such scans in a row restart
+   the session at the whole-map fix (the chain "cannot turn to the right state", as Wang
+   notes under eq 15);
+4. the Kalman filter over ``S = [x, y, vx, vy]`` (eq 7, 10-13, ``T_s`` the time since
+   its last update, process noise ``q_accel`` of a white acceleration) predicts with
+   eq 16: ``(1 - θ) A S + θ A U``, ``U`` the state with the steps' mean velocity; S'' is
+   the position the steps alone give (the last estimate plus their displacement), and
+   the filter is corrected with ``(1 - θ) S' + θ S''`` (Algorithm 3) at the scan's
+   learned variance (``radio_fusion.match``).
+
+Per step: the step moves the estimate by its length times the personal scale along its
+heading (turned into the building frame); a fix per step. Algorithm 2's map-based
+personalisation: when the heading leaves the straight segment's mean by more than
+``turn_deg``, the distance walked along that segment on the map (from its start to the
+estimate at the turn) divided by the phone's summed step lengths over it becomes the
+scale (within ``[min_step_scale, max_step_scale]``, and only after ``min_segment_steps``
+steps); the Kalman velocity turns to the new heading (Algorithm 3's reset), by θ: the
+velocity becomes ``(1 - θ) v + θ v_turned``.
+
+θ = 0 leaves the scans alone (S = S', plain eq 12, moves by ``M`` without direction, no
+reset: the step headings change nothing at the scans); θ = 1 leaves the steps alone. A
+session that has never sent a step runs with θ = 0.
+Defaults: θ = 0.6 (Table 2's best), Wang's T_s is the time between scans here.
+
+Without a graph for the floor (no plan and no reference points) the belief is skipped:
+Ω is the whole floor, and the engine is the Kalman filter over WKNN fixes.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from typing import Annotated
+
+import numpy as np
+from annotated_types import Ge, Le
+from numpy.typing import NDArray
+
+from server.positioning import markov_chain as mc
+from server.positioning.accuracy import AccuracyParams
+from server.positioning.engines import dispatch
+from server.positioning.engines import radio_fusion as rf
+from server.positioning.engines.base import EngineSpec
+from server.positioning.events import BleEvent, Event, Fix, StepEvent, WifiEvent
+from server.positioning.fingerprint import signal_distances
+from server.positioning.floor_graph import CORRIDOR, FloorGraph
+from server.positioning.kalman import update, wrap_angle
+from server.positioning.params import AtLeastOne, NonNegative, Positive
+from server.positioning.sitemaps import SiteMaps
+from server.positioning.state_codec import shape
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+Reliability = Annotated[float, Ge(0.0), Le(1.0)]
+
+
+@dataclass(frozen=True)
+class MapMarkovParams(rf.RadioParams):
+    """Parameters of the ``map_markov`` engine (Wang's where the paper gives one)."""
+
+    # the radii that hold 68 % and 95 % of the errors (accuracy.py), chosen on the inner
+    # validation splits of ILC site2 and the IPIN logs (bench/accuracy.md)
+    accuracy: AccuracyParams = field(default_factory=lambda: AccuracyParams(0.75, 0.80, 1.65, 3.60))
+
+    theta: Reliability = 0.6  # reliability of the inertial sensors, papers/004_* Table 2
+    sigma_db: Positive = 8.0  # eq 14's sigma: the scan's confidence
+    q_accel: NonNegative = 0.5  # white-acceleration noise of the eq 10 filter (m²/s³)
+    v0_var: Positive = 1.0  # initial velocity variance (m²/s²)
+    max_speed_mps: Positive = 1.5  # reach per second without steps
+    slack_m: NonNegative = 2.0  # reach beyond the steps' length
+    max_hops: AtLeastOne = 40
+    max_states: AtLeastOne = 300  # belief beam
+    gate_db: Positive = 10.0  # Ω's best signal distance this much worse: scan not used
+    max_rejects: AtLeastOne = 3  # scans not used in a row before a restart
+    turn_deg: Positive = 45.0  # a heading this far off the segment's is a turn (Algorithm 2)
+    min_segment_steps: AtLeastOne = 8
+    min_step_scale: Positive = 0.75
+    max_step_scale: Positive = 1.33
+
+
+@dataclass(frozen=True, kw_only=True)
+class MapMarkovState:
+    """State of one ``map_markov`` session.
+
+    ``x = [x, y, vx, vy]`` and ``P`` the Kalman filter after its last update at
+    ``kf_t_ms``; ``dr_xy`` / ``dr_m`` the steps' displacement and length since then;
+    ``belief_*`` the chain's belief (vertex ids, probabilities) on ``floor``'s graph.
+    """
+
+    x: FloatArray = field(metadata=shape(4))
+    P: FloatArray = field(metadata=shape(4, 4))
+    floor: int = -1
+    initialized: bool = False
+    last_t_ms: int = 0
+    kf_t_ms: int = 0
+    dr_xy: FloatArray = field(default_factory=lambda: np.zeros(2), metadata=shape(2))
+    dr_m: float = 0.0
+    steps_since: int = 0  # steps since kf_t_ms
+    steps_seen: bool = False
+    belief_vertex: IntArray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    belief_p: FloatArray = field(default_factory=lambda: rf.EMPTY)
+    rejects: int = 0
+    step_scale: float = 1.0
+    segment_heading: float = math.nan  # building-frame heading of the straight segment
+    segment_steps: int = 0
+    segment_phone_m: float = 0.0  # the phone's step lengths summed over the segment
+    segment_start: FloatArray = field(default_factory=lambda: np.zeros(2), metadata=shape(2))
+    floor_logp: FloatArray = field(default_factory=lambda: rf.EMPTY)
+    floor_t_ms: int = 0
+
+
+def initial_state(params: MapMarkovParams) -> MapMarkovState:
+    """A state before any fix."""
+    return MapMarkovState(x=np.zeros(4), P=np.eye(4) * params.v0_var)
+
+
+def blend(theta: float, wifi: FloatArray, inertial: FloatArray) -> FloatArray:
+    """``(1 - θ) wifi + θ inertial``: Algorithm 3's location and eq 16's prediction."""
+    out: FloatArray = (1.0 - theta) * np.asarray(wifi) + theta * np.asarray(inertial)
+    return out
+
+
+def _transition(dt_s: float) -> FloatArray:
+    A = np.eye(4)
+    A[0, 2] = A[1, 3] = dt_s  # papers/004_* eq 11
+    return A
+
+
+def _process_noise(dt_s: float, q: float) -> FloatArray:
+    """White-acceleration noise over ``dt_s`` for one axis pair (eq 10's Q)."""
+    Q = np.zeros((4, 4))
+    for p, v in ((0, 2), (1, 3)):
+        Q[p, p] = q * dt_s**3 / 3
+        Q[p, v] = Q[v, p] = q * dt_s**2 / 2
+        Q[v, v] = q * dt_s
+    return Q
+
+
+def _position(state: MapMarkovState) -> FloatArray:
+    """The estimate now: the filter's position plus the steps since."""
+    out: FloatArray = state.x[:2] + state.dr_xy
+    return out
+
+
+def _fix(state: MapMarkovState, t_ms: int, source: str, diag: dict[str, float]) -> Fix:
+    xy = _position(state)
+    c = state.P[:2, :2] + np.eye(2) * (0.1 * state.steps_since)
+    x = np.array([xy[0], xy[1], 0.0, 0.0])
+    P = np.zeros((4, 4))
+    P[:2, :2] = c
+    heading_known = not math.isnan(state.segment_heading)
+    if heading_known:
+        x[3] = state.segment_heading
+    return rf.to_fix(x, P, state.floor, heading_known, t_ms, source, diag, state.floor_logp)
+
+
+def _graph(maps: SiteMaps, floor: int) -> FloorGraph | None:
+    return maps.graphs[floor] if 0 <= floor < len(maps.graphs) else None
+
+
+def _start(
+    state: MapMarkovState, m: rf.Matched, maps: SiteMaps, params: MapMarkovParams
+) -> MapMarkovState:
+    found = m.whole
+    graph = _graph(maps, found.floor)
+    belief = mc.Belief.at(graph.nearest([found.x_m, found.y_m])) if graph else None
+    P = np.diag([m.var_m2, m.var_m2, params.v0_var, params.v0_var])
+    return replace(
+        state,
+        x=np.array([found.x_m, found.y_m, 0.0, 0.0]),
+        P=P,
+        floor=found.floor,
+        initialized=True,
+        last_t_ms=m.t_ms,
+        kf_t_ms=m.t_ms,
+        dr_xy=np.zeros(2),
+        dr_m=0.0,
+        steps_since=0,
+        belief_vertex=belief.vertex if belief else np.zeros(0, dtype=np.int64),
+        belief_p=belief.p if belief else rf.EMPTY,
+        rejects=0,
+        segment_heading=math.nan,
+        segment_steps=0,
+        segment_phone_m=0.0,
+        segment_start=np.array([found.x_m, found.y_m]),
+    )
+
+
+def on_step(
+    state: MapMarkovState, event: StepEvent, maps: SiteMaps, params: MapMarkovParams
+) -> tuple[MapMarkovState, Fix | None]:
+    if not (math.isfinite(event.length_m) and math.isfinite(event.heading_rad)):
+        return replace(state, last_t_ms=event.t_ms), None
+    if not state.initialized:
+        return replace(state, last_t_ms=event.t_ms, steps_seen=True), None
+    heading = rf.in_building_frame(maps, state.floor, event.heading_rad)
+    here = _position(state)
+    diag: dict[str, float] = {}
+    x = state.x
+    if math.isnan(state.segment_heading):
+        state = replace(
+            state, segment_heading=heading, segment_steps=0, segment_phone_m=0.0, segment_start=here
+        )
+    elif abs(float(wrap_angle(heading - state.segment_heading))) > math.radians(params.turn_deg):
+        # a turn: Algorithm 2's step length from the map, Algorithm 3's filter reset
+        scale = state.step_scale
+        if state.segment_steps >= params.min_segment_steps and state.segment_phone_m > 0:
+            walked = float(np.linalg.norm(here - state.segment_start))
+            scale = min(
+                max(walked / state.segment_phone_m, params.min_step_scale), params.max_step_scale
+            )
+            diag["step_scale"] = scale
+        speed = float(np.hypot(x[2], x[3]))
+        turned = speed * np.array([math.sin(heading), math.cos(heading)])
+        x = np.concatenate([x[:2], blend(params.theta, x[2:], turned)])
+        state = replace(
+            state,
+            x=x,
+            step_scale=scale,
+            segment_heading=heading,
+            segment_steps=0,
+            segment_phone_m=0.0,
+            segment_start=here,
+        )
+    else:
+        n = state.segment_steps + 1
+        mean = state.segment_heading + float(wrap_angle(heading - state.segment_heading)) / (n + 1)
+        state = replace(
+            state,
+            segment_heading=float(wrap_angle(mean)),
+            segment_steps=n,
+            segment_phone_m=state.segment_phone_m + event.length_m,
+        )
+    length = event.length_m * state.step_scale
+    move = length * np.array([math.sin(heading), math.cos(heading)])
+    new = replace(
+        state,
+        last_t_ms=event.t_ms,
+        dr_xy=state.dr_xy + move,
+        dr_m=state.dr_m + length,
+        steps_since=state.steps_since + 1,
+        steps_seen=True,
+    )
+    return new, _fix(new, event.t_ms, "step", {"step_length_m": length, **diag})
+
+
+def _prior(
+    state: MapMarkovState,
+    graph: FloorGraph,
+    predicted: FloatArray,
+    spread_m2: float,
+    dt_s: float,
+    theta: float,
+    params: MapMarkovParams,
+) -> mc.Belief:
+    """Algorithm 3's prediction: the chain's moves, narrowed by the Kalman prediction off
+    decision vertices."""
+    if state.belief_vertex.size == 0:
+        return mc.Belief.at(graph.nearest(predicted))
+    belief = mc.Belief(state.belief_vertex, state.belief_p)
+    if state.steps_seen:
+        reach = state.dr_m + params.slack_m
+        direction: FloatArray | None = state.dr_xy
+    else:
+        reach = params.max_speed_mps * dt_s + params.slack_m
+        direction = None
+    hops = min(params.max_hops, max(1, math.ceil(reach / graph.spacing_m)))
+    moved = mc.move(graph, belief, direction, theta, hops, params.max_states)
+    here = int(belief.vertex[np.argmax(belief.p)])
+    if graph.kind[here] != CORRIDOR:
+        return moved
+    d2 = np.sum((graph.xy[moved.vertex] - predicted) ** 2, axis=1)
+    p = moved.p * np.exp(-d2 / (2.0 * (spread_m2 + graph.spacing_m**2)))
+    if not p.sum() > 0:
+        return moved
+    return mc.Belief(moved.vertex, p / p.sum())
+
+
+def on_scan(
+    state: MapMarkovState,
+    event: WifiEvent | BleEvent,
+    kind: str,
+    maps: SiteMaps,
+    params: MapMarkovParams,
+) -> tuple[MapMarkovState, Fix | None]:
+    m = rf.match(maps, event, params, state.floor_logp, state.floor_t_ms)
+    if m is None:
+        return replace(state, last_t_ms=event.t_ms), None
+    found = m.whole
+    state = replace(state, floor_logp=m.floor_logp, floor_t_ms=m.t_ms)
+    diag = {"fix_var_m2": m.var_m2, "n_matched": float(m.scan.n_matched)}
+    if not state.initialized or found.floor != state.floor:
+        if state.initialized:
+            diag["floor_change"] = 1.0
+        new = _start(state, m, maps, params)
+        return new, _fix(new, event.t_ms, kind, diag)
+
+    theta = params.theta if state.steps_seen else 0.0
+    dt_s = max(event.t_ms - state.kf_t_ms, 0) / 1000.0
+    A = _transition(dt_s)
+    inertial_v = state.dr_xy / dt_s if (state.steps_seen and dt_s > 0) else state.x[2:]
+    U = np.concatenate([state.x[:2], inertial_v])
+    x_pred = blend(theta, A @ state.x, A @ U)  # papers/004_* eq 16
+    P_pred = A @ state.P @ A.T + _process_noise(dt_s, params.q_accel)
+    inertial = _position(state) if state.steps_seen else x_pred[:2]  # S''
+
+    graph = _graph(maps, state.floor)
+    radio = maps.radio
+    assert radio is not None  # rf.match found a fix
+    belief: mc.Belief | None = None
+    if graph is not None and graph.rp_vertex.shape[0] == radio.rp_xy.shape[0]:
+        spread = float(np.trace(P_pred[:2, :2])) / 2.0
+        prior = _prior(state, graph, x_pred[:2], spread, dt_s, theta, params)
+        in_omega = np.isin(graph.rp_vertex, prior.vertex)
+        rps = np.flatnonzero(in_omega)
+        if rps.size:
+            dist = signal_distances(radio, m.scan, rps)
+            rp_prior = prior.dense(graph.n)[graph.rp_vertex[rps]]
+            w = mc.correct(rp_prior, dist, params.sigma_db)  # papers/004_* eq 14
+            diag["omega_rps"] = float(rps.size)
+            diag["omega_gap_db"] = float(dist.min() - found.distances_db.min())
+            if dist.min() - found.distances_db.min() <= params.gate_db:
+                top = np.argsort(-w, kind="stable")[: params.k]
+                wt = w[top] / w[top].sum()
+                wifi = wt @ radio.rp_xy[rps[top]].astype(np.float64)  # S'
+                vertex, inverse = np.unique(graph.rp_vertex[rps], return_inverse=True)
+                p = np.bincount(inverse, weights=w)
+                keep = np.argsort(-p, kind="stable")[: params.max_states]
+                keep.sort()
+                belief = mc.Belief(vertex[keep], p[keep] / p[keep].sum())
+            else:
+                wifi = None
+        else:
+            wifi = None
+    else:
+        wifi = np.array([found.x_m, found.y_m])
+
+    if wifi is None:
+        rejects = state.rejects + 1
+        if rejects >= params.max_rejects:
+            new = _start(state, m, maps, params)
+            return new, _fix(new, event.t_ms, kind, {**diag, "reinitialised": 1.0})
+        return replace(state, last_t_ms=event.t_ms, rejects=rejects), None
+
+    z = blend(theta, wifi, inertial)  # Algorithm 3: S = (1 - θ) S' + θ S''
+    u = update(x_pred, P_pred, z=z, H=rf.H_POSITION, R=m.var_m2 * np.eye(2))
+    new = replace(
+        state,
+        x=u.x,
+        P=u.P,
+        last_t_ms=event.t_ms,
+        kf_t_ms=event.t_ms,
+        dr_xy=np.zeros(2),
+        dr_m=0.0,
+        steps_since=0,
+        belief_vertex=belief.vertex if belief else state.belief_vertex,
+        belief_p=belief.p if belief else state.belief_p,
+        rejects=0,
+    )
+    return new, _fix(new, event.t_ms, kind, diag)
+
+
+def run(
+    state: MapMarkovState,
+    events: Sequence[Event],
+    maps: SiteMaps,
+    params: MapMarkovParams,
+    rng: np.random.Generator,
+) -> tuple[MapMarkovState, list[Fix]]:
+    """A batch in time order (stably): steps and scans as the module docstring says;
+    magnetometer and raw samples are ignored, ``rng`` is unused (deterministic)."""
+    del rng
+
+    def wifi(st: MapMarkovState, e: WifiEvent) -> tuple[MapMarkovState, Fix | None]:
+        return on_scan(st, e, "wifi", maps, params)
+
+    def ble(st: MapMarkovState, e: BleEvent) -> tuple[MapMarkovState, Fix | None]:
+        return on_scan(st, e, "ble", maps, params)
+
+    def step(st: MapMarkovState, e: StepEvent) -> tuple[MapMarkovState, Fix | None]:
+        return on_step(st, e, maps, params)
+
+    routes = [
+        dispatch.on(StepEvent, step),
+        dispatch.on(WifiEvent, wifi),
+        dispatch.on(BleEvent, ble),
+    ]
+    return dispatch.walk(state, dispatch.in_time_order(events), routes)
+
+
+SPEC = EngineSpec(
+    name="map_markov",
+    params_type=MapMarkovParams,
+    state_type=MapMarkovState,
+    initial_state=initial_state,
+    run=run,
+    uses=frozenset({"step", "wifi", "ble"}),
+)
