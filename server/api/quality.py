@@ -1,4 +1,5 @@
-"""Admin route: how good a floor's current maps are (coverage, sampling, freshness, emitters)."""
+"""Admin routes: how good a floor's current maps are (coverage, sampling, freshness,
+emitters) and where to survey it next."""
 
 from __future__ import annotations
 
@@ -7,8 +8,8 @@ from typing import Annotated
 from fastapi import APIRouter, Query
 
 from server.api.deps import IdPath, SqlDep, ViewerDep
-from server.api.schemas.map_quality import MapQualityRead
-from server.services import map_quality
+from server.api.schemas.map_quality import MapQualityRead, SurveyPlanRead
+from server.services import map_quality, survey_plans
 
 router = APIRouter(prefix="/v1", tags=["admin"], dependencies=[ViewerDep])
 
@@ -37,3 +38,27 @@ async def get_map_quality(
     )
     quality = await map_quality.floor_map_quality(s, floor_id, params)
     return MapQualityRead.model_validate(quality, from_attributes=True)
+
+
+@router.get("/floors/{floor_id}/maps/placement")
+async def get_survey_plan(
+    floor_id: IdPath,
+    s: SqlDep,
+    noise_distance_m: Annotated[
+        float | None,
+        Query(
+            gt=0,
+            le=100,
+            description="a constant noise distance (m) instead of the one the radio map's "
+            "variance and the access points' path loss give",
+        ),
+    ] = None,
+) -> SurveyPlanRead:
+    """Where to put reference points on the floor (GeoJSON points, floor frame), after the
+    reference-point placement theory of Wang et al.: along grid lines through each located
+    access point, one a noise distance from the last, then wherever a walkable point is
+    farther than that from every planned one; each point says whether the current radio
+    map already has it, and the summary gives the accuracy a nearest-point fix would reach.
+    A floor with neither a plan nor reference points answers 422."""
+    found = await survey_plans.floor_survey_plan(s, floor_id, noise_distance_m)
+    return SurveyPlanRead.model_validate(found.geojson())

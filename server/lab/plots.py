@@ -1,4 +1,5 @@
-"""Figures of evaluation results: error CDFs, tracks and magnetic maps on the floor plan;
+"""Figures of evaluation results: error CDFs, tracks, magnetic maps and survey plans on the
+floor plan;
 ``write_ilc_plots`` draws them all for ILC runs.
 
 matplotlib is an optional dependency (the ``plots`` extra), imported only when a figure
@@ -290,6 +291,59 @@ def plot_track(
                 zorder=8,
                 label="estimate, wrong floor",
             )
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.autoscale_view()
+    ax.set_xlabel("x (m, east)")
+    ax.set_ylabel("y (m, north)")
+    ax.set_title(title)
+    if ax.get_legend_handles_labels()[1]:
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small")
+    return _save(fig, out)
+
+
+def plot_survey_plan(
+    out: Path,
+    *,
+    title: str,
+    plan: Mapping[str, Any] | None,
+    points_xy_m: ArrayLike,
+    from_aps: ArrayLike,
+    surveyed: ArrayLike,
+    rp_xy_m: ArrayLike,
+    ap_xy_m: ArrayLike,
+) -> Path:
+    """A floor's reference-point placement plan (``mapping.survey_plan``) on its plan:
+    the current map's reference points (grey), the located access points (triangles), the
+    planned points marked along the access points' grid lines and by the coverage pass,
+    filled where the current map already has them."""
+    fig = _figure(10.0, 7.0)
+    ax = fig.add_subplot()
+    if plan:
+        _draw_plan(ax, plan)
+    rps = _coords(rp_xy_m)
+    if rps.size:
+        ax.plot(rps[:, 0], rps[:, 1], ".", color="0.65", ms=2, zorder=4, label="current RPs")
+    pts = _coords(points_xy_m)
+    line = np.asarray(from_aps, dtype=bool).reshape(-1)
+    done = np.asarray(surveyed, dtype=bool).reshape(-1)
+    for rule, colour, label in ((line, "tab:orange", "AP lines"), (~line, "tab:blue", "coverage")):
+        for have, fill in ((done, colour), (~done, "none")):
+            sel = rule & have
+            if sel.any():
+                state = "surveyed" if fill != "none" else "to survey"
+                ax.plot(
+                    pts[sel, 0],
+                    pts[sel, 1],
+                    "o",
+                    mec=colour,
+                    mfc=fill,
+                    ms=4,
+                    zorder=6,
+                    label=f"{label}, {state}",
+                )
+    aps = _coords(ap_xy_m)
+    if aps.size:
+        ax.plot(aps[:, 0], aps[:, 1], "^", color="tab:red", ms=6, zorder=7, label="located APs")
     ax.set_aspect("equal", adjustable="datalim")
     ax.autoscale_view()
     ax.set_xlabel("x (m, east)")

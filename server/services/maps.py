@@ -1,5 +1,5 @@
-"""Radio maps: survey points in, a new version out; site map sets (radio, plans, magnetic)
-cached in memory by version."""
+"""Radio maps: survey points in, a new version out; site map sets (radio, plans, magnetic,
+reference-point graphs) cached in memory by version."""
 
 from __future__ import annotations
 
@@ -18,6 +18,7 @@ from sqlalchemy.ext.asyncio import AsyncSession
 from server.positioning.anchors import anchors_from_plan
 from server.positioning.events import radio_key
 from server.positioning.fingerprint import MISSING_DBM, RadioMap, in_place_order
+from server.positioning.floor_graph import site_graphs
 from server.positioning.floorplan import FloorPlan
 from server.positioning.floorplan_geojson import plan_from_geojson
 from server.positioning.magnetic import MagneticMap
@@ -142,12 +143,16 @@ async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None
         for model, found in (await building_offsets(s, building_id)).items():
             if model not in offsets or found.n_pairs > offsets[model].n_pairs:
                 offsets[model] = found
+    # map_markov's reference-point graphs: from the plans, moves uniform (the service keeps
+    # no walks to learn them from)
+    graphs = await anyio.to_thread.run_sync(lambda: site_graphs(plans, stored, radio, len(refs)))
     return SiteMaps(
         floors=refs,
         radio=radio,
         version=version,
         anchors=anchors,
         plans=plans,
+        graphs=graphs,
         magnetic=MagneticMap(grids, version) if any(g is not None for g in grids) else None,
         device_offsets={model: o.offset_db for model, o in offsets.items()},
     )

@@ -112,3 +112,52 @@ class MapQualityRead(Strict):
     magnetic_cells: MagneticCellsQuality
     freshness: MapFreshness
     emitters: EmitterQuality
+
+
+class PointGeometry(Strict):
+    type: Literal["Point"] = "Point"
+    coordinates: tuple[float, float] = Field(description="x, y in metres of the floor frame")
+
+
+class PlannedPointProperties(Strict):
+    kind: Literal["reference_point"] = "reference_point"
+    rule: Literal["ap_line", "coverage"] = Field(
+        description="ap_line: marked along a grid line through a located access point "
+        "(Algorithm 1 of Wang et al.); coverage: a walkable point no mark was within a noise "
+        "distance of"
+    )
+    surveyed: bool = Field(
+        description="the current radio map has a reference point within one grid gap"
+    )
+
+
+class PlannedPoint(Strict):
+    type: Literal["Feature"] = "Feature"
+    geometry: PointGeometry
+    properties: PlannedPointProperties
+
+
+class SurveyPlanSummary(Strict):
+    floor_id: str
+    n_points: int
+    n_surveyed: int = Field(description="planned points the current map already has")
+    grid_m: float = Field(description="gap of the grid the points were chosen on")
+    noise_db: float = Field(description="RSS noise δ the noise distance follows from")
+    noise_source: Literal["map", "default", "given"] = Field(
+        description="map: the median RSS standard deviation of the floor's radio map; default: "
+        "4 dB (no repeated readings); given: a constant noise distance was asked for"
+    )
+    n_access_points: int = Field(description="access points located by their path loss")
+    expected_error_m: float = Field(
+        description="mean distance from a walkable grid point to its nearest planned point: "
+        "the error of a nearest-point fix once the plan is surveyed"
+    )
+    expected_error_p90_m: float
+
+
+class SurveyPlanRead(Strict):
+    """Where to put reference points on a floor, as a GeoJSON FeatureCollection."""
+
+    type: Literal["FeatureCollection"] = "FeatureCollection"
+    features: list[PlannedPoint]
+    properties: SurveyPlanSummary
