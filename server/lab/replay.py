@@ -58,6 +58,11 @@ def mag_events(trace: Walk, span_ms: int = PHONE_MAG_MS) -> list[MagEvent]:
     ]
 
 
+# what the phone of a session posts where it is not what its engine reads: an ``auto``
+# session's phone posts what the project's client posts, its scans and its detected steps
+PHONE_POSTS = {"auto": frozenset({"step", "wifi", "ble"})}
+
+
 def trace_events(trace: Walk, engine: str) -> list[Event]:
     """What a phone running ``engine`` posts of a trace: its scans and, when the engine
     reads raw motion samples (``"imu"`` in its ``uses``), the IMU blocks too; an engine
@@ -65,7 +70,7 @@ def trace_events(trace: Walk, engine: str) -> list[Event]:
     (``PHONE_STEPS``; those with a north-referenced heading), and one that reads ``mag``
     but not raw samples the magnitudes of ``mag_events``. What an engine would ignore is
     left out, so replay stays fast."""
-    uses = get_engine(engine).uses
+    uses = PHONE_POSTS.get(engine, get_engine(engine).uses)
     events = trace.events(imu="imu" in uses, block_ms=BATCH_MS)
     if "mag" in uses and "imu" not in uses:
         events += mag_events(trace)

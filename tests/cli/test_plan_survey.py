@@ -40,7 +40,9 @@ def test_plan_of_an_ilc_floor_is_drawn_and_lies_in_walkable_space(tmp_path: Path
     body = json.loads(out.read_text())
     xy = np.array([f["geometry"]["coordinates"] for f in body["features"]])
     assert xy.shape[0] == body["properties"]["n_points"] > 50
-    plan = plan_from_geojson(read_site(SITE2 / "F8").floors[0].plan)
+    geojson = read_site(SITE2 / "F8").floors[0].plan
+    assert geojson is not None
+    plan = plan_from_geojson(geojson)
     assert walkable_at(plan, xy).all()
     assert body["properties"]["noise_source"] == "map"
     assert body["properties"]["n_access_points"] > 0

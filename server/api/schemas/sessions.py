@@ -51,7 +51,17 @@ class FixOut(Strict):
 
 class SessionCreate(StrictIn):
     site_id: Id
-    engine: Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[a-z0-9_]+$")] = "step_ekf"
+    engine: Annotated[
+        str,
+        Field(
+            min_length=1,
+            max_length=64,
+            pattern=r"^[a-z0-9_]+$",
+            description="the fusion engine (GET /v1/engines); auto picks one by what the "
+            "phone sends: step_ekf for steps, everywhere_ekf for raw motion samples, wknn "
+            "for scans alone",
+        ),
+    ] = "auto"
     contribute: bool = Field(
         False,
         description="offer this walk for map building: its batches are kept and, when the "

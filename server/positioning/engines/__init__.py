@@ -7,6 +7,7 @@ an ``Engine`` (a state of any type, checked at run time).
 from __future__ import annotations
 
 from server.positioning.engines import (
+    auto,
     everywhere_ekf,
     fai_ekf,
     map_markov,
@@ -20,6 +21,7 @@ from server.positioning.engines.base import Engine
 ENGINES: dict[str, Engine] = {
     spec.name: spec
     for spec in (
+        auto.SPEC,
         everywhere_ekf.SPEC,
         fai_ekf.SPEC,
         map_markov.SPEC,

@@ -403,7 +403,7 @@ def test_registry() -> None:
     assert SPEC.state_type is StepEkfState
     with pytest.raises(
         KeyError,
-        match="known engines: everywhere_ekf, fai_ekf, map_markov, pf_magnetic, step_ekf, "
+        match="known engines: auto, everywhere_ekf, fai_ekf, map_markov, pf_magnetic, step_ekf, "
         "two_stage_ekf, wknn",
     ):
         get_engine("nope")

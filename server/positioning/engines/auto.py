@@ -1,0 +1,160 @@
+"""``auto``: the engine a new session gets when it names none; it picks, per session and
+per floor, the engine the recorded figures say is best for what the floor has and what
+the phone sends, and runs it.
+
+Rules (``choose``), from the test-split tables of ``bench/accuracy.md`` (ILC site2, 482
+points; IPIN 2023 logs, 296 points; mean / P75):
+
+* the phone sends steps (a step detector of its own) -> ``step_ekf``: the best engine on
+  ILC (12.5 / 14.6 m against 12.8-14.4 / 15.4-18.0 m), and within 0.4 % (mean) and 2.5 %
+  (P75) of the best one on IPIN (18.2 / 20.6 m against 18.2 / 20.1 m);
+* raw motion samples only -> ``everywhere_ekf``: the best of the engines that find their
+  own steps (ILC 12.8 / 15.4 m, IPIN 18.2 / 20.7 m, against ``two_stage_ekf`` 13.5 / 16.0
+  and 18.6 / 21.6 m);
+* scans only -> ``wknn``: without motion the filters have nothing to add.
+
+The floor's maps enter where an engine would get nothing from a floor: a floor without
+reference points gives no fix to any of them, so there a phone's steps or samples still
+choose as above. No measured floor favours ``pf_magnetic``, ``map_markov`` or ``fai_ekf``
+(magnetic map, plan graph, accuracy indicators) over ``step_ekf`` on both venues, so no
+rule picks them.
+
+A session starts undecided; the first batch that carries steps, raw samples or scans
+decides. A ``wknn`` session whose phone starts sending steps or samples moves up to the
+filter (starting it afresh: ``wknn`` carries no memory worth keeping); a filter is never
+swapped for another, and a floor change is left to the chosen engine. The chosen
+engine's own parameters are nested in ``AutoParams`` (``step_ekf``, ``everywhere_ekf``,
+``wknn``), so a site's settings reach it; each fix is calibrated by the engine that made
+it (``AutoParams.accuracy`` is not read). Fixes carry ``diagnostics["auto_engine"]``: the
+index of the engine in ``CANDIDATES``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from server.positioning import state_codec
+from server.positioning.accuracy import EngineParams
+from server.positioning.engines import everywhere_ekf, step_ekf, wknn
+from server.positioning.engines.base import Arrays, EngineSpec
+from server.positioning.events import BleEvent, Event, Fix, ImuEvent, StepEvent, WifiEvent
+from server.positioning.params import Params, build
+from server.positioning.sitemaps import SiteMaps
+from server.positioning.state_codec import StateError
+
+CANDIDATES: tuple[EngineSpec, ...] = (wknn.SPEC, step_ekf.SPEC, everywhere_ekf.SPEC)  # type: ignore[type-arg]
+WKNN, STEPS, SAMPLES = 0, 1, 2
+UNDECIDED = -1
+
+
+@dataclass(frozen=True)
+class AutoParams(EngineParams):
+    """The parameters of each engine ``auto`` may run (their own defaults)."""
+
+    wknn: wknn.WknnParams = field(default_factory=wknn.WknnParams)
+    step_ekf: step_ekf.StepEkfParams = field(default_factory=step_ekf.StepEkfParams)
+    everywhere_ekf: everywhere_ekf.EverywhereParams = field(
+        default_factory=everywhere_ekf.EverywhereParams
+    )
+
+    def of(self, choice: int) -> Params:
+        return getattr(self, CANDIDATES[choice].name)  # type: ignore[no-any-return]
+
+
+@dataclass(frozen=True)
+class AutoState:
+    """The chosen engine (index into ``CANDIDATES``, ``UNDECIDED`` before) and its state,
+    in the field named after it (the others None)."""
+
+    choice: int = UNDECIDED
+    wknn: wknn.WknnState | None = None
+    step_ekf: step_ekf.StepEkfState | None = None
+    everywhere_ekf: everywhere_ekf.EverywhereState | None = None
+
+    @property
+    def inner(self) -> object | None:
+        return getattr(self, CANDIDATES[self.choice].name) if self.choice >= 0 else None
+
+    def check_decoded(self) -> None:
+        if not UNDECIDED <= self.choice < len(CANDIDATES):
+            raise StateError(f"choice: {self.choice} is not an engine")
+        held = [c.name for c in CANDIDATES if getattr(self, c.name) is not None]
+        mine = [CANDIDATES[self.choice].name] if self.choice >= 0 else []
+        if held != mine:
+            raise StateError(f"choice: {self.choice} with the states of {held}")
+
+
+def choose(events: Sequence[Event], current: int) -> int:
+    """The engine for a session that has run ``current`` and now gets ``events``
+    (module docstring)."""
+    if current in (STEPS, SAMPLES):
+        return current
+    if any(isinstance(e, StepEvent) for e in events):
+        return STEPS
+    if any(isinstance(e, ImuEvent) for e in events):
+        return SAMPLES
+    if current == WKNN or any(isinstance(e, WifiEvent | BleEvent) for e in events):
+        return WKNN
+    return UNDECIDED
+
+
+@dataclass(frozen=True)
+class AutoSpec:
+    """The registry entry of ``auto`` (the ``Engine`` protocol, written out: its state
+    holds another engine's)."""
+
+    name: str = "auto"
+    params_type: type[AutoParams] = AutoParams
+    uses: frozenset[str] = frozenset().union(*(c.uses for c in CANDIDATES))
+
+    def params(self, overrides: Mapping[str, object] | None = None) -> AutoParams:
+        defaults = AutoParams()
+        return build(defaults, overrides) if overrides else defaults
+
+    def start(self, params: Params) -> object:
+        self._own(params)
+        return AutoState()
+
+    def step(
+        self,
+        state: object,
+        events: Sequence[Event],
+        maps: SiteMaps,
+        params: Params,
+        rng: np.random.Generator,
+    ) -> tuple[object, list[Fix]]:
+        """The chosen engine's ``step`` over the batch (choosing first when it changes)."""
+        if not isinstance(state, AutoState):
+            raise TypeError("auto runs on AutoState states")
+        own = self._own(params)
+        choice = choose(events, state.choice)
+        if choice == UNDECIDED:
+            return state, []
+        spec = CANDIDATES[choice]
+        inner = state.inner if choice == state.choice else spec.start(own.of(choice))
+        new, fixes = spec.step(inner, events, maps, own.of(choice), rng)
+        held: dict[str, Any] = {c.name: None for c in CANDIDATES} | {spec.name: new}
+        tagged = [
+            replace(f, diagnostics={**f.diagnostics, "auto_engine": float(choice)}) for f in fixes
+        ]
+        return AutoState(choice, **held), tagged
+
+    def encode(self, state: object) -> dict[str, np.ndarray]:
+        if not isinstance(state, AutoState):
+            raise TypeError("auto encodes AutoState states")
+        return state_codec.to_arrays(state)
+
+    def decode(self, arrays: Arrays) -> object:
+        return state_codec.from_arrays(AutoState, arrays)
+
+    def _own(self, params: Params) -> AutoParams:
+        if not isinstance(params, AutoParams):
+            raise TypeError("auto takes AutoParams")
+        return params
+
+
+SPEC = AutoSpec()
