@@ -47,7 +47,7 @@ def test_blend_at_theta_zero_and_one_is_each_source() -> None:
 
 @pytest.mark.parametrize("seed", [11, 1, 2])
 def test_tracking_beats_wknn_on_a_synthetic_walk(seed: int) -> None:
-    """Measured: 1.1-1.6 m against 2.4-2.6 m for WKNN alone."""
+    """Measured: 1.1-1.6 m against 2.3-2.6 m for WKNN alone."""
     walk = loop_walk(seed, laps=1)
     state, fixes = run_all(walk.events)
     assert state.initialized
