@@ -249,6 +249,7 @@ def evaluate_ipin(
 class StepDetector(StrEnum):
     mansour = "mansour"
     cui = "cui"
+    wang = "wang"
 
 
 class StepLength(StrEnum):

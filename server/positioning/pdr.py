@@ -1,6 +1,6 @@
 """Pedestrian dead reckoning from raw accelerometer samples: steps and their lengths.
 
-Step detection, two detectors on one pipeline
+Step detection, three detectors on one pipeline
 ---------------------------------------------
 Samples are first put on a uniform grid of ``grid_ms`` at fixed multiples of absolute
 time (linear interpolation), so the result does not depend on the phone's rate or on how
@@ -11,7 +11,8 @@ the samples were cut into batches. On the grid:
   phone is static, and walking averages to the same value);
 * the detector signal is
 
-  - ``"cui"``: the magnitude minus gravity, ``a_i - g`` (``papers/002_*`` eq 5);
+  - ``"cui"`` and ``"wang"``: the magnitude minus gravity, ``a_i - g`` (``papers/002_*``
+    eq 5);
   - ``"mansour"``: the acceleration along the vertical minus gravity (``papers/003_*``
     section III: "peak and valley of the vertical acceleration relative to the surface of
     the Earth"), the vertical being the low-passed acceleration direction;
@@ -19,7 +20,7 @@ the samples were cut into batches. On the grid:
 * the signal is smoothed by a centred moving average over ``2N + 1`` grid samples
   (``papers/002_*`` eq 7), which is also the low-pass filter of ``papers/003_*`` III.
 
-Then local extrema of the smoothed signal drive one of two state machines:
+Then local extrema of the smoothed signal drive one of three state machines:
 
 * ``"cui"`` (``papers/002_*`` section 5.1): a step at every peak above
   ``threshold_ms2`` at least ``min_step_ms`` after the previous one;
@@ -28,7 +29,15 @@ Then local extrema of the smoothed signal drive one of two state machines:
   ``min_peak_valley_ms`` (the paper's 100 ms) and ``max_peak_valley_ms`` later; extra
   extremes of the same sign within ``false_extreme_ms`` are false extremes and only the
   largest counts; steps are at least ``min_step_ms`` apart (the 0.2 s shortest gait
-  cycle of the paper).
+  cycle of the paper);
+* ``"wang"`` (``papers/004_*`` Algorithm 2, "Motion analysis"): the acceleration rises
+  from a minimum to the next maximum; that rise is a step when it lasts between
+  ``min_peak_valley_ms`` and ``max_peak_valley_ms`` (Wang's ``[T_min, T_max]``) and spans
+  between ``wang_min_rise_ms2`` and ``wang_max_rise_ms2`` (``[Δa_min, Δa_max]``; the
+  paper gives no values: twice ``threshold_ms2``, and 20 m/s²), ends above
+  ``threshold_ms2`` (a peak, not the return to rest after the last step) and comes at
+  least ``min_step_ms`` after the previous step. Algorithm 2's step-length update at turns is
+  ``calibrated_step_m`` below (and the ``map_markov`` engine's personal scale).
 
 Everything is incremental: the state carries the last raw sample, the filter memories,
 the un-smoothed tail and the state machine, so a step that straddles two batches is found
@@ -72,7 +81,7 @@ IntArray = NDArray[np.int64]
 
 G = 9.80665
 
-Detector = Literal["mansour", "cui"]
+Detector = Literal["mansour", "cui", "wang"]
 LengthModel = Literal["mansour", "weinberg"]
 
 
@@ -98,10 +107,14 @@ class PdrParams(Params):
     min_step_m: Positive = 0.6  # papers/003_* eq 1
     max_step_m: Positive = 0.9  # papers/003_* eq 1
     max_gap_ms: AtLeastOne = 2000  # a longer gap between samples restarts the detector
+    wang_min_rise_ms2: Positive = 1.3  # Δa_min of papers/004_* Algorithm 2 (no value given)
+    wang_max_rise_ms2: Positive = 20.0  # Δa_max of papers/004_* Algorithm 2 (no value given)
 
     def check(self) -> None:
         if not self.min_step_m <= self.max_step_m:
             raise ParamError("max_step_m", "must not be below min_step_m")
+        if not self.wang_min_rise_ms2 <= self.wang_max_rise_ms2:
+            raise ParamError("wang_max_rise_ms2", "must not be below wang_min_rise_ms2")
 
 
 @dataclass(frozen=True)
@@ -221,7 +234,7 @@ def _signal(
     g0 = state.gravity_lp if state.initialized else np.array([G])
     v0 = state.vertical_lp if state.initialized else values[0]
     gravity = _low_pass(magnitude, params.gravity_tau_s, params.grid_ms, g0)
-    if params.detector == "cui":
+    if params.detector in ("cui", "wang"):
         signal = magnitude - gravity
         vertical_lp = v0
     else:
@@ -346,6 +359,24 @@ def _run_machine(
                 low = m[_I["run_min"]]
                 emit(t, v - low if math.isfinite(low) else 2.0 * v, g)
                 m[_I["run_min"]] = math.inf
+        return m, _steps(out_t, out_range, out_g)
+
+    if params.detector == "wang":
+        for t, v, is_max, g in zip(times, values, maxima, gravity, strict=True):
+            if not is_max:  # minAc, minTS of Algorithm 2
+                m[_I["run_min"]], m[_I["valley_t"]] = v, t
+                continue
+            low, since = m[_I["run_min"]], t - m[_I["valley_t"]]
+            m[_I["run_min"]] = math.inf
+            early = t - m[_I["last_step_t"]] < params.min_step_ms
+            if not math.isfinite(low) or early or v <= params.threshold_ms2:
+                continue
+            rise = v - low
+            if (
+                params.min_peak_valley_ms <= since <= params.max_peak_valley_ms
+                and params.wang_min_rise_ms2 <= rise <= params.wang_max_rise_ms2
+            ):
+                emit(t, rise, g)
         return m, _steps(out_t, out_range, out_g)
 
     for t, v, is_max, g in zip(times, values, maxima, gravity, strict=True):

@@ -4,7 +4,7 @@ The walks come from ``client_sim.imu``: a phone held in front, its top edge rais
 swaying a few degrees; one vertical bounce cycle (2.5 m/s²) per step at 1.8 Hz, a
 forward surge and a sideways sway; 50 Hz accelerometer with 0.05 m/s² of noise. The true
 step time is the valley of each bounce cycle (what ``"mansour"`` reports), its peak half a
-cycle earlier (what ``"cui"`` reports).
+cycle earlier (what ``"cui"`` and ``"wang"`` report).
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from server.positioning.pdr import (
 
 FloatArray = NDArray[np.float64]
 
-DETECTORS: tuple[Detector, ...] = ("mansour", "cui")
+DETECTORS: tuple[Detector, ...] = ("mansour", "cui", "wang")
 HAND_HELD = Gait(
     tilt_x_rad=math.radians(20.0),
     heading_sway_rad=math.radians(3.0),
@@ -55,7 +55,7 @@ def walk(
 
 
 def reported_instant(trace: ImuTrace, detector: Detector) -> NDArray[np.int64]:
-    return trace.step_t_ms if detector == "mansour" else trace.peak_t_ms
+    return trace.step_t_ms if detector == "mansour" else trace.peak_t_ms  # cui, wang: peaks
 
 
 def detect_in_chunks(
