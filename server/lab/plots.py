@@ -189,6 +189,18 @@ def _draw_plan(ax: Axes, plan: Mapping[str, Any]) -> None:
             ax.add_patch(patch)
 
 
+def _floor_axes(ax: Axes, title: str) -> None:
+    """Metres of the floor frame at equal scale, the title, a legend when anything is
+    labelled."""
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.autoscale_view()
+    ax.set_xlabel("x (m, east)")
+    ax.set_ylabel("y (m, north)")
+    ax.set_title(title)
+    if ax.get_legend_handles_labels()[1]:
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small")
+
+
 def plot_track(
     out: Path,
     *,
@@ -291,13 +303,7 @@ def plot_track(
                 zorder=8,
                 label="estimate, wrong floor",
             )
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.autoscale_view()
-    ax.set_xlabel("x (m, east)")
-    ax.set_ylabel("y (m, north)")
-    ax.set_title(title)
-    if ax.get_legend_handles_labels()[1]:
-        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small")
+    _floor_axes(ax, title)
     return _save(fig, out)
 
 
@@ -344,13 +350,7 @@ def plot_survey_plan(
     aps = _coords(ap_xy_m)
     if aps.size:
         ax.plot(aps[:, 0], aps[:, 1], "^", color="tab:red", ms=6, zorder=7, label="located APs")
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.autoscale_view()
-    ax.set_xlabel("x (m, east)")
-    ax.set_ylabel("y (m, north)")
-    ax.set_title(title)
-    if ax.get_legend_handles_labels()[1]:
-        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small")
+    _floor_axes(ax, title)
     return _save(fig, out)
 
 
@@ -401,11 +401,7 @@ def plot_magnetic_grid(
         zorder=0.5,
     )
     fig.colorbar(image, ax=ax, label="field magnitude |B| (µT)", shrink=0.8)
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.autoscale_view()
-    ax.set_xlabel("x (m, east)")
-    ax.set_ylabel("y (m, north)")
-    ax.set_title(title)
+    _floor_axes(ax, title)
     return _save(fig, out)
 
 
