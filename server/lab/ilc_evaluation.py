@@ -25,13 +25,12 @@ from server.lab.replay import Replayer, in_process_replayer, trace_events
 from server.lab.scoring import PathResult, estimates_at_waypoints, summarize
 from server.lab.split import SplitPaths, restrict, split_site
 from server.lab.training_maps import (
-    NEEDS_GRAPHS,
     build_site_maps,
     site_plans,
     with_fai_maps,
     with_graphs,
 )
-from server.positioning.engines import get_engine
+from server.positioning.engines import NEEDS_GRAPHS, get_engine
 from server.positioning.sitemaps import SiteMaps
 
 

@@ -23,6 +23,7 @@ from server.datasets.ilc_trace import read_trace
 from server.datasets.walk import Walk
 from server.lab.progress import Progress
 from server.positioning import fix_error
+from server.positioning.engines import NEEDS_GRAPHS
 from server.positioning.events import BleEvent, WifiEvent, radio_key
 from server.positioning.fai import FaiParams
 from server.positioning.fingerprint import RadioMap, in_place_order
@@ -162,10 +163,6 @@ class TrainingSurvey:
 def site_plans(site: IlcSite) -> tuple[FloorPlan | None, ...]:
     """Each floor's plan as walkable space and walls (None where a floor has no plan)."""
     return tuple(plan_from_geojson(f.plan) if f.plan else None for f in site.floors)
-
-
-# engines that read the floors' reference-point graphs (``SiteMaps.graphs``)
-NEEDS_GRAPHS = frozenset({"map_markov", "auto"})
 
 
 def with_graphs(

@@ -18,16 +18,19 @@ is a gap that links the vertices on both sides of its wall. Each vertex has a ki
 * ``LINK``: inside an ``"elevator"``, ``"stairs"`` or ``"escalator"`` feature: where a
   walk may leave the floor.
 
-A floor without a plan gets a free grid over the box of its reference points (plus a
-margin): every vertex ``DECISION``, every neighbour pair linked.
+A floor without a plan gets a free grid over the points within ``FREE_MARGIN_M`` of its
+reference points: every vertex ``DECISION``, every neighbour pair linked.
 
 Transitions (``papers/004_*`` eq 15). ``M[j, i] = P(R_{t+1} = i | R_t = j)`` over the
 moves of ``j`` (its links and staying). Before any walk is known every move of a vertex
 is equally likely (Wang: "initialized with the same probability"); walks then count
-moves: ``M[j, i] = (a_ji + 1) / (b_j + deg_j + 1)`` with ``a_ji`` the moves from ``j`` to
-``i`` and ``b_j`` the departures from ``j`` over the walks given to ``learn`` (eq 15's
-counting rule with the uniform start kept as one pseudo-count per move). Walks are
-resampled every half spacing and snapped to vertices, so each counted move is one link.
+moves: ``M[j, i] = deg_j / (deg_j + 1) * (a_ji + 1) / (b_j + deg_j)`` with ``a_ji`` the
+moves from ``j`` to ``i`` and ``b_j`` the departures from ``j`` over the walks given to
+``learn`` (eq 15's counting rule with the uniform start kept as one pseudo-count per
+move). Walks are resampled every half spacing and snapped to vertices, so each counted
+move is one link; they tell where people go, not how long they stand, so staying keeps
+its uniform ``M[j, j] = 1 / (deg_j + 1)`` (eq 15 would count stays by the sampling rate
+of the walk).
 
 The radio map's reference points of the floor are attached to their nearest vertex
 (``rp_vertex``); a vertex may hold none (space nobody surveyed) or several.
@@ -35,9 +38,11 @@ The radio map's reference points of the floor are attached to their nearest vert
 
 from __future__ import annotations
 
+import hashlib
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -109,10 +114,20 @@ class FloorGraph:
     def degree(self) -> IntArray:
         return np.diff(self.indptr)
 
+    @cached_property
+    def tree(self) -> cKDTree:
+        return cKDTree(self.xy)
+
+    @cached_property
+    def fingerprint(self) -> int:
+        """A number that changes when the vertices do (a state's vertex ids are only
+        meaningful on the graph they were found on)."""
+        digest = hashlib.blake2b(self.xy.tobytes(), digest_size=7).digest()
+        return int.from_bytes(digest, "big")
+
     def nearest(self, xy: Sequence[float] | FloatArray) -> int:
         """The vertex nearest a point."""
-        d2 = np.sum((self.xy - np.asarray(xy, dtype=np.float64)) ** 2, axis=1)
-        return int(np.argmin(d2))
+        return int(self.tree.query(np.asarray(xy, dtype=np.float64))[1])
 
     def transition_matrix(self) -> csr_matrix:
         """``M`` as a sparse (n, n) row-stochastic matrix (row: from, column: to)."""
@@ -196,23 +211,28 @@ def plan_graph(
         raise ValueError("the plan has no walkable grid point")
     a, b = grid_pairs(xy, spacing_m)
     linked = ~crosses_wall(plan, xy[a], xy[b])
-    kind = _kinds(plan, xy, geojson)
+    kind = _kinds(plan, xy, geojson, spacing_m)
     return grid_graph(xy, linked, kind, spacing_m)
 
 
 def free_graph(points: FloatArray, spacing_m: float = SPACING_M) -> FloorGraph:
-    """A graph without walls over the box of ``points`` grown by ``FREE_MARGIN_M``."""
+    """A graph without walls over the grid points within ``FREE_MARGIN_M`` of
+    ``points``."""
     lo = np.floor((points.min(axis=0) - FREE_MARGIN_M) / spacing_m)
     hi = np.ceil((points.max(axis=0) + FREE_MARGIN_M) / spacing_m)
     gx = (np.arange(lo[0], hi[0]) + 0.5) * spacing_m
     gy = (np.arange(lo[1], hi[1]) + 0.5) * spacing_m
     xy = np.stack(np.meshgrid(gx, gy), axis=-1).reshape(-1, 2)
+    near, _ = cKDTree(points).query(xy, distance_upper_bound=FREE_MARGIN_M)
+    xy = xy[np.isfinite(near)]
     a, _ = grid_pairs(xy, spacing_m)
     kind = np.full(xy.shape[0], DECISION, dtype=np.int8)
     return grid_graph(xy, np.ones(a.shape[0], dtype=bool), kind, spacing_m)
 
 
-def _kinds(plan: FloorPlan, xy: FloatArray, geojson: Mapping[str, Any] | None) -> NDArray[np.int8]:
+def _kinds(
+    plan: FloorPlan, xy: FloatArray, geojson: Mapping[str, Any] | None, spacing_m: float
+) -> NDArray[np.int8]:
     n = xy.shape[0]
     free = np.zeros((n, 8), dtype=bool)
     for k, (dx, dy) in enumerate(_OFFSETS):
@@ -233,16 +253,14 @@ def _kinds(plan: FloorPlan, xy: FloatArray, geojson: Mapping[str, Any] | None) -
             shape = shapely.geometry.shape(feature.get("geometry"))
         except (AttributeError, TypeError, ValueError, shapely.errors.GeometryTypeError):
             continue
-        area = shape.buffer(spacing_of(xy) * 0.75) if shape.area == 0 else shape
-        inside = shapely.contains_xy(area, xy[:, 0], xy[:, 1])
+        area = shape.buffer(spacing_m * 0.75) if shape.area == 0 else shape
+        x0, y0, x1, y1 = area.bounds
+        box = np.flatnonzero(
+            (xy[:, 0] >= x0) & (xy[:, 0] <= x1) & (xy[:, 1] >= y0) & (xy[:, 1] <= y1)
+        )
+        inside = box[shapely.contains_xy(area, xy[box, 0], xy[box, 1])]
         kind[inside] = DOOR if name == "door" else LINK
     return kind
-
-
-def spacing_of(xy: FloatArray) -> float:
-    """The grid side of grid vertices (the smallest gap along x or y)."""
-    gaps = np.diff(np.unique(np.round(xy[:, 0], 6)))
-    return float(gaps.min()) if gaps.size else SPACING_M
 
 
 def attach(graph: FloorGraph, radio: RadioMap | None, floor: int) -> FloorGraph:
@@ -252,7 +270,7 @@ def attach(graph: FloorGraph, radio: RadioMap | None, floor: int) -> FloorGraph:
     rp_vertex = np.full(radio.rp_xy.shape[0], -1, dtype=np.int64)
     mine = np.flatnonzero(radio.rp_floor == floor)
     if mine.size:
-        _, nearest = cKDTree(graph.xy).query(radio.rp_xy[mine].astype(np.float64))
+        _, nearest = graph.tree.query(radio.rp_xy[mine].astype(np.float64))
         rp_vertex[mine] = nearest
     return replace(graph, rp_vertex=rp_vertex)
 
@@ -266,7 +284,9 @@ def learn(graph: FloorGraph, walks: Sequence[FloatArray]) -> FloorGraph:
     walks : sequence of ndarray, shape (m, 2)
         Positions of each walk in time order (m, floor frame).
     """
-    tree = cKDTree(graph.xy)
+    if graph.indices.shape[0] == 0:
+        return graph
+    tree = graph.tree
     key = np.repeat(np.arange(graph.n), graph.degree) * graph.n + graph.indices
     counts = np.zeros(graph.indices.shape[0])
     departures = np.zeros(graph.n)
@@ -285,9 +305,10 @@ def learn(graph: FloorGraph, walks: Sequence[FloatArray]) -> FloorGraph:
         np.add.at(counts, at[linked], 1.0)
         np.add.at(departures, visited[:-1][linked], 1.0)
     deg = graph.degree.astype(np.float64)
-    total = departures + deg + 1.0
     rows = np.repeat(np.arange(graph.n), graph.degree)
-    return replace(graph, move_p=(counts + 1.0) / total[rows], stay_p=1.0 / total)
+    share = deg / (deg + 1.0)  # what moving keeps of each row: staying keeps its 1/(deg+1)
+    move_p = share[rows] * (counts + 1.0) / (departures + deg)[rows]
+    return replace(graph, move_p=move_p)
 
 
 def _resampled(walk: FloatArray, step_m: float) -> FloatArray:

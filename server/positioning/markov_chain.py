@@ -22,7 +22,8 @@ standing, and 1 for staying while standing. Eq 18 prints ``theta M_jj`` on that 
 which at ``theta = 0`` would forbid standing still while every other line reduces to
 ``M``; with ``c = 1`` both ends hold: ``theta = 0`` is the chain alone, ``theta = 1``
 standing keeps everyone where they are. Without a direction (no inertial data) the
-weights are ``M`` itself.
+weights are ``M`` itself, and so are those of a vertex none of whose moves agrees with
+the direction at ``theta = 1`` (a dead end, walking across a corridor).
 
 Correction (``correct``), eq 14: each state's weight is multiplied by the scan's
 likelihood at its fingerprint, ``exp(-D^2 / (2 sigma^2)) / (sqrt(2 pi) sigma)`` with ``D``
@@ -88,7 +89,11 @@ def move(
             else:
                 w_move *= 1.0 - theta
         total = w_stay + np.bincount(rows, weights=w_move, minlength=vertex.shape[0])
-        total[total <= 0] = 1.0
+        stuck = total <= 0  # θ = 1 and no move along the direction: the chain's own moves
+        if stuck.any():
+            w_stay[stuck] = graph.stay_p[vertex[stuck]]
+            w_move[stuck[rows]] = graph.move_p[links[stuck[rows]]]
+            total = w_stay + np.bincount(rows, weights=w_move, minlength=vertex.shape[0])
         share = p / total
         ids = np.concatenate([vertex, to])
         mass = np.concatenate([w_stay * share, w_move * share[rows]])

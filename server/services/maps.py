@@ -1,5 +1,5 @@
-"""Radio maps: survey points in, a new version out; site map sets (radio, plans, magnetic,
-reference-point graphs) cached in memory by version."""
+"""Radio maps: survey points in, a new version out; site map sets (radio, plans, magnetic;
+reference-point graphs for the engines that read them) cached in memory by version."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import json
 import time
 from collections import OrderedDict
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import anyio
@@ -143,16 +143,12 @@ async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None
         for model, found in (await building_offsets(s, building_id)).items():
             if model not in offsets or found.n_pairs > offsets[model].n_pairs:
                 offsets[model] = found
-    # map_markov's reference-point graphs: from the plans, moves uniform (the service keeps
-    # no walks to learn them from)
-    graphs = await anyio.to_thread.run_sync(lambda: site_graphs(plans, stored, radio, len(refs)))
     return SiteMaps(
         floors=refs,
         radio=radio,
         version=version,
         anchors=anchors,
         plans=plans,
-        graphs=graphs,
         magnetic=MagneticMap(grids, version) if any(g is not None for g in grids) else None,
         device_offsets={model: o.offset_db for model, o in offsets.items()},
     )
@@ -172,6 +168,27 @@ def stored_radio_map(stored: map_repo.RadioMapArrays, floor_index: Mapping[str, 
         if stored.rp_points is not None
         else np.ones(len(stored.rp_xy), dtype=np.int32),
     )
+
+
+_GRAPHS: OrderedDict[str, SiteMaps] = OrderedDict()
+GRAPH_CACHE_SIZE = 16  # map sets with graphs kept per process
+
+
+async def with_graphs(maps: SiteMaps) -> SiteMaps:
+    """The map set with each floor's reference-point graph (``floor_graph``: from its
+    plan, else over its reference points; moves uniform, as the service keeps no walks to
+    learn them from), for the engines that read them; built once per map version."""
+    found = _GRAPHS.get(maps.version)
+    if found is None:
+        graphs = await anyio.to_thread.run_sync(
+            lambda: site_graphs(maps.plans, [], maps.radio, len(maps.floors))
+        )
+        found = replace(maps, graphs=graphs)
+        _GRAPHS[maps.version] = found
+        while len(_GRAPHS) > GRAPH_CACHE_SIZE:
+            _GRAPHS.popitem(last=False)
+    _GRAPHS.move_to_end(maps.version)
+    return found
 
 
 async def site_maps(s: AsyncSession, cache: MapCache, site_id: str) -> SiteMaps:

@@ -37,13 +37,13 @@ import anyio
 import numpy as np
 import orjson
 
-from server.positioning.engines import get_engine
+from server.positioning.engines import NEEDS_GRAPHS, get_engine
 from server.positioning.events import Event, ImuEvent, StepEvent
 from server.positioning.sitemaps import SiteMaps
 from server.services import engine_settings, limits, telemetry, traces, uploads
 from server.services.device_offsets import on_common_level
 from server.services.errors import Conflict, Forbidden, Invalid
-from server.services.maps import site_maps
+from server.services.maps import site_maps, with_graphs
 from server.services.runtime import Runtime
 from server.services.session_records import (
     Reply,
@@ -345,6 +345,8 @@ async def _attempt(
             maps = await site_maps(s, rt.maps, meta.site_id)
             if meta.contribute:  # kept before the batch is acknowledged
                 await repo.keep_session_batch(s, session_id, seq, walk)
+    if meta.engine in NEEDS_GRAPHS:
+        maps = await with_graphs(maps)
     rng = np.random.default_rng(np.random.SeedSequence(meta.entropy, spawn_key=(seq,)))
     params = engine_settings.session_params(meta.engine, meta.params)
     scans_level = maps.device_offsets.get(meta.device_model)

@@ -61,7 +61,8 @@ def test_kinds_of_a_corridor_a_room_a_door_and_an_elevator() -> None:
     kind = {tuple(xy): int(k) for xy, k in zip(graph.xy.tolist(), graph.kind, strict=True)}
     assert kind[(3.5, 0.5)] == CORRIDOR  # straight hallway, away from the side room
     assert kind[(10.5, 4.5)] == DECISION  # inside the room
-    assert kind[(10.5, 1.5)] == DOOR or kind[(9.5, 2.5)] == DOOR
+    assert kind[(10.5, 1.5)] == kind[(10.5, 2.5)] == DOOR  # either side of the door line
+    assert kind[(3.5, 1.5)] != DOOR
     assert kind[(11.5, 7.5)] == LINK
 
 
@@ -86,7 +87,8 @@ def test_rows_of_the_chain_sum_to_one_before_and_after_learning() -> None:
 
 def test_learning_counts_the_moves_of_a_walk() -> None:
     """A walk east along y = 5.5 counts one move east from each vertex it passes:
-    M = (a + 1) / (b + deg + 1) with a = b = 1 (eq 15, uniform start)."""
+    M = deg / (deg + 1) (a + 1) / (b + deg) with a = b = 1 (eq 15, uniform start); staying
+    keeps 1 / (deg + 1), a move the walk did not make shrinks."""
     graph = plan_graph(room(), ROOM)
     learned = learn(graph, [np.array([[1.5, 5.5], [8.5, 5.5]])])
     j = graph.nearest([3.5, 5.5])
@@ -94,8 +96,11 @@ def test_learning_counts_the_moves_of_a_walk() -> None:
     row = slice(graph.indptr[j], graph.indptr[j + 1])
     east = graph.indptr[j] + int(np.flatnonzero(graph.indices[row] == i)[0])
     deg = graph.degree[j]
-    assert learned.move_p[east] == pytest.approx(2.0 / (1 + deg + 1))
-    assert learned.stay_p[j] == pytest.approx(1.0 / (1 + deg + 1))
+    assert learned.move_p[east] == pytest.approx(deg / (deg + 1) * 2.0 / (1 + deg))
+    assert learned.stay_p[j] == pytest.approx(1.0 / (deg + 1))
+    other = graph.indptr[j] + int(np.flatnonzero(graph.indices[row] != i)[0])
+    assert learned.move_p[other] == pytest.approx(deg / (deg + 1) / (1 + deg))
+    assert learned.move_p[other] < graph.move_p[other]
     untouched = graph.nearest([15.5, 1.5])
     assert learned.stay_p[untouched] == pytest.approx(graph.stay_p[untouched])
 

@@ -73,3 +73,14 @@ def test_the_beam_keeps_the_most_probable_states() -> None:
     assert belief.vertex.shape[0] == 5
     assert belief.p.sum() == pytest.approx(1.0)
     assert 20 in belief.vertex.tolist()
+
+
+def test_theta_one_against_every_move_falls_back_to_the_chain() -> None:
+    """At a corridor's dead end walking on, or walking across a 1-D corridor, no move
+    agrees with the direction: the vertex moves by M instead of losing its mass."""
+    graph = corridor(3)
+    for start, direction in ((2, np.array([1.0, 0.0])), (1, np.array([0.0, 1.0]))):
+        moved = mc.move(graph, mc.Belief.at(start), direction, 1.0)
+        assert np.isfinite(moved.p).all()
+        assert moved.p.sum() == pytest.approx(1.0)
+        np.testing.assert_allclose(moved.p, mc.move(graph, mc.Belief.at(start), None, 0.0).p)

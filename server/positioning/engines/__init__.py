@@ -33,6 +33,11 @@ ENGINES: dict[str, Engine] = {
 }
 
 
+# engines that read the floors' reference-point graphs (``SiteMaps.graphs``), built for
+# their sessions only
+NEEDS_GRAPHS = frozenset({map_markov.SPEC.name})
+
+
 def get_engine(name: str) -> Engine:
     """The registry entry of engine ``name``.
 

@@ -1,6 +1,5 @@
-"""``auto``: the engine a new session gets when it names none; it picks, per session and
-per floor, the engine the recorded figures say is best for what the floor has and what
-the phone sends, and runs it.
+"""``auto``: the engine a new session gets when it names none; it picks, per session, the
+engine the recorded figures say is best for what the phone sends, and runs it.
 
 Rules (``choose``), from the test-split tables of ``bench/accuracy.md`` (ILC site2, 482
 points; IPIN 2023 logs, 296 points; mean / P75):
@@ -13,11 +12,11 @@ points; IPIN 2023 logs, 296 points; mean / P75):
   and 18.6 / 21.6 m);
 * scans only -> ``wknn``: without motion the filters have nothing to add.
 
-The floor's maps enter where an engine would get nothing from a floor: a floor without
-reference points gives no fix to any of them, so there a phone's steps or samples still
-choose as above. No measured floor favours ``pf_magnetic``, ``map_markov`` or ``fai_ekf``
-(magnetic map, plan graph, accuracy indicators) over ``step_ekf`` on both venues, so no
-rule picks them.
+The floor's maps choose nothing yet: every candidate needs a radio map, and no measured
+floor favours ``pf_magnetic``, ``map_markov`` or ``fai_ekf`` (magnetic map, plan graph,
+accuracy indicators) over ``step_ekf`` on both venues, so no rule picks them (on the
+IPIN floors, which have no plan, ``map_markov`` led the test split by 3 % and tied on
+the validation split: one venue is not a rule).
 
 A session starts undecided; the first batch that carries steps, raw samples or scans
 decides. A ``wknn`` session whose phone starts sending steps or samples moves up to the

@@ -10,9 +10,11 @@ Per WiFi/BLE scan (Algorithm 3, "Integration track"):
    ``markov_chain``) moves by as many hops as the walker can have gone since the last
    scan: the steps' length (times the personal scale) plus ``slack_m``, or
    ``max_speed_mps`` times the time without steps, in the steps' direction weighted by
-   the reliability θ (eq 17-18). Where the estimate's vertex is a corridor one (not a
-   corner, junction, door or room: Algorithm 3's "else"), the Kalman prediction
-   narrows it: each vertex is weighed by a Gaussian around the predicted position;
+   the reliability θ (eq 17-18). Where the belief's most probable vertex is a corridor
+   one (not a corner, junction, door or room: Algorithm 3's "else"), the Kalman
+   prediction narrows it: each vertex is weighed by a Gaussian around the predicted
+   position. A belief found on another graph (the map changed) restarts at the vertex
+   nearest the estimate;
 3. the state space Ω is the set of reference points attached to the vertices the belief
    reached; each is weighed by the belief and the scan's likelihood (eq 14, ``sigma_db``),
    and S' is the weighted mean of the ``k`` most probable (the kNN of eq 5-6 over Ω).
@@ -72,6 +74,8 @@ from server.positioning.state_codec import shape
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
+VELOCITY_WINDOW_S = 0.5  # the steps' velocity is read over at least this long
+
 Reliability = Annotated[float, Ge(0.0), Le(1.0)]
 
 
@@ -126,6 +130,8 @@ class MapMarkovState:
     segment_steps: int = 0
     segment_phone_m: float = 0.0  # the phone's step lengths summed over the segment
     segment_start: FloatArray = field(default_factory=lambda: np.zeros(2), metadata=shape(2))
+    segment_scans: int = 0  # scans that corrected the estimate during the segment
+    graph_key: int = 0  # FloorGraph.fingerprint of the graph the belief's ids are on
     floor_logp: FloatArray = field(default_factory=lambda: rf.EMPTY)
     floor_t_ms: int = 0
 
@@ -138,6 +144,12 @@ def initial_state(params: MapMarkovParams) -> MapMarkovState:
 def blend(theta: float, wifi: FloatArray, inertial: FloatArray) -> FloatArray:
     """``(1 - θ) wifi + θ inertial``: Algorithm 3's location and eq 16's prediction."""
     out: FloatArray = (1.0 - theta) * np.asarray(wifi) + theta * np.asarray(inertial)
+    return out
+
+
+def _at_most(v: FloatArray, speed: float) -> FloatArray:
+    norm = float(np.linalg.norm(v))
+    out: FloatArray = v * (speed / norm) if norm > speed else v
     return out
 
 
@@ -199,10 +211,12 @@ def _start(
         steps_since=0,
         belief_vertex=belief.vertex if belief else np.zeros(0, dtype=np.int64),
         belief_p=belief.p if belief else rf.EMPTY,
+        graph_key=graph.fingerprint if graph else 0,
         rejects=0,
         segment_heading=math.nan,
         segment_steps=0,
         segment_phone_m=0.0,
+        segment_scans=0,
         segment_start=np.array([found.x_m, found.y_m]),
     )
 
@@ -219,33 +233,25 @@ def on_step(
     diag: dict[str, float] = {}
     x = state.x
     if math.isnan(state.segment_heading):
-        state = replace(
-            state, segment_heading=heading, segment_steps=0, segment_phone_m=0.0, segment_start=here
-        )
+        state = _new_segment(state, heading, here, event.length_m)
     elif abs(float(wrap_angle(heading - state.segment_heading))) > math.radians(params.turn_deg):
         # a turn: Algorithm 2's step length from the map, Algorithm 3's filter reset
         scale = state.step_scale
-        if state.segment_steps >= params.min_segment_steps and state.segment_phone_m > 0:
-            walked = float(np.linalg.norm(here - state.segment_start))
-            scale = min(
-                max(walked / state.segment_phone_m, params.min_step_scale), params.max_step_scale
-            )
+        enough = state.segment_steps >= params.min_segment_steps and state.segment_scans > 0
+        if enough and state.segment_phone_m > 0:
+            # the segment's length along its own heading (its sideways scatter would only
+            # ever lengthen it)
+            along = np.array([math.sin(state.segment_heading), math.cos(state.segment_heading)])
+            ratio = float((here - state.segment_start) @ along) / state.segment_phone_m
+            scale = min(max(ratio, params.min_step_scale), params.max_step_scale)
             diag["step_scale"] = scale
         speed = float(np.hypot(x[2], x[3]))
         turned = speed * np.array([math.sin(heading), math.cos(heading)])
         x = np.concatenate([x[:2], blend(params.theta, x[2:], turned)])
-        state = replace(
-            state,
-            x=x,
-            step_scale=scale,
-            segment_heading=heading,
-            segment_steps=0,
-            segment_phone_m=0.0,
-            segment_start=here,
-        )
+        state = _new_segment(replace(state, x=x, step_scale=scale), heading, here, event.length_m)
     else:
         n = state.segment_steps + 1
-        mean = state.segment_heading + float(wrap_angle(heading - state.segment_heading)) / (n + 1)
+        mean = state.segment_heading + float(wrap_angle(heading - state.segment_heading)) / n
         state = replace(
             state,
             segment_heading=float(wrap_angle(mean)),
@@ -263,6 +269,20 @@ def on_step(
         steps_seen=True,
     )
     return new, _fix(new, event.t_ms, "step", {"step_length_m": length, **diag})
+
+
+def _new_segment(
+    state: MapMarkovState, heading: float, start: FloatArray, phone_m: float
+) -> MapMarkovState:
+    """A straight segment starting at ``start`` with its first step."""
+    return replace(
+        state,
+        segment_heading=heading,
+        segment_steps=1,
+        segment_phone_m=phone_m,
+        segment_scans=0,
+        segment_start=start,
+    )
 
 
 def _prior(
@@ -319,8 +339,11 @@ def on_scan(
     theta = params.theta if state.steps_seen else 0.0
     dt_s = max(event.t_ms - state.kf_t_ms, 0) / 1000.0
     A = _transition(dt_s)
-    inertial_v = state.dr_xy / dt_s if (state.steps_seen and dt_s > 0) else state.x[2:]
-    U = np.concatenate([state.x[:2], inertial_v])
+    if state.steps_seen and dt_s >= VELOCITY_WINDOW_S:
+        inertial_v = state.dr_xy / dt_s
+    else:  # too short a time to tell a speed from: the filter's own
+        inertial_v = state.x[2:]
+    U = np.concatenate([state.x[:2], _at_most(inertial_v, params.max_speed_mps)])
     x_pred = blend(theta, A @ state.x, A @ U)  # papers/004_* eq 16
     P_pred = A @ state.P @ A.T + _process_noise(dt_s, params.q_accel)
     inertial = _position(state) if state.steps_seen else x_pred[:2]  # S''
@@ -330,13 +353,19 @@ def on_scan(
     assert radio is not None  # rf.match found a fix
     belief: mc.Belief | None = None
     if graph is not None and graph.rp_vertex.shape[0] == radio.rp_xy.shape[0]:
+        if state.graph_key != graph.fingerprint:  # a new map: the old vertex ids mean nothing
+            seed = mc.Belief.at(graph.nearest(state.x[:2]))
+            state = replace(
+                state, belief_vertex=seed.vertex, belief_p=seed.p, graph_key=graph.fingerprint
+            )
         spread = float(np.trace(P_pred[:2, :2])) / 2.0
         prior = _prior(state, graph, x_pred[:2], spread, dt_s, theta, params)
         in_omega = np.isin(graph.rp_vertex, prior.vertex)
         rps = np.flatnonzero(in_omega)
         if rps.size:
             dist = signal_distances(radio, m.scan, rps)
-            rp_prior = prior.dense(graph.n)[graph.rp_vertex[rps]]
+            at = np.searchsorted(prior.vertex, graph.rp_vertex[rps])
+            rp_prior = prior.p[at]  # every RP of Ω sits on a vertex of the prior
             w = mc.correct(rp_prior, dist, params.sigma_db)  # papers/004_* eq 14
             diag["omega_rps"] = float(rps.size)
             diag["omega_gap_db"] = float(dist.min() - found.distances_db.min())
@@ -365,10 +394,12 @@ def on_scan(
 
     z = blend(theta, wifi, inertial)  # Algorithm 3: S = (1 - θ) S' + θ S''
     u = update(x_pred, P_pred, z=z, H=rf.H_POSITION, R=m.var_m2 * np.eye(2))
+    x_new = np.concatenate([u.x[:2], _at_most(u.x[2:], params.max_speed_mps)])
     new = replace(
         state,
-        x=u.x,
+        x=x_new,
         P=u.P,
+        segment_scans=state.segment_scans + 1,
         last_t_ms=event.t_ms,
         kf_t_ms=event.t_ms,
         dr_xy=np.zeros(2),

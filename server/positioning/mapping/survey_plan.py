@@ -17,7 +17,8 @@ closer than that add no accuracy.
 Algorithm 1 (``plan``), on the floor graph's grid (``floor_graph``, gap ``g``):
 
 1. for each located AP and each of the four directions along the grid lines through its
-   grid point: mark the AP's point, then walk outwards and mark the first grid point
+   grid point (for an AP outside the floor, the nearest grid point of the floor's box:
+   where its lines first cross the floor): mark the AP's point, then walk outwards and mark the first grid point
    at least ``Δ(d)`` from the previous mark (``d`` that mark's distance from the AP),
    until the line leaves the floor; marks only go on walkable points (a blocked point is
    skipped, the walk goes on);
@@ -53,6 +54,9 @@ FloatArray = NDArray[np.float64]
 
 DEFAULT_NOISE_DB = 4.0
 """δ for a floor whose map has no repeated readings (dB)."""
+
+MIN_NOISE_DB = 0.5
+"""δ is never taken below this (dB): RSS is reported in whole dB."""
 
 MIN_RPS_TO_LOCATE = 8  # an emitter heard at fewer RPs is not located
 EXPONENT_RANGE = (1.5, 6.0)  # fitted path-loss exponents are held in this range
@@ -154,7 +158,9 @@ def plan(
 
     marked: dict[tuple[int, int], bool] = {}
     for ap in aps:
-        c0 = np.rint(np.asarray(ap.xy) / g - 0.5).astype(np.int64)
+        # the AP's grid point, or the nearest one of the floor's box for an AP outside it:
+        # the lines then start where they first cross the floor (Algorithm 1's "else")
+        c0 = np.clip(np.rint(np.asarray(ap.xy) / g - 0.5).astype(np.int64), lo, hi)
         centre = (c0 + 0.5) * g
         if (c0[0], c0[1]) in walkable:
             marked[(int(c0[0]), int(c0[1]))] = True
@@ -184,7 +190,7 @@ def plan(
     else:
         own = np.full(graph.n, noise_distance_m if noise_distance_m is not None else 3.0 * g)
     chosen = [((np.array(c) + 0.5) * g) for c in marked]
-    vertices = cKDTree(graph.xy)
+    vertices = graph.tree
     reach = float(own.max()) if own.size else 0.0
     covered = np.zeros(graph.n, dtype=bool)
 
@@ -192,7 +198,7 @@ def plan(
         near = np.asarray(vertices.query_ball_point(mark, reach), dtype=np.int64)
         if near.size:
             d = np.hypot(*(graph.xy[near] - mark).T)
-            covered[near[d + 1e-9 < own[near]]] = True
+            covered[near[(d + 1e-9 < own[near]) | (d < 1e-9)]] = True  # and the mark's own
 
     for mark in chosen:
         cover(mark)
@@ -216,7 +222,7 @@ def survey_plan(
 ) -> SurveyPlan:
     """The plan of a floor from its graph and what its radio map shows (module docstring)."""
     found = noise_from_map(radio, floor)
-    noise_db = found if found is not None else DEFAULT_NOISE_DB
+    noise_db = max(found, MIN_NOISE_DB) if found is not None else DEFAULT_NOISE_DB
     source = (
         "given" if noise_distance_m is not None else ("map" if found is not None else "default")
     )

@@ -17,7 +17,7 @@ from server.positioning.engines.map_markov import (
     initial_state,
     run,
 )
-from server.positioning.events import Event, Fix, StepEvent
+from server.positioning.events import Event, Fix, StepEvent, WifiEvent
 from server.positioning.floor_graph import site_graphs
 from server.positioning.sitemaps import SiteMaps
 from tests.positioning.engines.test_step_ekf import (
@@ -115,3 +115,39 @@ def test_step_length_is_personalised_at_turns() -> None:
     state, fixes = run_all(short)
     assert state.step_scale > 1.1
     assert any("step_scale" in f.diagnostics for f in fixes)
+
+
+def test_a_new_map_mid_session_reseeds_the_belief() -> None:
+    """A state whose vertex ids come from another graph (the map changed between two
+    batches) starts its belief afresh where it stands instead of reading wrong ids."""
+    walk = loop_walk(10, laps=1)
+    half = len(walk.events) // 2
+    state, _ = run_all(walk.events[:half])
+    assert MAPS.radio is not None
+    smaller = replace(
+        GRAPH_MAPS,
+        graphs=tuple(
+            site_graphs([], [], replace(MAPS.radio, rp_xy=MAPS.radio.rp_xy[:] * 0.5), N_FLOORS)
+        ),
+    )
+    p = MapMarkovParams()
+    new, fixes = run(state, walk.events[half:], smaller, p, np.random.default_rng(0))
+    graph = smaller.graphs[0]
+    assert graph is not None
+    assert new.graph_key == graph.fingerprint != state.graph_key
+    assert (new.belief_vertex < graph.n).all()
+    assert fixes
+
+
+def test_scans_close_together_keep_the_speed_of_a_walker() -> None:
+    """A step and a second scan 2 ms after a scan: the steps' velocity over 2 ms would be
+    hundreds of m/s; it is read over no less than half a second and at most max_speed."""
+    walk = loop_walk(12, laps=1)
+    events: list[Event] = []
+    for e in walk.events:
+        events.append(e)
+        if isinstance(e, WifiEvent):
+            events.append(replace(e, t_ms=e.t_ms + 2))
+    state, fixes = run_all(events)
+    assert float(np.hypot(*state.x[2:])) <= MapMarkovParams().max_speed_mps + 1e-9
+    assert errors(fixes, {**walk.truth, **{t + 2: walk.truth[t] for t in walk.truth}}).mean() < 3.0

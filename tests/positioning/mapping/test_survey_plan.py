@@ -80,3 +80,15 @@ def test_survey_plan_reads_noise_and_aps_from_the_map() -> None:
     assert len(found.aps) == 1
     np.testing.assert_allclose(found.aps[0].xy, ap, atol=0.5)
     assert 0 < found.expected_error_m < found.expected_error_p90_m < 5
+
+
+def test_no_noise_still_gives_one_point_per_grid_point_at_most() -> None:
+    graph = plan_graph(room(), ROOM)
+    points, _ = plan(graph, (AccessPoint((3.0, 8.0), 3.0),), 0.0)
+    assert len(np.unique(points, axis=0)) == len(points) <= graph.n
+
+
+def test_an_access_point_outside_the_floor_still_marks_its_lines() -> None:
+    points, from_aps = plan(strip(20), (AccessPoint((-30.5, 0.5), 2.0),), 4.0, noise_distance_m=3.0)
+    assert from_aps.sum() >= 6
+    np.testing.assert_allclose(np.sort(points[from_aps, 0])[:3], [0.5, 3.5, 6.5])
