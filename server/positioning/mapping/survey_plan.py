@@ -18,10 +18,10 @@ Algorithm 1 (``plan``), on the floor graph's grid (``floor_graph``, gap ``g``):
 
 1. for each located AP and each of the four directions along the grid lines through its
    grid point (for an AP outside the floor, the nearest grid point of the floor's box:
-   where its lines first cross the floor): mark the AP's point, then walk outwards and mark the first grid point
-   at least ``Δ(d)`` from the previous mark (``d`` that mark's distance from the AP),
-   until the line leaves the floor; marks only go on walkable points (a blocked point is
-   skipped, the walk goes on);
+   where its lines first cross the floor): mark the AP's point, then walk outwards and
+   mark the first grid point at least ``Δ(d)`` from the previous mark (``d`` that mark's
+   distance from the AP), until the line leaves the floor; marks only go on walkable
+   points (a blocked point is skipped, the walk goes on);
 2. Wang's second rule, "RPs at all possible locations that users may walk to": every
    walkable grid point still farther than its own noise distance (to its nearest AP)
    from every mark is marked, in grid order. The marks are then a maximum RP set in the
