@@ -30,13 +30,14 @@ Per WiFi/BLE scan (Algorithm 3, "Integration track"):
    learned variance (``radio_fusion.match``).
 
 Per step: the step moves the estimate by its length times the personal scale along its
-heading (turned into the building frame); a fix per step. Algorithm 2's map-based
-personalisation: when the heading leaves the straight segment's mean by more than
-``turn_deg``, the distance walked along that segment on the map (from its start to the
-estimate at the turn) divided by the phone's summed step lengths over it becomes the
-scale (within ``[min_step_scale, max_step_scale]``, and only after ``min_segment_steps``
-steps); the Kalman velocity turns to the new heading (Algorithm 3's reset), by θ: the
-velocity becomes ``(1 - θ) v + θ v_turned``.
+heading (turned into the building frame); a fix per step. At a turn (the heading leaves
+the straight segment's mean by more than ``turn_deg``) the Kalman velocity turns to the
+new heading (Algorithm 3's reset), by θ: it becomes ``(1 - θ) v + θ v_turned``. With
+``personalise`` (off by default: see ``MapMarkovParams``), Algorithm 2's map-based step
+length: the distance walked along the segment (from its start to the estimate at the
+turn, along the segment's heading) divided by the phone's summed step lengths over it
+becomes the scale (within ``[min_step_scale, max_step_scale]``, after at least
+``min_segment_steps`` steps and one scan).
 
 θ = 0 leaves the scans alone (S = S', plain eq 12, moves by ``M`` without direction, no
 reset: the step headings change nothing at the scans); θ = 1 leaves the steps alone. A
@@ -97,6 +98,12 @@ class MapMarkovParams(rf.RadioParams):
     max_states: AtLeastOne = 300  # belief beam
     gate_db: Positive = 10.0  # Ω's best signal distance this much worse: scan not used
     max_rejects: AtLeastOne = 3  # scans not used in a row before a restart
+    # Algorithm 2's step length from the map at turns: off by default. The phones send
+    # step lengths of their own, and on both validation splits it moved nothing beyond
+    # noise (site2 mean / P75 15.15 / 18.80 m off, 15.20 / 18.72 m on; IPIN 17.20 / 19.52
+    # against 17.41 / 19.71 m), while on a walk whose step lengths are right it costs
+    # (tests); for steps of unknown length it is what Wang uses
+    personalise: bool = False
     turn_deg: Positive = 45.0  # a heading this far off the segment's is a turn (Algorithm 2)
     min_segment_steps: AtLeastOne = 8
     min_step_scale: Positive = 0.75
@@ -238,6 +245,7 @@ def on_step(
         # a turn: Algorithm 2's step length from the map, Algorithm 3's filter reset
         scale = state.step_scale
         enough = state.segment_steps >= params.min_segment_steps and state.segment_scans > 0
+        enough &= params.personalise
         if enough and state.segment_phone_m > 0:
             # the segment's length along its own heading (its sideways scatter would only
             # ever lengthen it)
