@@ -86,7 +86,7 @@ class MapMarkovParams(rf.RadioParams):
 
     # the radii that hold 68 % and 95 % of the errors (accuracy.py), chosen on the inner
     # validation splits of ILC site2 and the IPIN logs (bench/accuracy.md)
-    accuracy: AccuracyParams = field(default_factory=lambda: AccuracyParams(0.85, 0.40, 0.85, 2.90))
+    accuracy: AccuracyParams = field(default_factory=lambda: AccuracyParams(0.85, 0.40, 1.30, 2.60))
 
     theta: Reliability = 0.6  # reliability of the inertial sensors, papers/004_* Table 2
     sigma_db: Positive = 8.0  # eq 14's sigma: the scan's confidence
