@@ -21,7 +21,9 @@ class Settings(BaseSettings):
 
     data_dir: Path = Field(Path(".indoorpos"), description="where the embedded SQLite file lives")
     database_url: str | None = Field(None, description="postgresql://... or sqlite:///...")
-    redis_url: str | None = Field(None, description="redis://host:port/db")
+    redis_url: str | None = Field(
+        None, description="redis://host:port/db, or redis+cluster://host:port for a cluster"
+    )
     admin_key: SecretStr | None = Field(
         None, description="admin API key; keys made by `indoorpos keys create` work too"
     )
@@ -113,8 +115,11 @@ class Settings(BaseSettings):
     def _redis_scheme(cls, v: str | None) -> str | None:
         if v is None or v == "":
             return None
-        if not v.startswith(("redis://", "rediss://", "unix://")):
-            raise ValueError("redis_url must start with redis://, rediss:// or unix://")
+        if not v.startswith(("redis://", "rediss://", "unix://", "redis+cluster://")):
+            raise ValueError(
+                "redis_url must start with redis://, rediss://, unix:// or redis+cluster:// "
+                "(a Redis Cluster: any of its nodes)"
+            )
         return v
 
     @field_validator("log_level")

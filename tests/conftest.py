@@ -8,7 +8,7 @@ session store) and on the production shape when ``INDOORPOS_DATABASE_URL`` and
 from __future__ import annotations
 
 import os
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Iterator
 from pathlib import Path
 
 import httpx
@@ -20,6 +20,7 @@ from pydantic import SecretStr
 from server.app import create_app
 from server.config import Settings
 from server.storage import db
+from tests.redis_cluster import start_cluster
 
 ADMIN_KEY = "test-admin-key"
 
@@ -78,3 +79,9 @@ async def client(app: FastAPI) -> AsyncIterator[httpx.AsyncClient]:
 @pytest.fixture
 def admin() -> dict[str, str]:
     return {"Authorization": f"Bearer {ADMIN_KEY}"}
+
+
+@pytest.fixture(scope="session")
+def redis_cluster_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """A 3-node Redis Cluster for the run (``tests.redis_cluster``); its URL."""
+    yield from start_cluster(tmp_path_factory)

@@ -15,7 +15,7 @@ import time
 from collections import OrderedDict
 from typing import Protocol
 
-from redis.asyncio import Redis
+from server.storage.redis_client import AnyRedis, redis_client, register_script
 
 KEY_PREFIX = "ips:rl:"
 MEMORY_MAX_BUCKETS = 100_000  # past this, the least recently used bucket is forgotten
@@ -91,10 +91,10 @@ class MemoryRateLimiter:
 
 
 class RedisRateLimiter:
-    def __init__(self, client: Redis) -> None:
+    def __init__(self, client: AnyRedis) -> None:
         self._client = client
-        self._take = client.register_script(_TAKE_LUA)
-        self._peek = client.register_script(_PEEK_LUA)
+        self._take = register_script(client, _TAKE_LUA)
+        self._peek = register_script(client, _PEEK_LUA)
 
     async def take(self, name: str, per_s: float, burst: int) -> float | None:
         wait = float(await self._take(keys=[KEY_PREFIX + name], args=[per_s, burst]))
@@ -112,9 +112,7 @@ def make_rate_limiter(redis_url: str | None, connect_timeout_s: float = 2.0) -> 
     """Redis when a URL is given, otherwise in memory."""
     if not redis_url:
         return MemoryRateLimiter()
-    client: Redis = Redis.from_url(
-        redis_url, decode_responses=True, socket_connect_timeout=connect_timeout_s
-    )
+    client = redis_client(redis_url, decode_responses=True, connect_timeout_s=connect_timeout_s)
     return RedisRateLimiter(client)
 
 

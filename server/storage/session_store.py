@@ -11,8 +11,11 @@ Two implementations behind one :class:`SessionStore` protocol:
 - :class:`RedisSessionStore` (production): one hash per session at
   ``{prefix}:sess:{<session_id>}:state:v1`` with fields ``ver``, ``meta``, ``state``,
   written by Lua scripts so check, write and expiry happen atomically; live messages on
-  the channel ``{prefix}:sess:{<session_id>}:live:v1``. The braces are a Redis Cluster
-  hash tag: all keys of one session live in one slot.
+  the sharded pub/sub channel ``{prefix}:sess:{<session_id>}:live:v1`` (``SPUBLISH`` /
+  ``SSUBSCRIBE``, Redis 7). The braces are a Redis Cluster hash tag: the keys and the
+  channel of one session live in one slot, so the same code runs on one Redis or on a
+  Redis Cluster (``redis+cluster://host:port``: any node of the cluster), where a
+  session's messages stay on the shard that owns it.
 - :class:`MemorySessionStore` (embedded mode, tests): a dict in the event loop's thread.
 
 Pub/sub is fire-and-forget in both: a subscriber sees the messages published after its
@@ -32,9 +35,11 @@ from typing import Any, Protocol, cast
 import anyio
 from redis.asyncio import Redis
 from redis.asyncio.client import PubSub
+from redis.asyncio.cluster import RedisCluster
+
+from server.storage.redis_client import CONNECT_TIMEOUT_S, redis_client, register_script
 
 SUBSCRIBE_TIMEOUT_S = 5.0  # how long subscribe() waits for Redis to confirm
-CONNECT_TIMEOUT_S = 5.0  # fail a ping fast when Redis is unreachable
 MEMORY_QUEUE_SIZE = 1024  # messages a slow in-memory subscriber may fall behind by
 MEMORY_SWEEP_INTERVAL_S = 60.0  # how often the in-memory store drops expired records
 
@@ -290,7 +295,7 @@ redis.call('HSET', KEYS[1], 'state', ARGV[2])
 redis.call('HINCRBY', KEYS[1], 'ver', 1)
 redis.call('PEXPIRE', KEYS[1], ARGV[3])
 if ARGV[4] then
-  redis.call('PUBLISH', ARGV[4], ARGV[5])
+  redis.call('SPUBLISH', ARGV[4], ARGV[5])
 end
 return 1
 """
@@ -322,7 +327,7 @@ class _PubSubMessages:
     async def __anext__(self) -> bytes:
         while not self.closed:
             message = await self.pubsub.get_message(timeout=None)
-            if message is not None and message["type"] == "message":
+            if message is not None and message["type"] == "smessage":
                 data: bytes = message["data"]
                 return data
         raise StopAsyncIteration
@@ -332,15 +337,18 @@ class RedisSessionStore:
     """Sessions in Redis (or Redis Cluster): any api replica can serve any session.
 
     ``client`` must return bytes (``decode_responses=False``). The store owns the client:
-    :meth:`close` closes it.
+    :meth:`close` closes it. On a cluster, a subscription connects to the node that owns
+    its channel's slot (async cluster clients of redis-py have no pub/sub); those
+    per-node clients are the store's too.
     """
 
-    def __init__(self, client: Redis, prefix: str = "ips") -> None:
+    def __init__(self, client: Redis | RedisCluster, prefix: str = "ips") -> None:
         self._client = client
+        self._nodes: dict[tuple[str, int], Redis] = {}
         self._prefix = prefix
-        self._create = client.register_script(_CREATE_LUA)
-        self._cas = client.register_script(_CAS_LUA)
-        self._get_changed = client.register_script(_GET_CHANGED_LUA)
+        self._create = register_script(client, _CREATE_LUA)
+        self._cas = register_script(client, _CAS_LUA)
+        self._get_changed = register_script(client, _GET_CHANGED_LUA)
 
     def state_key(self, session_id: str) -> str:
         """The hash holding the session's ``ver``, ``meta`` and ``state``."""
@@ -396,18 +404,40 @@ class RedisSessionStore:
         return removed > 0
 
     async def publish(self, session_id: str, message: bytes) -> None:
-        await self._client.publish(self.live_channel(session_id), message)
+        channel = self.live_channel(session_id)
+        await (await self._owner(channel)).spublish(channel, message)
+
+    async def _owner(self, channel: str) -> Redis:
+        """A client of the node that serves ``channel`` (the store's own on one Redis)."""
+        if isinstance(self._client, Redis):
+            return self._client
+        await self._client.initialize()
+        node = self._client.get_node_from_key(channel)
+        if node is None:
+            raise ConnectionError(f"no cluster node serves {channel}")
+        where = (str(node.host), int(node.port))
+        found = self._nodes.get(where)
+        if found is None:
+            found = Redis(
+                host=where[0],
+                port=where[1],
+                decode_responses=False,
+                socket_connect_timeout=CONNECT_TIMEOUT_S,
+            )
+            self._nodes[where] = found
+        return found
 
     @asynccontextmanager
     async def _subscription(self, session_id: str) -> AsyncIterator[AsyncIterator[bytes]]:
-        pubsub = self._client.pubsub()
+        channel = self.live_channel(session_id)
+        pubsub = (await self._owner(channel)).pubsub()
         messages = _PubSubMessages(pubsub)
         try:
-            await pubsub.subscribe(self.live_channel(session_id))
-            # SUBSCRIBE is only sent above; the subscription is live once Redis confirms it.
+            await pubsub.execute_command("SSUBSCRIBE", channel)
+            # SSUBSCRIBE is only sent above; the subscription is live once Redis confirms it.
             async with asyncio.timeout(SUBSCRIBE_TIMEOUT_S):
                 confirmation: dict[str, Any] | None = None
-                while confirmation is None or confirmation["type"] != "subscribe":
+                while confirmation is None or confirmation["type"] != "ssubscribe":
                     confirmation = await pubsub.get_message(timeout=None)
             yield messages
         finally:
@@ -435,14 +465,15 @@ class RedisSessionStore:
         await self._client.ping()
 
     async def close(self) -> None:
+        for node in self._nodes.values():
+            await node.aclose()
+        self._nodes.clear()
         await self._client.aclose()
 
 
 def make_session_store(redis_url: str | None) -> SessionStore:
-    """Redis when a URL is given (production shape), otherwise in memory (embedded)."""
+    """Redis when a URL is given (production shape; ``redis_client``: one server or a
+    cluster), otherwise in memory (embedded)."""
     if not redis_url:
         return MemorySessionStore()
-    client: Redis = Redis.from_url(
-        redis_url, decode_responses=False, socket_connect_timeout=CONNECT_TIMEOUT_S
-    )
-    return RedisSessionStore(client)
+    return RedisSessionStore(redis_client(redis_url))

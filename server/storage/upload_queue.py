@@ -32,10 +32,10 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 import anyio
-from redis.asyncio import Redis
 from redis.exceptions import ResponseError
 
-CONNECT_TIMEOUT_S = 5.0
+from server.storage.redis_client import AnyRedis, redis_client
+
 GROUP = "workers"
 
 
@@ -116,7 +116,7 @@ class MemoryUploadQueue:
 class RedisUploadQueue:
     """A Redis Stream with one consumer group (module docstring)."""
 
-    def __init__(self, client: Redis, visibility_timeout_s: float, prefix: str = "ips") -> None:
+    def __init__(self, client: AnyRedis, visibility_timeout_s: float, prefix: str = "ips") -> None:
         self._redis = client
         self._visibility_ms = int(visibility_timeout_s * 1000)
         self._key = f"{prefix}:uploads:v1"
@@ -210,7 +210,4 @@ def make_upload_queue(redis_url: str | None, visibility_timeout_s: float) -> Upl
     """Redis when a URL is configured, else the in-process queue."""
     if not redis_url:
         return MemoryUploadQueue(visibility_timeout_s)
-    client = Redis.from_url(
-        redis_url, decode_responses=False, socket_connect_timeout=CONNECT_TIMEOUT_S
-    )
-    return RedisUploadQueue(client, visibility_timeout_s)
+    return RedisUploadQueue(redis_client(redis_url), visibility_timeout_s)

@@ -22,6 +22,10 @@ def _free_port() -> int:
 
 @pytest.fixture(scope="session")
 def live_url(settings: Settings) -> Iterator[str]:
+    yield from _serve(settings)
+
+
+def _serve(settings: Settings) -> Iterator[str]:
     port = _free_port()
     server = uvicorn.Server(
         uvicorn.Config(create_app(settings), host="127.0.0.1", port=port, log_level="warning")
@@ -36,3 +40,9 @@ def live_url(settings: Settings) -> Iterator[str]:
     yield f"http://127.0.0.1:{port}"
     server.should_exit = True
     thread.join(timeout=10)
+
+
+@pytest.fixture(scope="session")
+def cluster_live_url(settings: Settings, redis_cluster_url: str) -> Iterator[str]:
+    """The same server with its sessions, uploads and rate limits in a Redis Cluster."""
+    yield from _serve(settings.model_copy(update={"redis_url": redis_cluster_url}))

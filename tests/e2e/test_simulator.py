@@ -51,3 +51,16 @@ async def test_walkers_post_over_the_socket_on_a_reused_site(live_url: str) -> N
     assert summary.batches_missing_on_socket == 0
     assert summary.mean_error_m is not None
     assert summary.mean_error_m < 5.0
+
+
+@pytest.mark.slow
+async def test_walkers_on_a_redis_cluster(cluster_live_url: str) -> None:
+    """Sessions in a 3-node Redis Cluster: batches over the socket, each fix pushed live
+    from the shard that owns the session."""
+    summary = await run_walkers(
+        cluster_live_url, ADMIN_KEY, walkers=3, duration_s=3.0, seed=4, transport="ws"
+    )
+    assert summary.errors == 0, summary.error_messages
+    assert summary.fixes > 0
+    assert summary.ws_messages == summary.fixes
+    assert summary.batches_missing_on_socket == 0

@@ -1,6 +1,6 @@
 """A real Redis for the store contracts: ``INDOORPOS_REDIS_URL`` (default database 15 on
 localhost), skipped when unreachable unless ``INDOORPOS_TEST_REQUIRE_REDIS=1``, which turns
-that into a failure."""
+that into a failure. The Redis Cluster fixture is ``tests.conftest.redis_cluster_url``."""
 
 from __future__ import annotations
 

@@ -14,6 +14,7 @@ import pytest
 import redis.exceptions
 from redis.asyncio import Redis
 
+from server.storage.redis_client import redis_client
 from server.storage.session_store import (
     MemorySessionStore,
     RedisSessionStore,
@@ -50,12 +51,15 @@ class FakeClock:
 Sleep = Callable[[float], Awaitable[None]]
 
 
-@pytest.fixture(params=["memory", "redis"])
+@pytest.fixture(params=["memory", "redis", "cluster"])
 async def backend(request: pytest.FixtureRequest) -> AsyncIterator[tuple[SessionStore, Sleep]]:
     if request.param == "memory":
         clock = FakeClock()
         store: SessionStore = MemorySessionStore(clock=clock)
         sleep: Sleep = clock.sleep
+    elif request.param == "cluster":
+        url = request.getfixturevalue("redis_cluster_url")
+        store, sleep = RedisSessionStore(redis_client(url), prefix=PREFIX), asyncio.sleep
     else:
         store, sleep = await _redis_store(), asyncio.sleep
     yield store, sleep
@@ -299,7 +303,7 @@ ODD_IDS = ["a", "a}", "{a", "a}:state:v1", "a:b", "*", "?", "[x]", "with space",
 
 
 async def test_odd_session_ids_stay_in_their_own_keys(
-    store: SessionStore, new_id: Callable[..., str]
+    store: SessionStore, new_id: Callable[..., str], request: pytest.FixtureRequest
 ) -> None:
     run = uuid.uuid4().hex
     ids = [new_id(f"{run}{odd}") for odd in ODD_IDS] + [new_id(f"{odd}{run}") for odd in ODD_IDS]
@@ -316,7 +320,9 @@ async def test_odd_session_ids_stay_in_their_own_keys(
         assert stored is not None
         assert (stored.version, stored.state) == (1, sid.encode())
     if isinstance(store, RedisSessionStore):
-        client = Redis.from_url(REDIS_URL, decode_responses=False)
+        on_cluster = request.node.callspec.params["backend"] == "cluster"
+        url = request.getfixturevalue("redis_cluster_url") if on_cluster else REDIS_URL
+        client = redis_client(url)  # every node's keys, on a cluster
         try:
             keys = {k async for k in client.scan_iter(match=f"{PREFIX}:*{run}*")}
         finally:

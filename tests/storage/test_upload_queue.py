@@ -10,18 +10,23 @@ from collections.abc import AsyncIterator
 
 import pytest
 
+from server.storage.redis_client import AnyRedis, redis_client
 from server.storage.upload_queue import MemoryUploadQueue, RedisUploadQueue, UploadQueue
 from tests.storage.conftest import redis_or_skip
 
 VISIBILITY_S = 0.3
 
 
-@pytest.fixture(params=["memory", "redis"])
+@pytest.fixture(params=["memory", "redis", "cluster"])
 async def queue(request: pytest.FixtureRequest) -> AsyncIterator[UploadQueue]:
     if request.param == "memory":
         yield MemoryUploadQueue(VISIBILITY_S)
         return
-    client = await redis_or_skip()
+    client: AnyRedis
+    if request.param == "cluster":
+        client = redis_client(request.getfixturevalue("redis_cluster_url"))
+    else:
+        client = await redis_or_skip()
     prefix = f"ips-test-{uuid.uuid4().hex[:8]}"  # this test's stream only
     q = RedisUploadQueue(client, VISIBILITY_S, prefix=prefix)
     try:
