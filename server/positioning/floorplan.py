@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from server.positioning import kernels
 from server.positioning.wall_index import (
     CLEARANCE_MARGIN_M,
     CLEARANCE_STEPS,
@@ -40,7 +41,6 @@ from server.positioning.wall_index import (
     WallIndex,
     build_wall_index,
     clearance_raster,
-    moves_cross,
     take_rows,
 )
 
@@ -136,7 +136,24 @@ def crosses_wall(plan: FloorPlan, a: ArrayLike, b: ArrayLike) -> NDArray[np.bool
 
 
 def valid_moves(plan: FloorPlan, a: ArrayLike, b: ArrayLike) -> NDArray[np.bool_]:
-    """``walkable_at(plan, b) & ~crosses_wall(plan, a, b)``, shape (n,)."""
+    """``walkable_at(plan, b) & ~crosses_wall(plan, a, b)``, shape (n,): compiled
+    (``kernels.valid_moves``; ``valid_moves_reference`` is the same in numpy)."""
+    a, b = _points(a), _points(b)
+    if a.shape != b.shape:
+        raise ValueError(f"a and b differ in shape: {a.shape} and {b.shape}")
+    ny, nx = plan.walkable.shape
+    index = plan._index
+    out: NDArray[np.bool_] = kernels.valid_moves(
+        a, b, plan.walkable.ravel(), plan.origin_m[0], plan.origin_m[1], plan.cell_m, nx, ny,
+        plan._clearance, plan._clear_below, plan.walls.shape[0],
+        index.origin_m[0], index.origin_m[1], index.bucket_m, index.reach_m, index.nx,
+        index.ny, index.start, index.segments,
+    )  # fmt: skip
+    return out
+
+
+def valid_moves_reference(plan: FloorPlan, a: ArrayLike, b: ArrayLike) -> NDArray[np.bool_]:
+    """``valid_moves`` in numpy (the reference the kernel is tested against)."""
     a, b = _points(a), _points(b)
     if a.shape != b.shape:
         raise ValueError(f"a and b differ in shape: {a.shape} and {b.shape}")
@@ -268,6 +285,18 @@ def _crossing(plan: FloorPlan, a: FloatArray, b: FloatArray) -> NDArray[np.bool_
     clear &= inside
     todo = np.flatnonzero(~clear)
     if todo.size:
-        hit = moves_cross(plan._index, take_rows(a, todo), take_rows(b, todo))
+        index = plan._index
+        hit = kernels.moves_cross(  # wall_index.moves_cross, compiled (kernels)
+            take_rows(a, todo),
+            take_rows(b, todo),
+            index.origin_m[0],
+            index.origin_m[1],
+            index.bucket_m,
+            index.reach_m,
+            index.nx,
+            index.ny,
+            index.start,
+            index.segments,
+        )
         out[todo if isinstance(rows, slice) else rows[todo]] = hit
     return out

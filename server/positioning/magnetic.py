@@ -31,6 +31,8 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from server.positioning import kernels
+
 FloatArray = NDArray[np.float64]
 Component = Literal["magnitude", "horizontal", "vertical"]
 
@@ -121,7 +123,16 @@ def sample(grid: MagneticGrid, xy: ArrayLike, component: Component = "magnitude"
     pts = np.asarray(xy, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 2:
         raise ValueError(f"xy must have shape (n, 2), got {pts.shape}")
-    return _bilinear(grid, pts, component)
+    if getattr(grid, component) is None:
+        raise ValueError(f"this grid has no {component} component")
+    filled, known = grid.sampling_arrays(component)
+    ny, nx = grid.magnitude.shape
+    x0, y0 = grid.origin_m
+    # _bilinear below, compiled (kernels)
+    out: FloatArray = kernels.bilinear(
+        pts, x0, y0, grid.cell_m, nx, ny, filled, known, MIN_CORNER_WEIGHT
+    )
+    return out
 
 
 def sample_many(

@@ -88,7 +88,8 @@ from dataclasses import replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from server.positioning.magnetic_distance import dtw_distance, mmse
+from server.positioning import kernels
+from server.positioning.magnetic_distance import dtw_distance
 from server.positioning.particle_cloud import (
     Estimate,
     MapSampler,
@@ -212,21 +213,17 @@ def move(
     if n_live == 0:
         return p
     live = live_rows(finite, n_live)
-    length = take_rows(noise[0], live)
-    length *= params.step_sd_m
-    length += length_m
-    np.maximum(length, 0.0, out=length)
-    heading = take_rows(noise[1], live)
-    heading *= params.heading_sd_rad
-    heading += heading_rad
     a = take_rows(p.xy, live).astype(np.float64)
-    # b = a + length (sin, cos)(heading), rounded to the float32 that is stored
-    b32 = np.empty((n_live, 2), dtype=np.float32)
-    for axis, turn in ((0, np.sin), (1, np.cos)):
-        step = turn(heading)
-        step *= length
-        step += a[:, axis]
-        b32[:, axis] = step
+    # b = a + length (sin, cos)(heading), rounded to the float32 that is stored (compiled:
+    # kernels.step_ends; move_ends_reference is the same in numpy)
+    b32: NDArray[np.float32] = kernels.step_ends(
+        a,
+        np.ascontiguousarray(noise[:, live]),
+        length_m,
+        heading_rad,
+        params.step_sd_m,
+        params.heading_sd_rad,
+    )
     ok = np.asarray(valid_move(take_rows(p.floor, live), a, b32.astype(np.float64)), dtype=bool)
     if ok.shape != (n_live,):
         raise ValueError(f"valid_move must return shape ({n_live},), got {ok.shape}")
@@ -241,6 +238,24 @@ def move(
         xy[moved, axis] = b32[:, axis][ok]
     log_w[refused] = -np.inf
     return unchecked(p, xy=xy, log_w=normalised(log_w))
+
+
+def move_ends_reference(
+    a: FloatArray, noise: FloatArray, length_m: float, heading_rad: float, params: ParticleParams
+) -> NDArray[np.float32]:
+    """``kernels.step_ends`` in numpy: the rows of ``a`` moved by one noisy step each."""
+    length = noise[0] * params.step_sd_m
+    length += length_m
+    np.maximum(length, 0.0, out=length)
+    heading = noise[1] * params.heading_sd_rad
+    heading += heading_rad
+    b32 = np.empty((a.shape[0], 2), dtype=np.float32)
+    for axis, turn in ((0, np.sin), (1, np.cos)):
+        step = turn(heading)
+        step *= length
+        step += a[:, axis]
+        b32[:, axis] = step
+    return b32
 
 
 def mass_centered_update(
@@ -440,7 +455,10 @@ def _weight_update(
         return out
     obs = observed[-count:]
     cand = take_rows(mags, live)[:, -count:]
-    d = mmse(obs, cand) if weighting == "mass_centered" else dtw_distance(obs, cand) / count
+    if weighting == "mass_centered":  # magnetic_distance.mmse, compiled (kernels)
+        d = kernels.mmse(obs.astype(np.float64), np.ascontiguousarray(cand, dtype=np.float64))
+    else:
+        d = dtw_distance(obs, cand) / count
     known = np.isfinite(d)
     if not known.any():
         return out

@@ -1,0 +1,106 @@
+"""The compiled kernels against their numpy references, on random inputs."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from server.positioning import kernels
+from server.positioning.floorplan import valid_moves, valid_moves_reference
+from server.positioning.magnetic import MIN_CORNER_WEIGHT, MagneticGrid, _bilinear
+from server.positioning.magnetic_distance import mmse
+from server.positioning.particle import move_ends_reference
+from server.positioning.particle_cloud import ParticleParams
+from server.positioning.wall_index import moves_cross
+from tests.positioning.toy_plans import room
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), reach=st.sampled_from([0.3, 1.0, 4.0]))
+def test_moves_cross_matches_the_numpy_index(seed: int, reach: float) -> None:
+    """Random moves over the toy room, short and long, some ending exactly on walls."""
+    rng = np.random.default_rng(seed)
+    index = room()._index
+    n = 400
+    a = rng.uniform([-2, -2], [22, 12], (n, 2))
+    b = a + rng.normal(0, reach, (n, 2))
+    b[:20, 0] = 10.0  # onto the thin wall at x = 10
+    b[20:40] = a[20:40]  # no move at all
+    expected = moves_cross(index, a, b)
+    got = kernels.moves_cross(
+        a,
+        b,
+        *index.origin_m,
+        index.bucket_m,
+        index.reach_m,
+        index.nx,
+        index.ny,
+        index.start,
+        index.segments,
+    )
+    np.testing.assert_array_equal(got, expected)
+    assert expected.any()
+    assert not expected.all()
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1))
+def test_bilinear_matches_the_numpy_sampling(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    ny, nx = rng.integers(1, 12, 2)
+    field = rng.uniform(20, 60, (ny, nx))
+    field[rng.random((ny, nx)) < 0.3] = np.nan  # unknown cells
+    grid = MagneticGrid(
+        origin_m=(1.0, -2.0),
+        cell_m=0.5,
+        magnitude=field.astype(np.float32),
+        var=np.zeros((ny, nx), np.float32),
+        count=np.ones((ny, nx), np.int32),
+        horizontal=None,
+        vertical=None,
+    )
+    pts = rng.uniform([0, -3], [1 + 0.5 * nx + 1, -2 + 0.5 * ny + 1], (300, 2))
+    filled, known = grid.sampling_arrays("magnitude")
+    got = kernels.bilinear(pts, 1.0, -2.0, 0.5, int(nx), int(ny), filled, known, MIN_CORNER_WEIGHT)
+    np.testing.assert_allclose(got, _bilinear(grid, pts, "magnitude"), rtol=0, atol=1e-12)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), w=st.integers(2, 6))
+def test_mmse_matches_eq_b(seed: int, w: int) -> None:
+    rng = np.random.default_rng(seed)
+    obs = rng.uniform(30, 60, w)
+    cand = rng.uniform(30, 60, (200, w))
+    cand[rng.random((200, w)) < 0.05] = np.nan
+    np.testing.assert_allclose(kernels.mmse(obs, cand), mmse(obs, cand), rtol=1e-12)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), reach=st.sampled_from([0.2, 0.7, 3.0]))
+def test_valid_moves_matches_the_numpy_reference(seed: int, reach: float) -> None:
+    rng = np.random.default_rng(seed)
+    n = 500
+    a = rng.uniform([-1, -1], [21, 11], (n, 2))
+    b = a + rng.normal(0, reach, (n, 2))
+    a[:5, 0] = np.nan  # non-finite starts and ends
+    b[5:10, 1] = np.inf
+    got = valid_moves(room(), a, b)
+    np.testing.assert_array_equal(got, valid_moves_reference(room(), a, b))
+    assert got.any()
+    assert not got.all()
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1))
+def test_step_ends_match_the_numpy_move(seed: int) -> None:
+    """Same float64 arithmetic; sin and cos may differ in the last bit between numpy and
+    the compiled math library, so the float32 ends agree to one float32 step."""
+    rng = np.random.default_rng(seed)
+    a = rng.uniform(-500, 500, (1000, 2)).astype(np.float32).astype(np.float64)
+    noise = rng.standard_normal((2, 1000))
+    params = ParticleParams()
+    got = kernels.step_ends(a, noise, 0.7, 1.3, params.step_sd_m, params.heading_sd_rad)
+    expected = move_ends_reference(a, noise, 0.7, 1.3, params)
+    assert got.dtype == expected.dtype == np.float32
+    np.testing.assert_array_max_ulp(got, expected, maxulp=1)
