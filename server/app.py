@@ -28,6 +28,7 @@ from server.api import (
 )
 from server.api.schemas.errors import ErrorOut
 from server.config import Settings, get_settings
+from server.positioning import kernels
 from server.services import telemetry
 from server.services.runtime import open_runtime
 from server.storage import db
@@ -69,6 +70,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         if settings.resolved_database_url.startswith("sqlite"):
             # embedded mode keeps itself migrated; the production shape runs `indoorpos migrate`
             await anyio.to_thread.run_sync(db.migrate, settings.resolved_database_url)
+        # the compiled particle-filter loops, before the first session needs them
+        await anyio.to_thread.run_sync(kernels.warm_up)
         async with open_runtime(settings) as runtime, anyio.create_task_group() as tasks:
             app.state.runtime = runtime
             # what start-up made lives as long as the process: keep it out of the garbage

@@ -276,3 +276,19 @@ def step_ends(
         out[k, 0] = math.sin(heading) * length + a[k, 0]
         out[k, 1] = math.cos(heading) * length + a[k, 1]
     return out
+
+
+def warm_up() -> None:
+    """Compile (or load from the disk cache) every kernel on tiny inputs, so the first
+    request that needs one does not wait for the compiler (a few seconds when cold)."""
+    xy = np.zeros((1, 2))
+    start = np.zeros(2, dtype=np.intp)
+    segments = np.zeros((0, 8))
+    moves_cross(xy, xy, 0.0, 0.0, 1.0, 1.0, 1, 1, start, segments)
+    valid_moves(
+        xy, xy, np.ones(1, dtype=np.bool_), 0.0, 0.0, 1.0, 1, 1, np.zeros(1, dtype=np.uint8),
+        np.zeros(256), 0, 0.0, 0.0, 1.0, 1.0, 1, 1, start, segments,
+    )  # fmt: skip
+    bilinear(xy, 0.0, 0.0, 1.0, 1, 1, np.zeros(1), np.ones(1), 1e-9)
+    mmse(np.zeros(2), np.zeros((1, 2)))
+    step_ends(xy, np.zeros((2, 1)), 0.7, 0.0, 0.1, 0.1)
