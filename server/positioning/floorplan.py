@@ -145,9 +145,7 @@ def valid_moves(plan: FloorPlan, a: ArrayLike, b: ArrayLike) -> NDArray[np.bool_
     index = plan._index
     out: NDArray[np.bool_] = kernels.valid_moves(
         a, b, plan.walkable.ravel(), plan.origin_m[0], plan.origin_m[1], plan.cell_m, nx, ny,
-        plan._clearance, plan._clear_below, plan.walls.shape[0],
-        index.origin_m[0], index.origin_m[1], index.bucket_m, index.reach_m, index.nx,
-        index.ny, index.start, index.segments,
+        plan._clearance, plan._clear_below, plan.walls.shape[0], *index.kernel_args(),
     )  # fmt: skip
     return out
 
@@ -285,18 +283,9 @@ def _crossing(plan: FloorPlan, a: FloatArray, b: FloatArray) -> NDArray[np.bool_
     clear &= inside
     todo = np.flatnonzero(~clear)
     if todo.size:
-        index = plan._index
-        hit = kernels.moves_cross(  # wall_index.moves_cross, compiled (kernels)
-            take_rows(a, todo),
-            take_rows(b, todo),
-            index.origin_m[0],
-            index.origin_m[1],
-            index.bucket_m,
-            index.reach_m,
-            index.nx,
-            index.ny,
-            index.start,
-            index.segments,
+        # wall_index.moves_cross, compiled (kernels)
+        hit = kernels.moves_cross(
+            take_rows(a, todo), take_rows(b, todo), *plan._index.kernel_args()
         )
         out[todo if isinstance(rows, slice) else rows[todo]] = hit
     return out

@@ -84,6 +84,13 @@ class WallIndex:
     # per entry: the wall [x1, y1, x2, y2] and its bounding box [x_min, y_min, x_max, y_max]
     segments: FloatArray  # (n_entries, 8)
 
+    def kernel_args(
+        self,
+    ) -> tuple[float, float, float, float, int, int, NDArray[np.intp], FloatArray]:
+        """The index as the compiled wall test takes it (``kernels.moves_cross``)."""
+        x0, y0 = self.origin_m
+        return x0, y0, self.bucket_m, self.reach_m, self.nx, self.ny, self.start, self.segments
+
 
 def build_wall_index(walls: FloatArray, bucket_m: float, reach_m: float) -> WallIndex:
     """Bucket the walls; bucket ``(i, j)`` lists every wall that may meet its square grown

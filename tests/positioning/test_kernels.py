@@ -28,17 +28,7 @@ def test_moves_cross_matches_the_numpy_index(seed: int, reach: float) -> None:
     b[:20, 0] = 10.0  # onto the thin wall at x = 10
     b[20:40] = a[20:40]  # no move at all
     expected = moves_cross(index, a, b)
-    got = kernels.moves_cross(
-        a,
-        b,
-        *index.origin_m,
-        index.bucket_m,
-        index.reach_m,
-        index.nx,
-        index.ny,
-        index.start,
-        index.segments,
-    )
+    got = kernels.moves_cross(a, b, *index.kernel_args())
     np.testing.assert_array_equal(got, expected)
     assert expected.any()
     assert not expected.all()
