@@ -14,7 +14,11 @@ inputs):
 * ``mmse``: ``magnetic_distance.mmse`` -- eq (b) of ``papers/001_*`` per candidate row,
   ``inf`` for a row with a NaN;
 * ``valid_moves``: ``floorplan.valid_moves_reference`` -- the end in a walkable raster
-  cell, then the clearance shortcut, then ``moves_cross``'s test, in one pass.
+  cell, then the clearance shortcut, then ``moves_cross``'s test, in one pass;
+* ``mass_centered_weights``: the mass-centered branch of ``particle._weight_update`` after
+  the map sampling (window shift, eq (b)-(c), the median for unknown windows and
+  ``particle_cloud.normalised``), whose log-sum-exp adds in another order than numpy's
+  pairwise sum: the float32 log weights agree to a unit in the last place.
 
 Compiled on first use and cached on disk (``cache=True``); no Python object crosses into
 them.
@@ -278,6 +282,77 @@ def step_ends(
     return out
 
 
+@njit(cache=True)
+def normalised(log_w: FloatArray) -> NDArray[np.float32]:
+    """``particle_cloud.normalised``: ``log_w - logsumexp(log_w)`` as float32."""
+    top = -np.inf
+    for x in log_w:
+        if math.isfinite(x) and x > top:
+            top = x
+    out = np.full(log_w.shape[0], -np.inf, dtype=np.float32)
+    if top == -np.inf:
+        return out
+    total = 0.0
+    for x in log_w:
+        if math.isfinite(x):
+            total += math.exp(x - top)
+    total = top + math.log(total)
+    for k in range(log_w.shape[0]):
+        out[k] = log_w[k] - total
+    return out
+
+
+@njit(cache=True)
+def mass_centered_weights(
+    mags: NDArray[np.float32],
+    live: NDArray[np.intp],
+    m_live: FloatArray,
+    observed: NDArray[np.float32],
+    count: int,
+    log_w: NDArray[np.float32],
+    t: float,
+    log_k: float,
+) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """``particle._weight_update`` after the map sampling, for the mass-centered update:
+    the windows shifted with the new map magnitudes (``m_live`` for the rows ``live``,
+    NaN for the dead), then eq (b)-(c) and the normalisation; the log weights come back
+    unchanged when there is nothing to weigh by."""
+    n, slots = mags.shape
+    shifted = np.empty((n, slots), dtype=np.float32)
+    for k in range(n):
+        for j in range(slots - 1):
+            shifted[k, j] = mags[k, j + 1]
+        shifted[k, slots - 1] = np.nan
+    for r in range(live.shape[0]):
+        shifted[live[r], slots - 1] = m_live[r]
+    if count < 2 or live.shape[0] == 0:
+        return shifted, log_w
+    first = slots - count
+    award = np.empty(live.shape[0])
+    known = np.zeros(live.shape[0], dtype=np.bool_)
+    for r in range(live.shape[0]):
+        row = live[r]
+        total = 0.0
+        for j in range(first, slots - 1):
+            step = abs(float(shifted[row, j + 1]) - float(shifted[row, j]))
+            total += abs(step - abs(float(observed[j + 1]) - float(observed[j])))
+        total /= count - 1
+        if math.isfinite(total):
+            known[r] = True
+            award[r] = max(total, t)
+    if not known.any():
+        return shifted, log_w
+    if not known.all():
+        middle = np.median(award[known])
+        for r in range(live.shape[0]):
+            if not known[r]:
+                award[r] = middle
+    log_w64 = log_w.astype(np.float64)
+    for r in range(live.shape[0]):
+        log_w64[live[r]] += log_k - math.log(award[r])
+    return shifted, normalised(log_w64)
+
+
 def warm_up() -> None:
     """Compile (or load from the disk cache) every kernel on tiny inputs, so the first
     request that needs one does not wait for the compiler (a few seconds when cold)."""
@@ -292,3 +367,9 @@ def warm_up() -> None:
     bilinear(xy, 0.0, 0.0, 1.0, 1, 1, np.zeros(1), np.ones(1), 1e-9)
     mmse(np.zeros(2), np.zeros((1, 2)))
     step_ends(xy, np.zeros((2, 1)), 0.7, 0.0, 0.1, 0.1)
+    mags = np.zeros((1, 2), dtype=np.float32)
+    live = np.zeros(1, dtype=np.intp)
+    mass_centered_weights(
+        mags, live, np.zeros(1), np.zeros(2, dtype=np.float32), 2,
+        np.zeros(1, dtype=np.float32), 0.05, 4.2,
+    )  # fmt: skip

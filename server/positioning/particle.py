@@ -89,7 +89,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from server.positioning import kernels
-from server.positioning.magnetic_distance import dtw_distance
+from server.positioning.magnetic_distance import dtw_distance, mmse
 from server.positioning.particle_cloud import (
     Estimate,
     MapSampler,
@@ -424,8 +424,11 @@ def _weight_update(
     sample_map: MapSampler,
     params: ParticleParams,
     weighting: Weighting,
+    compiled: bool = True,
 ) -> Particles:
-    """Shared body of the two updates (module docstring)."""
+    """Shared body of the two updates (module docstring); the mass-centered one after the
+    map sampling in one compiled pass (``kernels.mass_centered_weights``) unless
+    ``compiled`` is False (the numpy reference below, which the DTW baseline runs)."""
     if not math.isfinite(observed_ut):
         raise ValueError(f"observed_ut must be finite, got {observed_ut}")
     slots = p.observed.shape[0]
@@ -438,6 +441,21 @@ def _weight_update(
     m_live = np.asarray(sample_map(take_rows(p.floor, live), xy), np.float64)
     if m_live.shape != (n_live,):
         raise ValueError(f"sample_map must return shape ({n_live},), got {m_live.shape}")
+    observed = np.append(p.observed[1:], np.float32(observed_ut))
+    count = min(p.count + 1, slots)
+    if compiled and weighting == "mass_centered":
+        rows = np.arange(p.n, dtype=np.intp) if isinstance(live, slice) else live
+        mags, log_w32 = kernels.mass_centered_weights(
+            np.ascontiguousarray(p.mags),
+            rows,
+            m_live,
+            observed,
+            count,
+            np.ascontiguousarray(p.log_w),
+            params.t,
+            math.log(params.k),
+        )
+        return unchecked(p, mags=mags, observed=observed, count=count, log_w=log_w32)
     # the windows move one slot to the left; the new magnitudes fill the last column
     mags = np.empty(p.mags.shape, dtype=np.float32)
     # shifted through the flat buffer (a strided 2-D copy is ~10x slower): row i's
@@ -448,17 +466,12 @@ def _weight_update(
     else:
         mags[:, -1] = np.nan
         mags[live, -1] = m_live
-    observed = np.append(p.observed[1:], np.float32(observed_ut))
-    count = min(p.count + 1, slots)
     out = unchecked(p, mags=mags, observed=observed, count=count)
     if count < 2 or n_live == 0:
         return out
     obs = observed[-count:]
     cand = take_rows(mags, live)[:, -count:]
-    if weighting == "mass_centered":  # magnetic_distance.mmse, compiled (kernels)
-        d = kernels.mmse(obs.astype(np.float64), np.ascontiguousarray(cand, dtype=np.float64))
-    else:
-        d = dtw_distance(obs, cand) / count
+    d = mmse(obs, cand) if weighting == "mass_centered" else dtw_distance(obs, cand) / count
     known = np.isfinite(d)
     if not known.any():
         return out
@@ -473,6 +486,14 @@ def _weight_update(
     else:
         log_w[live] += gain
     return unchecked(out, log_w=normalised(log_w))
+
+
+def mass_centered_update_reference(
+    p: Particles, observed_ut: float, sample_map: MapSampler, params: ParticleParams
+) -> Particles:
+    """``mass_centered_update`` in numpy (the reference the compiled pass is tested
+    against)."""
+    return _weight_update(p, observed_ut, sample_map, params, "mass_centered", compiled=False)
 
 
 def reweight(p: Particles, log_likelihood: ArrayLike) -> Particles:

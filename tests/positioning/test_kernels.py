@@ -2,16 +2,23 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from numpy.typing import NDArray
 
 from server.positioning import kernels
 from server.positioning.floorplan import valid_moves, valid_moves_reference
 from server.positioning.magnetic import MIN_CORNER_WEIGHT, MagneticGrid, _bilinear
 from server.positioning.magnetic_distance import mmse
-from server.positioning.particle import move_ends_reference
-from server.positioning.particle_cloud import ParticleParams
+from server.positioning.particle import (
+    mass_centered_update,
+    mass_centered_update_reference,
+    move_ends_reference,
+)
+from server.positioning.particle_cloud import ParticleParams, from_points
 from server.positioning.wall_index import moves_cross
 from tests.positioning.toy_plans import room
 
@@ -94,3 +101,35 @@ def test_step_ends_match_the_numpy_move(seed: int) -> None:
     expected = move_ends_reference(a, noise, 0.7, 1.3, params)
     assert got.dtype == expected.dtype == np.float32
     np.testing.assert_array_max_ulp(got, expected, maxulp=1)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), dead=st.sampled_from([0.0, 0.1]), count=st.integers(0, 4))
+def test_mass_centered_weights_match_the_numpy_update(seed: int, dead: float, count: int) -> None:
+    """Random clouds with dead particles and unknown map cells, windows filling up."""
+    rng = np.random.default_rng(seed)
+    params = ParticleParams(n=500, window=3)
+    cloud = from_points(rng.uniform(0, 20, (500, 2)), 0, params.window)
+    log_w = rng.normal(0, 1, 500)
+    log_w[rng.random(500) < dead] = -np.inf
+    mags = rng.uniform(30, 60, cloud.mags.shape).astype(np.float32)
+    mags[rng.random(mags.shape) < 0.05] = np.nan
+    cloud = replace(
+        cloud,
+        log_w=log_w.astype(np.float32),
+        mags=mags,
+        observed=rng.uniform(30, 60, 4).astype(np.float32),
+        count=count,
+    )
+
+    def sample_map(_floor: object, xy: NDArray[np.float64]) -> NDArray[np.float64]:
+        m: NDArray[np.float64] = 40 + np.sin(xy[:, 0]) * 5
+        m[xy[:, 1] > 18] = np.nan
+        return m
+
+    got = mass_centered_update(cloud, 44.0, sample_map, params)
+    expected = mass_centered_update_reference(cloud, 44.0, sample_map, params)
+    np.testing.assert_array_equal(got.mags, expected.mags)
+    np.testing.assert_array_equal(got.observed, expected.observed)
+    assert got.count == expected.count
+    np.testing.assert_array_max_ulp(got.log_w, expected.log_w, maxulp=2)
