@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import gc
+import threading
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from typing import Any
@@ -70,10 +71,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         if settings.resolved_database_url.startswith("sqlite"):
             # embedded mode keeps itself migrated; the production shape runs `indoorpos migrate`
             await anyio.to_thread.run_sync(db.migrate, settings.resolved_database_url)
-        # the compiled particle-filter loops, before the first session needs them
-        await anyio.to_thread.run_sync(kernels.warm_up)
         async with open_runtime(settings) as runtime, anyio.create_task_group() as tasks:
             app.state.runtime = runtime
+            # the compiled particle-filter loops, in the background (seconds when their disk
+            # cache is cold): a session that needs one first waits for it, neither start-up
+            # nor shutdown does
+            threading.Thread(target=kernels.warm_up, name="kernels", daemon=True).start()
             # what start-up made lives as long as the process: keep it out of the garbage
             # collector's full passes, which otherwise walk ~170,000 objects (40-75 ms on
             # the event loop, every few seconds under load; bench/performance.md)
