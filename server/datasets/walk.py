@@ -60,6 +60,10 @@ class Walk:
     waypoint_floor : ndarray, shape (n_wp,) or (0,), int64
         Level of each waypoint (0 ground floor, negative below) where the source gives
         one per waypoint (IPIN ``POSI`` lines); empty when the whole walk is on ``floor``.
+    steps : ndarray, shape (n_steps, 3), float64
+        ``[t_ms, length_m, heading_rad]`` of the steps the phone itself detected (our
+        ``step`` events; heading clockwise from north), sorted by time; the datasets carry
+        none (their steps are found in the raw samples).
     """
 
     path_id: str
@@ -78,6 +82,7 @@ class Walk:
     gnss: NDArray[np.float64] = field(default_factory=lambda: np.empty((0, 5)))
     pressure: NDArray[np.float64] = field(default_factory=lambda: np.empty((0, 2)))
     waypoint_floor: NDArray[np.int64] = field(default_factory=lambda: np.empty(0, dtype=np.int64))
+    steps: NDArray[np.float64] = field(default_factory=lambda: np.empty((0, 3)))
 
     @property
     def duration_ms(self) -> int:

@@ -12,9 +12,10 @@ From events: scans keep their readings; IMU blocks are concatenated per sensor (
 rotation vector keeps its vector part, sign chosen so the scalar part is not negative,
 as ILC files carry it); ``mag`` events with a field vector join the magnetometer samples
 (magnitude-only ones carry nothing a map can place and are dropped); phone-detected
-steps are not kept (steps are found on the server in the raw samples); satellite fixes
-are (``gnss``: rows ``[t, lat, lon, accuracy, hdop]``, NaN for a missing HDOP). A block whose
-magnetometer is uncalibrated marks the whole walk's magnetometer so.
+steps are kept as ``Walk.steps`` (placement uses them when the raw samples give none, see
+``upload_contribution``); satellite fixes are (``gnss``: rows ``[t, lat, lon, accuracy,
+hdop]``, NaN for a missing HDOP). A block whose magnetometer is uncalibrated marks the
+whole walk's magnetometer so.
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ from server.positioning.events import (
     ImuEvent,
     MagEvent,
     RadioReading,
+    StepEvent,
     WifiEvent,
 )
 from server.positioning.step_tracker import StepBlock, TrackerParams, initial_tracker, track
@@ -63,6 +65,7 @@ def _trace(
     sensors: dict[str, NDArray[np.float64]],
     uncalibrated: frozenset[str],
     gnss: NDArray[np.float64],
+    steps: NDArray[np.float64],
 ) -> Walk:
     times = [anchors[:, 0], gnss[:, 0], *(a[:, 0] for a in sensors.values())]
     scan_t = [e.t_ms for e in wifi] + [e.t_ms for e in ble]
@@ -84,6 +87,7 @@ def _trace(
         t_first_ms=int(t_all.min()) if t_all.size else 0,
         t_last_ms=int(t_all.max()) if t_all.size else 0,
         gnss=gnss,
+        steps=steps,
     )
 
 
@@ -116,6 +120,7 @@ def trace_from_events(
         for e in events
         if isinstance(e, GnssEvent)
     ]
+    steps = [(e.t_ms, e.length_m, e.heading_rad) for e in events if isinstance(e, StepEvent)]
     return _trace(
         path_id,
         floor,
@@ -125,6 +130,7 @@ def trace_from_events(
         sensors,
         frozenset(uncalibrated),
         _rows([np.array(fixes, dtype=np.float64).reshape(-1, 5)], 5),
+        _rows([np.array(steps, dtype=np.float64).reshape(-1, 3)], 3),
     )
 
 
@@ -141,6 +147,7 @@ def join_traces(traces: Sequence[Walk], *, path_id: str = "", floor: str = "") -
         sensors,
         frozenset().union(*(t.uncalibrated for t in traces)),
         _rows([t.gnss for t in traces], 5),
+        _rows([t.steps for t in traces], 3),
     )
 
 
@@ -183,6 +190,8 @@ def encode_trace(trace: Walk) -> bytes:
         **_scans("wifi", trace.wifi),
         **_scans("ble", trace.ble),
     }
+    if trace.steps.shape[0]:  # walks without phone steps keep the bytes they had
+        arrays["steps"] = trace.steps.astype(np.float64)
     return compress_arrays(arrays)
 
 
@@ -207,6 +216,7 @@ def decode_trace(data: bytes, path_id: str = "") -> Walk:
         {name: a[name].reshape(-1, 4) for name in _SENSORS},
         frozenset(marks.split(",")) if marks else frozenset(),
         a["gnss"].reshape(-1, 5) if "gnss" in a else np.empty((0, 5)),
+        a["steps"].reshape(-1, 3) if "steps" in a else np.empty((0, 3)),
     )
 
 

@@ -4,12 +4,16 @@ walk (CPU work, no I/O; ``uploads.settle`` folds the result in).
 What is folded today: a trace with at least two known positions (anchors; in an ILC 2.0
 path file its waypoints, as surveyors or an entrance and an elevator give them) places its
 scans and magnetometer samples by the walker's own steps between the anchors: steps found
-on the server in the raw IMU, aligned onto the anchors by a similarity transform and
-smoothed forward-backward between them (``mapping.placement``); without motion data, at
-constant speed between the anchors (``mapping.labelled``). A walk with fewer than two
-anchors is rejected with that reason. Its anchors are its waypoints, its passes by the
-beacons and anchor APs of its floor (``upload_anchors``) and its good satellite fixes
-(``papers/003_*`` IV-B, IV-E3).
+on the server in the raw IMU or, when that gives none, the ``step`` events the phone sent,
+aligned onto the anchors by a similarity transform and smoothed forward-backward between
+them (``mapping.placement``); without either, at constant speed between the anchors
+(``mapping.labelled``). A walk with fewer than two anchors is rejected with that reason.
+Its anchors are its waypoints, its passes by the beacons and anchor APs of its floor
+(``upload_anchors``) and its good satellite fixes (``papers/003_*`` IV-B, IV-E3).
+
+The report's ``not_used`` says why samples (scans, magnetometer samples) were left out,
+the reason that cost the most samples first; a walk of which nothing could be placed is
+rejected naming that main cause, then the others.
 """
 
 from __future__ import annotations
@@ -40,6 +44,9 @@ from server.storage.models import Upload
 
 WEAK_DBM = -90.0  # papers/003_* IV-D: weaker readings are not signatures
 MAX_WALK_MPS = 3.0  # brisk walking is under 2 m/s; faster between anchors is not a walk
+
+# why samples were not used: (how many samples it cost, what to tell the sender)
+Loss = tuple[int, str]
 
 
 @dataclass(frozen=True)
@@ -102,22 +109,22 @@ def contribution(
         m = PLAN_MARGIN_M
         inside = (xy[:, 0] >= x0 - m) & (xy[:, 0] <= x1 + m) & (xy[:, 1] >= y0 - m)
         inside &= xy[:, 1] <= y1 + m
-        if np.any(placed & ~inside):
+        if n_out := int(np.count_nonzero(placed & ~inside)):
             not_used.append(
-                f"{int(np.count_nonzero(placed & ~inside))} samples placed more than "
-                f"{m:g} m outside the floor plan"
+                (n_out, f"{n_out} samples placed more than {m:g} m outside the floor plan")
             )
         placed = placed & inside
     if inertial_selection:
-        placed = placed & _selected(trace, times, report, not_used)
+        placed = placed & _selected(trace, times, placed, report, not_used)
     points: list[SurveyPointData] = []
-    weak = 0
+    weak = weak_scans = 0
     for event, (x, y), ok in zip(events, xy[: len(events)].tolist(), placed, strict=False):
         if ok:
             # papers/003_* IV-D: readings weaker than -90 dBm are left out of the maps
             pairs = [(r.emitter, r.rssi_dbm) for r in event.readings if r.rssi_dbm >= WEAK_DBM]
             weak += len(event.readings) - len(pairs)
             if not pairs:
+                weak_scans += 1
                 continue
             wifi = pairs if isinstance(event, WifiEvent) else []
             points.append(
@@ -125,7 +132,8 @@ def contribution(
             )
     report["scans"] = len(points)
     if weak:
-        not_used.append(f"{weak} readings weaker than {WEAK_DBM:g} dBm")
+        scans = f" ({weak_scans} scans heard nothing stronger)" if weak_scans else ""
+        not_used.append((weak_scans, f"{weak} readings weaker than {WEAK_DBM:g} dBm{scans}"))
     magnetic = None
     if field_usable:
         strength = np.linalg.norm(samples[:, 1:4], axis=1)
@@ -134,19 +142,34 @@ def contribution(
             magnetic = MagneticSamples(xy=xy[len(events) :][keep], magnitude=strength[keep])
         report["magnetic_samples"] = int(keep.sum())
     elif samples.shape[0]:
-        not_used.append("magnetometer: uncalibrated only")
-    report["not_used"] = not_used
+        not_used.append((int(samples.shape[0]), "magnetometer: uncalibrated only"))
+    not_used.sort(key=lambda loss: -loss[0])  # the main cause first (stable on ties)
+    report["not_used"] = [why for _, why in not_used]
     if not points and magnetic is None:
-        why = f": {'; '.join(not_used)}" if not_used else ""
-        return Contribution(level, rejected=f"nothing could be placed{why}", report=report)
+        return Contribution(level, rejected=_nothing_placed(not_used), report=report)
     return Contribution(level, points, magnetic, report=report)
 
 
+def _nothing_placed(not_used: Sequence[Loss]) -> str:
+    """The reason of a walk of which nothing could be placed: the cause that cost the most
+    samples (``not_used`` is sorted so), then the others."""
+    if not not_used:
+        return "nothing could be placed: the walk carries no scans and no magnetometer samples"
+    (_, main), rest = not_used[0], not_used[1:]
+    also = f"; also: {'; '.join(why for _, why in rest)}" if rest else ""
+    return f"nothing could be placed; main cause: {main}{also}"
+
+
 def _selected(
-    trace: Walk, times: NDArray[np.float64], report: dict[str, Any], not_used: list[str]
+    trace: Walk,
+    times: NDArray[np.float64],
+    placed: NDArray[np.bool_],
+    report: dict[str, Any],
+    not_used: list[Loss],
 ) -> NDArray[np.bool_]:
     """Which sample times fall in spans of steady walking (``papers/003_*`` IV-A,
-    ``mapping.selection``); the reasons for the rest go into the report."""
+    ``mapping.selection``); the reasons for the rest go into the report, each with the
+    placed samples its spans took (a span failing two criteria counts for both)."""
     selection = select_inertial(trace.accel, trace.gyro)
     spans = selection.kept_spans_ms
     inside = np.zeros(times.shape, dtype=bool)
@@ -154,12 +177,15 @@ def _selected(
         inside |= (times >= start) & (times < end)
     total = selection.kept_ms + selection.rejected_ms
     report["inertial_selection_kept"] = round(selection.kept_ms / total, 3) if total else 0.0
-    worst: dict[str, int] = {}
+    worst: dict[str, tuple[int, NDArray[np.bool_]]] = {}
     for span in selection.rejected:
+        in_span = placed & (times >= span.start_ms) & (times < span.end_ms)
         for criterion in span.criteria:
-            worst[criterion] = worst.get(criterion, 0) + span.end_ms - span.start_ms
-    for name, ms in sorted(worst.items(), key=lambda kv: -kv[1]):
-        not_used.append(f"inertial selection: {ms / 1000:.0f} s failed {name}")
+            ms, lost = worst.get(criterion, (0, np.zeros(times.shape, dtype=bool)))
+            worst[criterion] = (ms + span.end_ms - span.start_ms, lost | in_span)
+    for name, (ms, lost) in sorted(worst.items(), key=lambda kv: -kv[1][0]):
+        n = int(np.count_nonzero(lost & ~inside))
+        not_used.append((n, f"inertial selection: {ms / 1000:.0f} s failed {name}"))
     return inside
 
 
@@ -215,36 +241,56 @@ def _between_fast_anchors(trace: Walk, times: NDArray[np.float64]) -> NDArray[np
     return out
 
 
+def _steps(trace: Walk) -> tuple[NDArray[np.float64], str] | None:
+    """The walk's steps between its first and last anchor as ``(n, 3)`` rows ``[t_ms,
+    length_m, heading_rad]`` and where they come from: found in the raw motion samples
+    (``traces.anchored_steps``), else the phone's own ``step`` events; None when neither
+    gives two, or the anchors lie too close along the walk for steps to be turned onto them
+    (``traces.MIN_ANCHORED_PATH_M``)."""
+    found = traces.anchored_steps(trace, TrackerParams())
+    if found is None:
+        return None
+    if found.t_ms.size >= 2:
+        rows = np.column_stack([found.t_ms, found.length_m, found.heading_rad])
+        return rows.astype(np.float64), "raw motion samples"
+    t = trace.steps[:, 0]
+    phone = trace.steps[(t > trace.waypoint_t_ms[0]) & (t <= trace.waypoint_t_ms[-1])]
+    return (phone, "the phone's step events") if phone.shape[0] >= 2 else None
+
+
 def _place(
     trace: Walk, times: NDArray[np.float64], report: dict[str, Any]
-) -> tuple[NDArray[np.float64], NDArray[np.bool_], list[str]]:
+) -> tuple[NDArray[np.float64], NDArray[np.bool_], list[Loss]]:
     """Positions of samples at ``times``: by the walker's steps between the anchors
     (``mapping.placement``), or at constant speed between them when the trace has no
-    motion data to find steps in."""
-    steps = traces.anchored_steps(trace, TrackerParams())
-    if steps is None or steps.t_ms.size < 2:
+    steps; why the others were not placed, with how many each reason cost."""
+    steps = _steps(trace)
+    if steps is None:
         xy, valid = interpolate_track(trace.waypoint_t_ms, trace.waypoint_xy_m, times)
         report["placement"] = "constant speed between anchors (no steps found)"
-        outside = int(np.count_nonzero(~valid))
-        reasons = [f"{outside} samples before the first or after the last anchor"]
-        reasons = reasons if outside else []
-        too_fast = valid & _between_fast_anchors(trace, times)
-        if too_fast.any():
+        reasons: list[Loss] = []
+        if outside := int(np.count_nonzero(~valid)):
             reasons.append(
-                f"{int(np.count_nonzero(too_fast))} samples between anchors farther apart "
-                f"than a walker goes at {MAX_WALK_MPS:g} m/s"
+                (outside, f"{outside} samples before the first or after the last anchor")
+            )
+        too_fast = valid & _between_fast_anchors(trace, times)
+        if n_fast := int(np.count_nonzero(too_fast)):
+            reasons.append(
+                (
+                    n_fast,
+                    f"{n_fast} samples between anchors farther apart than a walker goes at "
+                    f"{MAX_WALK_MPS:g} m/s",
+                )
             )
         return xy, valid & ~too_fast, reasons
+    rows, source = steps
     placement = place_samples(
-        steps.t_ms,
-        steps.length_m,
-        steps.heading_rad,
-        trace.waypoint_t_ms,
-        trace.waypoint_xy_m,
-        times,
+        rows[:, 0], rows[:, 1], rows[:, 2], trace.waypoint_t_ms, trace.waypoint_xy_m, times
     )
     report["placement"] = "steps between anchors"
-    report["steps"] = int(steps.t_ms.size)
+    report["steps"] = int(rows.shape[0])
+    report["steps_from"] = source
     if np.isfinite(placement.scale):
         report["step_scale"] = round(placement.scale, 3)
-    return placement.xy_m, placement.placed, list(placement.not_used)
+    lost = zip(placement.not_used_samples, placement.not_used, strict=True)
+    return placement.xy_m, placement.placed, list(lost)

@@ -341,6 +341,47 @@ async def test_a_walk_of_our_events_is_placed_by_the_plans_beacons(
         assert math.hypot(p.x_m - x, p.y_m - WALK_Y) < 2.5, (t_s, p.x_m, p.y_m)
 
 
+async def test_a_walk_of_the_phone_s_step_events_is_placed_by_them(
+    client: httpx.AsyncClient, admin: dict[str, str], app: FastAPI, upload_worker: None
+) -> None:
+    """A phone that detects its own steps sends ``step`` events, no raw IMU: placement
+    uses them between the beacons' passes instead of a constant speed."""
+    site_id, _ = await _beacon_site(client, admin)
+    n_steps = int(WALK_S * STEP_HZ)
+    steps = [
+        {
+            "type": "step",
+            "t": WALK_T0 + 1000 + int(1000 * (k + 1) / STEP_HZ),
+            "length_m": STEP_M,
+            "heading_rad": math.pi / 2,
+        }
+        for k in range(n_steps)
+    ]
+    events = [e for e in _walk_events() if e["type"] != "imu"] + steps
+    r = await client.post(
+        "/v1/uploads",
+        params={"site_id": site_id, "floor": 0},
+        json={"events": events},
+        headers=admin,
+    )
+    assert r.status_code == 202, r.text
+    upload = await _settled(client, admin, r.json()["id"])
+    assert upload["status"] == "done", upload
+    report = upload["report"]
+    assert report["anchor_source"] == "beacons"
+    assert report["placement"] == "steps between anchors"
+    assert report["steps_from"] == "the phone's step events"
+    assert report["steps"] >= n_steps // 2
+    async with app.state.runtime.transaction() as s:
+        stmt = select(SurveyPoint).where(SurveyPoint.upload_id == upload["id"])
+        rows = (await s.scalars(stmt)).all()
+    assert rows
+    for p in rows:
+        t_s = (p.t_ms - WALK_T0) / 1000
+        x = 2.0 + STEP_M * STEP_HZ * min(max(t_s - 1.0, 0.0), WALK_S)
+        assert math.hypot(p.x_m - x, p.y_m - WALK_Y) < 2.5, (t_s, p.x_m, p.y_m)
+
+
 async def test_a_malformed_walk_of_our_events_names_the_field(
     client: httpx.AsyncClient, admin: dict[str, str], app: FastAPI
 ) -> None:
@@ -541,5 +582,8 @@ async def test_a_walk_stretched_across_a_city_by_its_anchors_is_rejected(
     assert r.status_code == 202, r.text
     upload = await _settled(client, admin, r.json()["id"])
     assert upload["status"] == "rejected", str(upload["report"])
-    assert "m/s" in upload["report"]["reason"]
+    # the reason names the cause that cost the most samples, as not_used lists it first
+    reason, not_used = upload["report"]["reason"], upload["report"]["not_used"]
+    assert "m/s" in not_used[0]
+    assert reason.startswith(f"nothing could be placed; main cause: {not_used[0]}"), reason
     assert "magnetic_map_version" not in upload["report"]

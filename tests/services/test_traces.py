@@ -23,7 +23,9 @@ from tests.datasets.conftest import dataset_dir
 
 
 def assert_same(a: Walk, b: Walk) -> None:
-    for name in ("waypoint_t_ms", "waypoint_xy_m", "accel", "gyro", "magnetic", "rotation"):
+    for name in (
+        "waypoint_t_ms", "waypoint_xy_m", "accel", "gyro", "magnetic", "rotation", "steps"
+    ):  # fmt: skip
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
     assert a.wifi == b.wifi
     assert a.ble == b.ble
@@ -73,4 +75,7 @@ def test_events_become_a_walk_and_pieces_join() -> None:
     # overlapping samples (a batch sent twice) are kept once, in time order
     assert np.all(np.diff(whole.accel[:, 0]) > 0)
     assert whole.accel.shape[0] == 9  # 1000..1080 and 1080..1160: 1080 once
+    # the phone's steps are kept: [t, length, heading]
+    np.testing.assert_array_equal(whole.steps, [[1_090, 0.7, 0.0]])
+    assert second.steps.shape == (0, 3)
     assert_same(decode_trace(encode_trace(whole)), whole)

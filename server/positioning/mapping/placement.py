@@ -71,6 +71,9 @@ class Placement:
         The alignment (NaN when refused).
     not_used : tuple of str
         Why parts of the walk were not used, for the upload report.
+    not_used_samples : tuple of int
+        How many of the query samples each reason of ``not_used`` left unplaced (each
+        sample counted for one reason at most).
     """
 
     xy_m: FloatArray
@@ -79,6 +82,7 @@ class Placement:
     scale: float
     rotation_rad: float
     not_used: tuple[str, ...]
+    not_used_samples: tuple[int, ...] = ()
 
 
 def place_samples(
@@ -134,7 +138,7 @@ def place_samples(
 
     def refused(reason: str) -> Placement:
         placed = np.zeros(q.size, dtype=bool)
-        return Placement(out_xy, out_std, placed, nan, nan, (reason,))
+        return Placement(out_xy, out_std, placed, nan, nan, (reason,), (q.size,))
 
     # dead reckoning from the origin; position after each step, and at any time
     vectors = np.column_stack([length * np.sin(heading), length * np.cos(heading)])
@@ -155,7 +159,7 @@ def place_samples(
         )
     aligned = vectors @ fit.matrix.T  # the rotation and scale act on every step
 
-    not_used: list[str] = []
+    refused_legs: list[tuple[str, NDArray[np.bool_]]] = []  # why, and the leg's samples
     placed = np.zeros(q.size, dtype=bool)
     for k in range(at.size - 1):
         t0, t1 = at[k], at[k + 1]
@@ -163,10 +167,11 @@ def place_samples(
         leg = smooth_between_anchors(aligned[in_leg], axy[k], axy[k + 1], noise=p.noise)
         miss = float(np.linalg.norm(leg.forward_xy[-1] - axy[k + 1]))
         if miss > p.max_mismatch_m:
-            not_used.append(
+            why = (
                 f"leg {k + 1} ({(t1 - t0) / 1000:.0f} s): its steps end {miss:.1f} m from the "
                 f"next anchor (more than {p.max_mismatch_m:g} m)"
             )
+            refused_legs.append((why, (q >= t0) & (q <= t1)))
             continue
         # knots: the leg's start, each step, the leg's end (positions after each step)
         knot_t = np.concatenate([[t0], t[in_leg], [t1]])
@@ -179,10 +184,25 @@ def place_samples(
         out_xy[rows, 1] = np.interp(q[rows], knot_t, knot_xy[:, 1])
         out_std[rows] = np.interp(q[rows], knot_t, knot_std)
         placed |= rows
+    # a sample at the end of a refused leg may be placed by its neighbour, or be the start
+    # of the next refused leg: counted once, for the first leg it is lost to
+    not_used: list[tuple[str, int]] = []
+    counted = placed.copy()
+    for why, in_leg_q in refused_legs:
+        not_used.append((why, int(np.count_nonzero(in_leg_q & ~counted))))
+        counted |= in_leg_q
     outside = int(np.count_nonzero((q < at[0]) | (q > at[-1])))
     if outside:
-        not_used.append(f"{outside} samples before the first or after the last anchor")
-    return Placement(out_xy, out_std, placed, fit.scale, fit.rotation_rad, tuple(not_used))
+        not_used.append((f"{outside} samples before the first or after the last anchor", outside))
+    return Placement(
+        out_xy,
+        out_std,
+        placed,
+        fit.scale,
+        fit.rotation_rad,
+        tuple(why for why, _ in not_used),
+        tuple(n for _, n in not_used),
+    )
 
 
 def _spread(points: FloatArray) -> float:

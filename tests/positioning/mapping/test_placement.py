@@ -76,6 +76,7 @@ def test_refusals_say_why() -> None:
     loop = place_samples(loop_t, np.full(40, 0.7), back, [T0, loop_t[-1]], [[5, 5], [5, 5]], t)
     assert not loop.placed.any()
     assert "too close together" in loop.not_used[0]
+    assert loop.not_used_samples == (t.size,)  # each reason with the samples it cost
     # anchors three times as far apart as the steps walked
     far = truth[-1] + 2 * (truth[-1] - [5.0, 5.0])
     stretched = place_samples(t, lengths, headings, [T0, t[-1]], [[5, 5], far], t)
@@ -88,11 +89,13 @@ def test_refusals_say_why() -> None:
     wrong = place_samples(t, lengths, headings, [T0, t[29], t[-1]], anchors_xy, t, params)
     assert len([r for r in wrong.not_used if r.startswith("leg")]) >= 1
     assert not wrong.placed.all()
+    assert sum(wrong.not_used_samples) == np.count_nonzero(~wrong.placed)
     # samples outside the anchors' span
     outside = place_samples(t, lengths, headings, [t[5], t[-5]], [truth[5], truth[-5]], t)
     assert not outside.placed[:5].any()
     assert outside.placed[5:-5].all()
     assert "before the first or after the last anchor" in outside.not_used[-1]
+    assert outside.not_used_samples == (9,)
 
 
 def test_bad_inputs_are_refused() -> None:
