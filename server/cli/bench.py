@@ -21,14 +21,25 @@ def bench_particle(
     window: Annotated[int, typer.Option(min=1, help="window W in steps")] = 3,
     repeat: Annotated[int, typer.Option(min=1, help="timed runs; medians are reported")] = 15,
     seed: Annotated[int, typer.Option(help="seed of the synthetic walk")] = 0,
+    dtw_samples_per_step: Annotated[
+        int | None,
+        typer.Option(min=1, max=100, help="the DTW baseline's samples per step [default: 34]"),
+    ] = None,
     json_path: Annotated[Path | None, typer.Option("--json", help="write the figures here")] = None,
 ) -> None:
-    """Mass-centered against DTW weight update on the same inputs, and the state codec."""
+    """Mass-centered against DTW weight update on the same inputs, the compiled filter step
+    against its numpy reference, and the state codec."""
     from server.lab.particle_bench import particle_bench
 
     # no spinner: its refresh thread would take the GIL in the middle of the timings
     console.print(f"timing {particles} particles, {repeat} runs per measure ...")
-    result = particle_bench(particles, window=window, repeat=repeat, seed=seed)
+    result = particle_bench(
+        particles,
+        window=window,
+        repeat=repeat,
+        seed=seed,
+        dtw_samples_per_step=dtw_samples_per_step,
+    )
     print_report(f"particle filter, N = {particles}, W = {window}", result)
     if json_path is not None:
         json_path.write_text(json.dumps(result, indent=2) + "\n")

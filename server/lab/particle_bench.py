@@ -9,10 +9,16 @@ timed code contained. Measured here, in one process and on the same inputs:
   the sequence distance of every particle over its ``W + 1`` magnitudes, the award of
   eq (c) and the normalisation. The inputs are the moved clouds of a recorded walk,
   each with full windows, and the magnitude the phone measured at that step.
-* **Distance**: ``magnetic_distance.mmse`` against ``magnetic_distance.dtw_distance`` on
-  those windows, the only part that differs between the two updates.
-* **Filter step** (context): ``particle.step`` -- move with the floor plan's wall test,
-  update, resampling when ``N_eff`` is low -- from the clouds of the same walk.
+* **Distance**: eq (b) on those windows against the DTW of the same windows sampled as
+  the baseline samples them (``dtw_samples_per_step`` per step, ``magnetic_distance.
+  densified``), both compiled (``kernels.mmse``, ``kernels.dtw``): the only part that
+  differs between the two updates.
+* **Filter step**: a whole step -- move with the floor plan's wall test, update,
+  resampling when ``N_eff`` is low -- from the clouds of the same walk, as the engine
+  runs it: ``particle.step_on_floor`` (one compiled pass) for the mass-centered filter,
+  ``particle.step`` for the DTW one; and the mass-centered step in numpy alone
+  (``particle.step`` with ``compiled=False`` and the numpy wall test and map sampling),
+  the reference the compiled step is tested against (``compiled_speedup``).
 * **State**: the cloud as the session store keeps it: ``state_codec.to_arrays`` then
   ``codec.encode_arrays`` (``state_bytes`` is that blob's length, ``encode_us`` the
   time of both), and back through ``codec.decode_arrays`` and ``state_codec.from_arrays``
@@ -32,18 +38,23 @@ import math
 import statistics
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
+from server.positioning import kernels, state_codec
 from server.positioning import particle as pf
 from server.positioning import particle_cloud as pc
-from server.positioning import state_codec
-from server.positioning.floorplan import FloorPlan, valid_moves, walkable_at
+from server.positioning.floorplan import (
+    FloorPlan,
+    valid_moves,
+    valid_moves_reference,
+    walkable_at,
+)
 from server.positioning.floorplan_geojson import plan_from_geojson
-from server.positioning.magnetic import MagneticGrid, sample
-from server.positioning.magnetic_distance import dtw_distance, mmse
+from server.positioning.magnetic import MagneticGrid, _bilinear, sample
+from server.positioning.magnetic_distance import densified
 from server.positioning.mapping.magnetic_gridding import grid_from_samples
 from server.storage.codec import decode_arrays, encode_arrays
 
@@ -70,6 +81,7 @@ def particle_bench(
     repeat: int = 15,
     seed: int = 0,
     min_run_s: float = MIN_RUN_S,
+    dtw_samples_per_step: int | None = None,
 ) -> dict[str, Any]:
     """Time both weight updates, both filter steps and the state codec.
 
@@ -86,6 +98,8 @@ def particle_bench(
     min_run_s : float
         Shortest timed run (s): a run repeats whole passes over the recorded steps, as
         many as the warm-up pass says it takes to last this long.
+    dtw_samples_per_step : int, optional
+        The DTW baseline's samples per step (default: ``ParticleParams``' own).
 
     Returns
     -------
@@ -93,12 +107,16 @@ def particle_bench(
         ``particles, window, repeat, mass_centered_steps_per_s, dtw_steps_per_s,
         speed_ratio`` (mass-centered / DTW updates per second), ``mmse_per_s,
         dtw_distance_per_s, distance_speed_ratio``, ``mass_centered_filter_steps_per_s,
-        dtw_filter_steps_per_s, filter_speed_ratio``, ``state_bytes, encode_us,
-        decode_us``.
+        dtw_filter_steps_per_s, filter_speed_ratio``, ``numpy_filter_steps_per_s,
+        compiled_speedup`` (compiled / numpy mass-centered steps per second),
+        ``dtw_samples_per_step``, ``state_bytes, encode_us, decode_us``.
     """
     if repeat < 1:
         raise ValueError(f"repeat must be at least 1, got {repeat}")
     params = pc.ParticleParams(n=n_particles, window=window)
+    if dtw_samples_per_step is not None:
+        params = replace(params, dtw_samples_per_step=dtw_samples_per_step)
+    per_step = params.dtw_samples_per_step
     plan, grid = _corridor(seed)
 
     def sample_map(_floor: pc.FloorArray, xy: pf.FloatArray) -> pf.FloatArray:
@@ -110,26 +128,62 @@ def particle_bench(
     walk = _record_walk(plan, grid, params, seed, sample_map, valid_move)
     pairs = list(zip(walk.moved, walk.observed_ut, strict=True))
     updated = [pf.mass_centered_update(q, o, sample_map, params) for q, o in pairs]
-    windows = [(p.observed, p.mags) for p in updated]  # full: the walk skipped W steps
+    # full windows (the walk skipped W steps), as each distance takes them
+    windows = [(p.observed.astype(np.float64), p.mags.astype(np.float64)) for p in updated]
+    sampled = [(densified(o, per_step), densified(m, per_step)) for o, m in windows]
 
     def update(fn: Callable[..., pc.Particles]) -> Callable[[], object]:
         return lambda: [fn(q, o, sample_map, params) for q, o in pairs]
 
-    def distance(fn: Callable[..., object]) -> Callable[[], object]:
-        return lambda: [fn(obs, mags) for obs, mags in windows]
+    def distance(fn: Callable[..., object], inputs: list[Any]) -> Callable[[], object]:
+        return lambda: [fn(obs, mags) for obs, mags in inputs]
+
+    steps = list(zip(walk.before, walk.observed_ut, strict=True))
 
     def filter_step(weighting: pc.Weighting) -> Callable[[], object]:
         rng = np.random.default_rng([seed, 2])
-        steps = list(zip(walk.before, walk.observed_ut, strict=True))
+        if weighting == "mass_centered":  # as the engine runs it
+            return lambda: [
+                pf.step_on_floor(p, STEP_M, walk.heading_rad, o, rng, params, plan, grid)
+                for p, o in steps
+            ]
         return lambda: [
             pf.step(p, STEP_M, walk.heading_rad, o, rng, params, valid_move, sample_map, weighting)
             for p, o in steps
         ]
 
+    def numpy_step() -> Callable[[], object]:
+        rng = np.random.default_rng([seed, 2])
+
+        def numpy_move(_f: pc.FloorArray, a: pf.FloatArray, b: pf.FloatArray) -> pf.BoolArray:
+            return valid_moves_reference(plan, a, b)
+
+        def numpy_map(_f: pc.FloorArray, xy: pf.FloatArray) -> pf.FloatArray:
+            return _bilinear(grid, xy, "magnitude")
+
+        return lambda: [
+            pf.step(
+                p,
+                STEP_M,
+                walk.heading_rad,
+                o,
+                rng,
+                params,
+                numpy_move,
+                numpy_map,
+                compiled=False,
+            )
+            for p, o in steps
+        ]
+
     n = len(pairs)
     mc, dtw = _rates([update(pf.mass_centered_update), update(pf.dtw_update)], n, repeat, min_run_s)
-    d_mc, d_dtw = _rates([distance(mmse), distance(dtw_distance)], n, repeat, min_run_s)
-    f_mc, f_dtw = _rates([filter_step("mass_centered"), filter_step("dtw")], n, repeat, min_run_s)
+    d_mc, d_dtw = _rates(
+        [distance(kernels.mmse, windows), distance(kernels.dtw, sampled)], n, repeat, min_run_s
+    )
+    f_mc, f_dtw, f_np = _rates(
+        [filter_step("mass_centered"), filter_step("dtw"), numpy_step()], n, repeat, min_run_s
+    )
 
     state = walk.moved[-1]
     blob = encode_arrays(state_codec.to_arrays(state))
@@ -158,6 +212,9 @@ def particle_bench(
         "mass_centered_filter_steps_per_s": f_mc,
         "dtw_filter_steps_per_s": f_dtw,
         "filter_speed_ratio": f_mc / f_dtw,
+        "numpy_filter_steps_per_s": f_np,
+        "compiled_speedup": f_mc / f_np,
+        "dtw_samples_per_step": per_step,
         "state_bytes": len(blob),
         "encode_us": encode_s * 1e6,
         "decode_us": decode_s * 1e6,

@@ -141,13 +141,19 @@ def valid_moves(plan: FloorPlan, a: ArrayLike, b: ArrayLike) -> NDArray[np.bool_
     a, b = _points(a), _points(b)
     if a.shape != b.shape:
         raise ValueError(f"a and b differ in shape: {a.shape} and {b.shape}")
-    ny, nx = plan.walkable.shape
-    index = plan._index
-    out: NDArray[np.bool_] = kernels.valid_moves(
-        a, b, plan.walkable.ravel(), plan.origin_m[0], plan.origin_m[1], plan.cell_m, nx, ny,
-        plan._clearance, plan._clear_below, plan.walls.shape[0], *index.kernel_args(),
-    )  # fmt: skip
+    out: NDArray[np.bool_] = kernels.valid_moves(a, b, *kernel_args(plan))
     return out
+
+
+def kernel_args(plan: FloorPlan) -> kernels.PlanArgs:
+    """The plan as the compiled move test takes it (``kernels.valid_moves``,
+    ``kernels.constrained_step``): raster, clearance and wall index."""
+    ny, nx = plan.walkable.shape
+    return (
+        plan.walkable.ravel(), float(plan.origin_m[0]), float(plan.origin_m[1]),
+        float(plan.cell_m), nx, ny, plan._clearance, plan._clear_below, plan.walls.shape[0],
+        *plan._index.kernel_args(),
+    )  # fmt: skip
 
 
 def valid_moves_reference(plan: FloorPlan, a: ArrayLike, b: ArrayLike) -> NDArray[np.bool_]:

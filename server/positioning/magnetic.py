@@ -125,14 +125,18 @@ def sample(grid: MagneticGrid, xy: ArrayLike, component: Component = "magnitude"
         raise ValueError(f"xy must have shape (n, 2), got {pts.shape}")
     if getattr(grid, component) is None:
         raise ValueError(f"this grid has no {component} component")
+    # _bilinear below, compiled (kernels)
+    out: FloatArray = kernels.bilinear(pts, *kernel_args(grid, component))
+    return out
+
+
+def kernel_args(grid: MagneticGrid, component: Component = "magnitude") -> kernels.GridArgs:
+    """The grid as the compiled sampling takes it (``kernels.bilinear``,
+    ``kernels.constrained_step``)."""
     filled, known = grid.sampling_arrays(component)
     ny, nx = grid.magnitude.shape
     x0, y0 = grid.origin_m
-    # _bilinear below, compiled (kernels)
-    out: FloatArray = kernels.bilinear(
-        pts, x0, y0, grid.cell_m, nx, ny, filled, known, MIN_CORNER_WEIGHT
-    )
-    return out
+    return float(x0), float(y0), float(grid.cell_m), nx, ny, filled, known, MIN_CORNER_WEIGHT
 
 
 def sample_many(

@@ -107,6 +107,32 @@ def dtw_distance(observed: ArrayLike, candidates: ArrayLike) -> FloatArray:
     return out
 
 
+def densified(sequences: ArrayLike, per_step: int) -> FloatArray:
+    """Windows of per-step magnitudes as sampled sequences: ``per_step`` samples per step,
+    linear between the step magnitudes (the last magnitude ends the sequence).
+
+    Parameters
+    ----------
+    sequences : array_like, shape (..., c)
+        Magnitudes at ``c >= 1`` consecutive steps.
+    per_step : int
+        Samples per step, ``>= 1`` (1 returns the magnitudes themselves).
+
+    Returns
+    -------
+    ndarray, shape (..., (c - 1) * per_step + 1), float64
+    """
+    seq = np.asarray(sequences, dtype=np.float64)
+    if per_step < 1:
+        raise ValueError(f"per_step must be at least 1, got {per_step}")
+    if per_step == 1 or seq.shape[-1] < 2:
+        return seq
+    f = np.arange(per_step) / per_step  # fractions of a step
+    start, end = seq[..., :-1, None], seq[..., 1:, None]
+    dense = (start + f * (end - start)).reshape(*seq.shape[:-1], -1)
+    return np.concatenate([dense, seq[..., -1:]], axis=-1)
+
+
 def _sequences(observed: ArrayLike, candidates: ArrayLike) -> tuple[FloatArray, FloatArray]:
     """Validate a window; return it and the candidates transposed to ``(m, n)``, C order."""
     obs = np.asarray(observed, dtype=np.float64)

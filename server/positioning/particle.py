@@ -48,16 +48,24 @@ have one (with none, the weights stay as they are). The paper's map covers every
 reachable place, so it has no such rule.
 
 DTW baseline (section IV-B, the Magicol method [11]): the same filter and window, with
-the classic DTW distance ``D_i`` between the ``W + 1`` observed and the particle's ``W + 1``
-map magnitudes (``server.positioning.magnetic_distance.dtw_distance``) in place of the MMSE::
+the classic DTW distance ``D_i`` between the observed and the particle's magnetic
+sequences over the window (``server.positioning.magnetic_distance.dtw_distance``) in place
+of the MMSE::
 
-    w_i^t = K w_i^{t-1} / max(D_i / (W + 1), T)
+    w_i^t = K w_i^{t-1} / max(D_i / L, T)
 
-Only the sequence distance changes -- same award, same cap, same window, same treatment of
-unknown cells -- so a comparison measures the distance and nothing else. ``D_i / (W + 1)``
-is, like the MMSE, a mean absolute error in µT per sample (a constant error ``e`` gives
-``e`` in both), so ``T`` means the same for both. DTW compares raw magnitudes: unlike eq (b)
-it does not cancel a magnetometer offset (section II, Figure 1).
+A Magicol-style matcher compares the magnetometer's samples over the last steps, not one
+magnitude per step, and its cost grows with the square of the sequence length: the
+sequences here hold ``dtw_samples_per_step`` samples per step (``L = W m + 1`` for a full
+window; the default, 34, is a 50 Hz magnetometer over the paper's 0.67 s step period), so
+the baseline does the work the paper timed. A step event carries one magnitude, and the
+cloud keeps one map magnitude per particle and step, so both sequences are interpolated
+linearly between those (``magnetic_distance.densified``); ``dtw_samples_per_step = 1``
+compares the step magnitudes alone. Only the sequence distance changes -- same award,
+same cap, same window, same treatment of unknown cells. ``D_i / L`` is, like the MMSE, a
+mean absolute error in µT per sample (a constant error ``e`` gives ``e`` in both), so
+``T`` means the same for both. DTW compares raw magnitudes: unlike eq (b) it does not
+cancel a magnetometer offset (section II, Figure 1).
 
 Resampling: systematic (``papers/001_*`` ref [24], Arulampalam et al. 2002, Algorithm 2)
 with one uniform draw ``u ~ U[0, 1/N)`` and the ``N`` points ``u + k/N``; particle ``i``
@@ -88,8 +96,10 @@ from dataclasses import replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from server.positioning import kernels
-from server.positioning.magnetic_distance import dtw_distance, mmse
+from server.positioning import floorplan, kernels, magnetic
+from server.positioning.floorplan import FloorPlan
+from server.positioning.magnetic import MagneticGrid
+from server.positioning.magnetic_distance import densified, dtw_distance, mmse
 from server.positioning.particle_cloud import (
     Estimate,
     MapSampler,
@@ -110,6 +120,13 @@ FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
 _INIT_ROUNDS = 32  # redraw rounds in ``initialise`` before giving up
+
+# ``step_on_floor`` without a plan or a map: arrays of the right types, never read
+_NO_PLAN: kernels.PlanArgs = (
+    np.zeros(1, dtype=np.bool_), 0.0, 0.0, 1.0, 0, 0, np.zeros(1, dtype=np.uint8),
+    np.zeros(256), 0, 0.0, 0.0, 1.0, 1.0, 0, 0, np.zeros(1, dtype=np.intp), np.zeros((0, 8)),
+)  # fmt: skip
+_NO_GRID: kernels.GridArgs = (0.0, 0.0, 1.0, 0, 0, np.zeros(1), np.zeros(1), 0.0)
 
 
 def initialise(
@@ -183,6 +200,7 @@ def move(
     rng: np.random.Generator,
     params: ParticleParams,
     valid_move: MoveCheck,
+    compiled: bool = True,
 ) -> Particles:
     """Move every particle by one step (Algorithm 1 lines 8-9, module docstring).
 
@@ -199,6 +217,8 @@ def move(
     valid_move : callable
         ``valid_move(floor (m,), a (m, 2), b (m, 2)) -> (m,) bool``; called with the
         living particles only, on the float32 positions that will be stored.
+    compiled : bool
+        The new positions from ``kernels.step_ends`` (else ``move_ends_reference``).
 
     Returns
     -------
@@ -216,7 +236,8 @@ def move(
     a = take_rows(p.xy, live).astype(np.float64)
     # b = a + length (sin, cos)(heading), rounded to the float32 that is stored (compiled:
     # kernels.step_ends; move_ends_reference is the same in numpy)
-    b32: NDArray[np.float32] = kernels.step_ends(
+    ends = kernels.step_ends if compiled else move_ends_reference_args
+    b32: NDArray[np.float32] = ends(
         a,
         np.ascontiguousarray(noise[:, live]),
         length_m,
@@ -244,10 +265,25 @@ def move_ends_reference(
     a: FloatArray, noise: FloatArray, length_m: float, heading_rad: float, params: ParticleParams
 ) -> NDArray[np.float32]:
     """``kernels.step_ends`` in numpy: the rows of ``a`` moved by one noisy step each."""
-    length = noise[0] * params.step_sd_m
+    return move_ends_reference_args(
+        a, noise, length_m, heading_rad, params.step_sd_m, params.heading_sd_rad
+    )
+
+
+def move_ends_reference_args(
+    a: FloatArray,
+    noise: FloatArray,
+    length_m: float,
+    heading_rad: float,
+    step_sd_m: float,
+    heading_sd_rad: float,
+) -> NDArray[np.float32]:
+    """``move_ends_reference`` with the noise scales given as ``kernels.step_ends`` takes
+    them."""
+    length = noise[0] * step_sd_m
     length += length_m
     np.maximum(length, 0.0, out=length)
-    heading = noise[1] * params.heading_sd_rad
+    heading = noise[1] * heading_sd_rad
     heading += heading_rad
     b32 = np.empty((a.shape[0], 2), dtype=np.float32)
     for axis, turn in ((0, np.sin), (1, np.cos)):
@@ -385,6 +421,7 @@ def step(
     valid_move: MoveCheck,
     sample_map: MapSampler,
     weighting: Weighting = "mass_centered",
+    compiled: bool = True,
 ) -> Particles:
     """One pass of Algorithm 1 lines 7-13: move, weight, resample when ``N_eff`` is low.
 
@@ -401,21 +438,82 @@ def step(
         As in ``move`` and ``mass_centered_update``.
     weighting : {"mass_centered", "dtw"}
         Eq (c) with the MMSE, or the DTW baseline.
+    compiled : bool
+        The compiled move and update (else their numpy references: with the references of
+        ``valid_move`` and ``sample_map`` too, the filter in numpy alone).
 
     Returns
     -------
     Particles
         Possibly dead (``alive`` is False): the caller re-initialises.
     """
-    p = move(p, length_m, heading_rad, rng, params, valid_move)
+    p = move(p, length_m, heading_rad, rng, params, valid_move, compiled)
     if not alive(p):
         return p
     if observed_ut is not None:
-        p = _weight_update(p, observed_ut, sample_map, params, weighting)
+        p = _weight_update(p, observed_ut, sample_map, params, weighting, compiled)
     w = weights(p)  # as effective_sample_size and systematic_resample, computed once
     if 1.0 / np.dot(w, w) < params.resample_ess_fraction * p.n:
         p = _resample(p, w, rng)
     return p
+
+
+def step_on_floor(
+    p: Particles,
+    length_m: float,
+    heading_rad: float,
+    observed_ut: float | None,
+    rng: np.random.Generator,
+    params: ParticleParams,
+    plan: FloorPlan | None,
+    grid: MagneticGrid | None,
+) -> Particles:
+    """``step`` with the mass-centered update for a cloud whose particles share one floor,
+    in one compiled pass (``kernels.constrained_step``) and a compiled resampling.
+
+    Parameters
+    ----------
+    p : Particles
+        Every particle on the floor of ``plan`` and ``grid``.
+    length_m, heading_rad, observed_ut, rng, params
+        As in ``step`` (same random draws, in the same order).
+    plan : FloorPlan or None
+        The floor's plan (``floorplan.valid_moves`` tests the moves); None: any finite end.
+    grid : MagneticGrid or None
+        The floor's magnetic map (``magnetic.sample``); None: unknown everywhere.
+
+    Returns
+    -------
+    Particles
+        What ``step`` returns with ``valid_move`` and ``sample_map`` made of ``plan`` and
+        ``grid`` (to float rounding of the sums: the tests compare them).
+    """
+    if not (math.isfinite(length_m) and math.isfinite(heading_rad)):
+        raise ValueError(f"step must be finite, got length {length_m}, heading {heading_rad}")
+    if observed_ut is not None and not math.isfinite(observed_ut):
+        raise ValueError(f"observed_ut must be finite, got {observed_ut}")
+    slots = p.observed.shape[0]
+    if slots != params.window + 1:
+        raise ValueError(f"cloud window {slots - 1} differs from params.window {params.window}")
+    noise = rng.standard_normal((2, p.n))
+    weigh = observed_ut is not None
+    observed = np.append(p.observed[1:], np.float32(observed_ut)) if weigh else p.observed
+    count = min(p.count + 1, slots) if weigh else p.count
+    xy, log_w, mags, ess = kernels.constrained_step(
+        np.ascontiguousarray(p.xy), np.ascontiguousarray(p.log_w),
+        np.ascontiguousarray(p.mags), observed, count, noise, length_m, heading_rad,
+        params.step_sd_m, params.heading_sd_rad,
+        plan is not None, _NO_PLAN if plan is None else floorplan.kernel_args(plan),
+        grid is not None, _NO_GRID if grid is None else magnetic.kernel_args(grid),
+        weigh, params.t, math.log(params.k),
+    )  # fmt: skip
+    if ess == 0.0:  # dead (``step`` returns it before the update)
+        return unchecked(p, xy=xy, log_w=log_w)
+    if ess < params.resample_ess_fraction * p.n:
+        rows = kernels.systematic_rows(log_w, rng.random())
+        xy, mags = np.take(xy, rows, axis=0), np.take(mags, rows, axis=0)
+        log_w = np.full(p.n, -math.log(p.n), dtype=np.float32)
+    return unchecked(p, xy=xy, log_w=log_w, mags=mags, observed=observed, count=count)
 
 
 def _weight_update(
@@ -471,7 +569,13 @@ def _weight_update(
         return out
     obs = observed[-count:]
     cand = take_rows(mags, live)[:, -count:]
-    d = mmse(obs, cand) if weighting == "mass_centered" else dtw_distance(obs, cand) / count
+    if weighting == "mass_centered":
+        d = mmse(obs, cand)
+    else:  # the sampled sequences of the DTW baseline (module docstring)
+        per_step = params.dtw_samples_per_step
+        seq, sampled = densified(obs, per_step), densified(cand, per_step)
+        distance = kernels.dtw if compiled else dtw_distance
+        d = distance(seq, np.ascontiguousarray(sampled)) / seq.shape[0]
     known = np.isfinite(d)
     if not known.any():
         return out

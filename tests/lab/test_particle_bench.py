@@ -20,6 +20,7 @@ RATES = (
     "dtw_distance_per_s",
     "mass_centered_filter_steps_per_s",
     "dtw_filter_steps_per_s",
+    "numpy_filter_steps_per_s",
 )
 
 
@@ -43,14 +44,18 @@ def test_reports_every_figure_with_its_type(n: int, window: int) -> None:
         "mass_centered_filter_steps_per_s",
         "dtw_filter_steps_per_s",
         "filter_speed_ratio",
+        "numpy_filter_steps_per_s",
+        "compiled_speedup",
+        "dtw_samples_per_step",
         "state_bytes",
         "encode_us",
         "decode_us",
     ]
     assert (result["particles"], result["window"], result["repeat"]) == (n, window, 2)
-    for name in ("particles", "window", "repeat", "state_bytes"):
+    for name in ("particles", "window", "repeat", "dtw_samples_per_step", "state_bytes"):
         assert type(result[name]) is int, name
-    for name in (*RATES, "speed_ratio", "distance_speed_ratio", "filter_speed_ratio"):
+    ratios = ("speed_ratio", "distance_speed_ratio", "filter_speed_ratio", "compiled_speedup")
+    for name in (*RATES, *ratios):
         value = result[name]
         assert isinstance(value, float), name
         assert math.isfinite(value), name

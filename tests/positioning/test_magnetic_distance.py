@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from numpy.typing import NDArray
 
-from server.positioning.magnetic_distance import dtw_distance, mmse
+from server.positioning.magnetic_distance import densified, dtw_distance, mmse
 
 NAN = float("nan")
 
@@ -98,3 +98,13 @@ def test_distances_rank_the_true_sequence_first() -> None:
     assert int(np.argmin(mmse(observed, candidates))) == 1234
     candidates[1234] = observed
     assert int(np.argmin(dtw_distance(observed, candidates))) == 1234
+
+
+def test_densified_samples_each_step_linearly_and_keeps_the_magnitudes() -> None:
+    seq = np.array([[40.0, 44.0, 42.0], [30.0, 30.0, np.nan]])
+    dense = densified(seq, 4)
+    np.testing.assert_allclose(dense[0], [40, 41, 42, 43, 44, 43.5, 43, 42.5, 42])
+    assert dense[0, ::4].tolist() == [40.0, 44.0, 42.0]  # every step's own magnitude
+    assert np.isnan(dense[1, -1])
+    assert not np.isnan(dense[1, :4]).any()
+    np.testing.assert_array_equal(densified(seq, 1), seq)

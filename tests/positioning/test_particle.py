@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 
 from server.positioning import state_codec
 from server.positioning.magnetic import sample
-from server.positioning.magnetic_distance import dtw_distance
+from server.positioning.magnetic_distance import densified, dtw_distance
 from server.positioning.mapping.magnetic_gridding import grid_from_samples
 from server.positioning.particle import (
     alive,
@@ -241,15 +241,21 @@ def test_no_known_map_value_leaves_the_weights() -> None:
     np.testing.assert_array_equal(q.log_w, p.log_w)
 
 
-def test_dtw_update_uses_the_same_award_with_the_dtw_distance() -> None:
-    params = ParticleParams()
+@pytest.mark.parametrize("per_step", [1, 5, 34])
+def test_dtw_update_uses_the_same_award_with_the_dtw_distance(per_step: int) -> None:
+    """Over the sampled sequences: ``per_step`` samples per step, ``L = 3 per_step + 1``."""
+    params = ParticleParams(dtw_samples_per_step=per_step)
     observed = [40.0, 42.0, 41.0]
     mags = [[50.0, 52.0, 51.0], [40.0, 42.0, 41.0], [41.0, 41.0, 42.0], [40.0, 40.0, 42.0]]
     new = [55.0, 45.0, 44.0, 45.0]
     p = with_window(cloud([(1.0, 1.0)] * 4), mags, observed)
     q = dtw_update(p, 45.0, fixed_map(new), params)
     full = np.column_stack([mags, new])
-    d = dtw_distance([*observed, 45.0], full) / 4.0  # mean error per magnitude
+    length = 3 * per_step + 1
+    obs, cand = densified([*observed, 45.0], per_step), densified(full, per_step)
+    assert obs.shape == (length,)
+    assert cand.shape == (4, length)
+    d = dtw_distance(obs, cand) / length  # mean error per sample
     assert d[1] == 0.0  # the identical sequence: capped at T
     award = np.maximum(d, params.t)
     np.testing.assert_allclose(weights_of(q), (1 / award) / np.sum(1 / award), rtol=1e-5)

@@ -230,23 +230,36 @@ def _on_step(
     cloud = state.cloud
     if cloud is None or not math.isfinite(north_rad) or not math.isfinite(length_m):
         return state, None
-    floor = _one_floor(cloud.floor)
-    if floor is None:
-        floor = particle.estimate(cloud).floor
+    one = _one_floor(cloud.floor)
+    floor = particle.estimate(cloud).floor if one is None else one
     heading = rf.in_building_frame(maps, floor, north_rad)
     use_field = math.isfinite(magnitude_ut) and params.weighting != "none"
     observed = magnitude_ut if use_field else None
-    moved = particle.step(
-        cloud,
-        length_m,
-        heading,
-        observed,
-        rng,
-        params.particles,
-        _valid_move(maps),
-        _sample_map(maps),
-        weighting="dtw" if params.weighting == "dtw" else "mass_centered",
-    )
+    if one is not None and params.weighting != "dtw":
+        # the usual case, in one compiled pass: the same answer as particle.step
+        grids = maps.magnetic.grids if maps.magnetic is not None else ()
+        moved = particle.step_on_floor(
+            cloud,
+            length_m,
+            heading,
+            observed,
+            rng,
+            params.particles,
+            maps.plans[one] if 0 <= one < len(maps.plans) else None,
+            grids[one] if 0 <= one < len(grids) else None,
+        )
+    else:
+        moved = particle.step(
+            cloud,
+            length_m,
+            heading,
+            observed,
+            rng,
+            params.particles,
+            _valid_move(maps),
+            _sample_map(maps),
+            weighting="dtw" if params.weighting == "dtw" else "mass_centered",
+        )
     if not particle.alive(moved):
         return replace(state, cloud=None, heading_rad=heading), None
     new = replace(state, cloud=moved, heading_rad=heading)
