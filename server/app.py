@@ -11,11 +11,13 @@ from typing import Any
 import anyio
 from fastapi import FastAPI
 from fastapi.routing import APIRoute
+from starlette.middleware.cors import CORSMiddleware
 
 from server import worker
 from server.api import (
     admin,
     body_limit,
+    console,
     engines,
     errors,
     health,
@@ -95,8 +97,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         lifespan=lifespan,
         generate_unique_id_function=_operation_id,
         responses=ERROR_RESPONSES,
+        docs_url=None,  # server.api.console serves /docs and /redoc from the package
+        redoc_url=None,
     )
     errors.install(app)
+    console.install(app)
     routers = (health, admin, engines, keys, sessions, live, locate, uploads, quality, metrics)
     for module in routers:
         app.include_router(module.router)
@@ -106,6 +111,15 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         bulk_max_bytes=settings.upload_max_bytes,
     )
     app.add_middleware(metrics.RequestTimer)
+    if settings.cors_origins:  # outermost: a preflight is answered before anything else
+        app.add_middleware(
+            CORSMiddleware,
+            allow_origins=settings.cors_origins,
+            allow_methods=["GET", "POST", "PUT", "DELETE"],
+            allow_headers=["Authorization", "Content-Type", "Content-Encoding", "Idempotency-Key"],
+            expose_headers=["Location", "Retry-After"],
+            max_age=600,
+        )
     _with_hand_read_schemas(app)
     return app
 

@@ -8,12 +8,16 @@ in-memory session store. Setting
 
 from __future__ import annotations
 
+import re
 from functools import lru_cache
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import Field, SecretStr, field_validator
-from pydantic_settings import BaseSettings, SettingsConfigDict
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
+
+# an origin as a browser sends it: scheme, host and port, nothing after
+ORIGIN = re.compile(r"^https?://[^\s/?#]+$")
 
 
 class Settings(BaseSettings):
@@ -30,6 +34,13 @@ class Settings(BaseSettings):
     session_idle_s: int = Field(1800, ge=10, description="sessions expire after this idle time")
     seq_wait_s: float = Field(
         2.0, ge=0, le=30, description="how long a batch waits for its predecessor seq"
+    )
+    session_track_len: int = Field(
+        200,
+        ge=0,
+        le=5000,
+        description="fixes kept per session for GET /v1/sessions/{id}/track (the newest); "
+        "0 keeps none",
     )
     replay_window: int = Field(
         16, ge=1, le=256, description="recent batch replies kept for retried seqs"
@@ -68,6 +79,12 @@ class Settings(BaseSettings):
         False,
         description="deprecated: accept a session token as ?token= on the live socket "
         "(it is scrubbed from the logs); clients send a bearer header or an auth message",
+    )
+    cors_origins: Annotated[list[str], NoDecode] = Field(
+        default_factory=list,
+        description="browser origins (https://console.example.com) allowed to call the API "
+        "from another origin, comma-separated; none by default. Credentials are bearer "
+        "headers, never cookies",
     )
     json_max_bytes: int = Field(
         4 * 1024 * 1024,
@@ -120,6 +137,21 @@ class Settings(BaseSettings):
                 "redis_url must start with redis://, rediss://, unix:// or redis+cluster:// "
                 "(a Redis Cluster: any of its nodes)"
             )
+        return v
+
+    @field_validator("cors_origins", mode="before")
+    @classmethod
+    def _origins(cls, v: Any) -> Any:
+        if isinstance(v, str):
+            v = [part.strip() for part in v.split(",") if part.strip()]
+        if isinstance(v, list):
+            for origin in v:
+                if not isinstance(origin, str) or not (origin == "*" or ORIGIN.match(origin)):
+                    raise ValueError(
+                        f"{origin!r} is not an origin: scheme://host[:port] without a path "
+                        "or a trailing slash (or * for any)"
+                    )
+            return [o.lower() if o != "*" else o for o in v]
         return v
 
     @field_validator("log_level")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Path, status
+from fastapi import APIRouter, Path, Response, status
 
 from server.api.convert import ble_pairs, wifi_pairs
 from server.api.deps import (
@@ -13,9 +13,12 @@ from server.api.deps import (
     GlobalAdminDep,
     IdPath,
     MapsWriteDep,
+    PageQuery,
+    RuntimeDep,
     SqlDep,
     Viewer,
     ViewerDep,
+    page_query,
 )
 from server.api.schemas.maps import (
     DeviceOffsetList,
@@ -27,6 +30,7 @@ from server.api.schemas.maps import (
     RadioMapRead,
     SurveyIn,
 )
+from server.api.schemas.pages import CREATED, LEVEL, encode_cursor
 from server.api.schemas.sites import (
     BuildingCreate,
     BuildingList,
@@ -44,6 +48,10 @@ from server.services import device_offsets, magnetic_maps, maps, sites
 VersionPath = Annotated[int, Path(ge=1, le=2**31 - 1, description="map version number")]
 
 router = APIRouter(prefix="/v1", tags=["admin"])
+SitePage = Annotated[PageQuery, page_query("sites", CREATED)]
+BuildingPage = Annotated[PageQuery, page_query("buildings", CREATED)]
+FloorPage = Annotated[PageQuery, page_query("floors", LEVEL)]
+NO_CONTENT = status.HTTP_204_NO_CONTENT
 
 
 def _floor(f: Any) -> FloorRead:
@@ -66,16 +74,34 @@ async def create_site(body: SiteCreate, s: SqlDep) -> SiteRead:
     return SiteRead.model_validate(await sites.create_site(s, body.name), from_attributes=True)
 
 
+def _next(name: str, key: tuple[Any, ...] | None) -> str | None:
+    return encode_cursor(name, key) if key is not None else None
+
+
 @router.get("/sites")
-async def list_sites(s: SqlDep, principal: Viewer) -> SiteList:
-    rows = [x for x in await sites.list_sites(s) if principal.site_id in (None, x.id)]
-    items = [SiteRead.model_validate(x, from_attributes=True) for x in rows]
-    return SiteList(items=items, count=len(items))
+async def list_sites(s: SqlDep, principal: Viewer, page: SitePage) -> SiteList:
+    """Sites newest first (a key of one site sees that one)."""
+    found = await sites.list_sites(s, page.after, page.limit, principal.site_id)
+    items = [SiteRead.model_validate(x, from_attributes=True) for x in found.rows]
+    return SiteList(items=items, count=len(items), next_cursor=_next("sites", found.next_key))
 
 
 @router.get("/sites/{site_id}", dependencies=[ViewerDep])
 async def get_site(site_id: IdPath, s: SqlDep) -> SiteRead:
     return SiteRead.model_validate(await sites.get_site(s, site_id), from_attributes=True)
+
+
+@router.delete("/sites/{site_id}", status_code=NO_CONTENT, dependencies=[GlobalAdminDep])
+async def delete_site(site_id: IdPath, s: SqlDep, rt: RuntimeDep) -> Response:
+    """Delete the site with everything in it: its buildings (each as DELETE
+    /v1/buildings/{id} removes it), its uploads, its sessions' records (and the batches
+    contributing sessions kept), its engine settings, and the API keys of this site
+    alone, which stop working. Refused with 409, naming them, while the site has active
+    sessions (not ended, a batch within the last 1.5 idle timeouts: GET
+    /v1/sessions?active=true): they end by DELETE /v1/sessions/{id} with their token, or
+    expire."""
+    await sites.delete_site(s, site_id, rt.settings.session_idle_s)
+    return Response(status_code=NO_CONTENT)
 
 
 @router.post(
@@ -87,16 +113,29 @@ async def create_building(site_id: IdPath, body: BuildingCreate, s: SqlDep) -> B
 
 
 @router.get("/sites/{site_id}/buildings", dependencies=[ViewerDep])
-async def list_buildings(site_id: IdPath, s: SqlDep) -> BuildingList:
-    rows = await sites.list_buildings(s, site_id)
-    items = [BuildingRead.model_validate(b, from_attributes=True) for b in rows]
-    return BuildingList(items=items, count=len(items))
+async def list_buildings(site_id: IdPath, s: SqlDep, page: BuildingPage) -> BuildingList:
+    """The site's buildings, oldest first."""
+    found = await sites.list_buildings(s, site_id, page.after, page.limit)
+    items = [BuildingRead.model_validate(b, from_attributes=True) for b in found.rows]
+    cursor = _next("buildings", found.next_key)
+    return BuildingList(items=items, count=len(items), next_cursor=cursor)
 
 
 @router.get("/buildings/{building_id}", dependencies=[ViewerDep])
 async def get_building(building_id: IdPath, s: SqlDep) -> BuildingRead:
     building = await sites.get_building(s, building_id)
     return BuildingRead.model_validate(building, from_attributes=True)
+
+
+@router.delete("/buildings/{building_id}", status_code=NO_CONTENT, dependencies=[AdminDep])
+async def delete_building(building_id: IdPath, s: SqlDep, rt: RuntimeDep) -> Response:
+    """Delete the building: its floors (each as DELETE /v1/floors/{id} removes it), its
+    emitters, every radio map version, and the uploads that named it with the survey
+    points they gave (uploads of the site that named no building stay). Device offsets
+    are computed from its survey points, so its own go too. Refused with 409, naming
+    them, while the site has active sessions (their engines hold the site's floors)."""
+    await sites.delete_building(s, building_id, rt.settings.session_idle_s)
+    return Response(status_code=NO_CONTENT)
 
 
 @router.post(
@@ -107,14 +146,28 @@ async def create_floor(building_id: IdPath, body: FloorCreate, s: SqlDep) -> Flo
 
 
 @router.get("/buildings/{building_id}/floors", dependencies=[ViewerDep])
-async def list_floors(building_id: IdPath, s: SqlDep) -> FloorList:
-    items = [_floor(f) for f in await sites.list_floors(s, building_id)]
-    return FloorList(items=items, count=len(items))
+async def list_floors(building_id: IdPath, s: SqlDep, page: FloorPage) -> FloorList:
+    """The building's floors by level, lowest first."""
+    found = await sites.list_floors(s, building_id, page.after, page.limit)
+    items = [_floor(f) for f in found.rows]
+    return FloorList(items=items, count=len(items), next_cursor=_next("floors", found.next_key))
 
 
 @router.get("/floors/{floor_id}", dependencies=[ViewerDep])
 async def get_floor(floor_id: IdPath, s: SqlDep) -> FloorRead:
     return _floor(await sites.get_floor(s, floor_id))
+
+
+@router.delete("/floors/{floor_id}", status_code=NO_CONTENT, dependencies=[AdminDep])
+async def delete_floor(floor_id: IdPath, s: SqlDep, rt: RuntimeDep) -> Response:
+    """Delete the floor: its plan, its magnetic map versions and the survey points taken
+    on it. Its reference points drop out of every version of the building's radio map
+    (the versions stay, over the other floors); emitters placed on it stay, unplaced.
+    Uploads hinting its level stay (the worker rejects one it then cannot place).
+    Refused with 409, naming them, while the site has active sessions (their engines
+    hold the site's floors by index)."""
+    await sites.delete_floor(s, floor_id, rt.settings.session_idle_s)
+    return Response(status_code=NO_CONTENT)
 
 
 @router.put("/floors/{floor_id}/plan", dependencies=[MapsWriteDep])

@@ -3,15 +3,17 @@
 from __future__ import annotations
 
 from collections.abc import AsyncIterator
+from dataclasses import dataclass
 from typing import Annotated, Any
 
-from fastapi import Depends, Path, Request, WebSocket
+from fastapi import Depends, Path, Query, Request, WebSocket
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.ext.asyncio import AsyncSession
 from starlette.requests import HTTPConnection
 
+from server.api.schemas.pages import DEFAULT_LIMIT, MAX_CURSOR_CHARS, MAX_LIMIT, decode_cursor
 from server.services import auth, limits, sites
-from server.services.errors import Forbidden, Unauthorized
+from server.services.errors import Forbidden, Invalid, Unauthorized
 from server.services.runtime import Runtime
 
 _bearer = HTTPBearer(auto_error=False, description="an API key or a session token")
@@ -128,3 +130,38 @@ async def require_global_admin(principal: Admin) -> auth.Principal:
 
 
 GlobalAdminDep = Depends(require_global_admin)
+
+
+@dataclass(frozen=True)
+class PageQuery:
+    """A page a list route was asked for: its size and the key it starts after."""
+
+    limit: int
+    after: tuple[Any, ...] | None
+
+
+def page_query(name: str, key: tuple[type, ...]) -> Any:
+    """The ``limit`` and ``cursor`` query parameters of list ``name`` (sorted by a key of
+    ``key`` types; ``schemas.pages``), checked: 422 naming the field."""
+
+    async def page(
+        limit: Annotated[
+            int, Query(ge=1, le=MAX_LIMIT, description=f"items per page, at most {MAX_LIMIT}")
+        ] = DEFAULT_LIMIT,
+        cursor: Annotated[
+            str | None,
+            Query(
+                min_length=1,
+                max_length=MAX_CURSOR_CHARS,
+                description="the next_cursor of the page before; none for the first page",
+            ),
+        ] = None,
+    ) -> PageQuery:
+        if cursor is None:
+            return PageQuery(limit, None)
+        try:
+            return PageQuery(limit, decode_cursor(name, key, cursor))
+        except ValueError as exc:
+            raise Invalid(str(exc), field="cursor") from None
+
+    return Depends(page)

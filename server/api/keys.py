@@ -6,13 +6,15 @@ from typing import Annotated
 
 from fastapi import APIRouter, Path, Query, Response, status
 
-from server.api.deps import GlobalAdminDep, SqlDep
+from server.api.deps import GlobalAdminDep, PageQuery, SqlDep, page_query
 from server.api.schemas.keys import ApiKeyCreate, ApiKeyCreated, ApiKeyList, ApiKeyRead
+from server.api.schemas.pages import CREATED, encode_cursor
 from server.services import auth
 from server.storage.models import ApiKey
 
 router = APIRouter(prefix="/v1/keys", tags=["keys"], dependencies=[GlobalAdminDep])
 KeyPath = Annotated[str, Path(pattern=r"^[0-9a-f]{32}$")]
+KeyPage = Annotated[PageQuery, page_query("keys", CREATED)]
 
 
 def read(row: ApiKey) -> ApiKeyRead:
@@ -39,14 +41,22 @@ async def create_key(body: ApiKeyCreate, s: SqlDep) -> ApiKeyCreated:
 
 @router.get("")
 async def list_keys(
-    s: SqlDep, include_revoked: Annotated[bool, Query(description="revoked keys too")] = False
+    s: SqlDep,
+    page: KeyPage,
+    include_revoked: Annotated[bool, Query(description="revoked keys too")] = False,
 ) -> ApiKeyList:
-    items = [read(row) for row in await auth.list_keys(s, include_revoked)]
-    return ApiKeyList(items=items, count=len(items))
+    """Keys newest first (never their secrets)."""
+    found = await auth.key_page(s, include_revoked, page.after, page.limit)
+    items = [read(row) for row in found.rows]
+    cursor = encode_cursor("keys", found.next_key) if found.next_key is not None else None
+    return ApiKeyList(items=items, count=len(items), next_cursor=cursor)
 
 
 @router.delete("/{key_id}", status_code=status.HTTP_204_NO_CONTENT)
 async def revoke_key(key_id: KeyPath, s: SqlDep) -> Response:
+    """Revoke the key: it stops working at once. Its row stays, for the record (listed
+    with include_revoked); a revoked key cannot be rotated or revoked again (404). The
+    keys of a site also go when the site is deleted."""
     await auth.revoke_key(s, key_id)
     return Response(status_code=status.HTTP_204_NO_CONTENT)
 

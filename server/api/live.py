@@ -1,15 +1,18 @@
 """WebSocket ``/v1/sessions/{id}/live``: every new fix of the session, as it is made.
 
-The session token never goes in the URL (URLs end up in logs): it comes as a bearer
-``Authorization`` header, or, from a browser (which cannot set headers on a socket), as
-the first message ``{"type": "auth", "token": "..."}`` within ``AUTH_TIMEOUT_S``. The old
-``?token=`` query parameter is refused unless ``INDOORPOS_LIVE_QUERY_TOKEN`` is set
-(deprecated; ``server.logs`` scrubs it from every log line either way).
+Who may open it: the session's own token, or an API key with the ``viewer`` scope for the
+session's site (a console following a floor's walkers), which follows only: batches it
+sends are refused. The credential never goes in the URL (URLs end up in logs): it comes
+as a bearer ``Authorization`` header, or, from a browser (which cannot set headers on a
+socket), as the first message ``{"type": "auth", "token": "..."}`` within
+``AUTH_TIMEOUT_S``. The old ``?token=`` query parameter is refused unless
+``INDOORPOS_LIVE_QUERY_TOKEN`` is set (deprecated; ``server.logs`` scrubs it from every
+log line either way).
 Messages out: ``{"type": "ready"}`` once the socket follows the session (fixes
 of batches posted after it are never missed), ``{"type": "fix", "seq", "fix"}``,
-``{"type": "batch_result", ...}`` for batches sent over the socket, and
-``{"type": "error", "status", "detail", "message"}`` (with the ``seq`` of the batch it
-answers, when it answers one).
+``{"type": "batch_result", ...}`` (the fields of a batch's HTTP answer) for batches sent
+over the socket, and ``{"type": "error", "status", "detail", "message"}`` (with the
+``seq`` of the batch it answers, when it answers one).
 Fan-out goes through the session store's pub/sub, so any replica can serve the socket.
 """
 
@@ -27,7 +30,7 @@ from uvicorn.protocols.utils import ClientDisconnected
 
 from server.api.convert import to_events
 from server.api.deps import IdPath, client_address, get_ws_runtime
-from server.api.errors import service_detail, validation_detail
+from server.api.errors import problem, service_detail, validation_detail
 from server.api.schemas.common import StrictIn
 from server.api.schemas.sessions import LiveBatch
 from server.logs import session_context
@@ -56,6 +59,7 @@ class _Socket:
 
 
 AUTH_TIMEOUT_S = 10.0
+FOLLOW_ONLY = "a key follows the session; only the session's token sends batches"
 
 
 class AuthMessage(StrictIn):
@@ -110,7 +114,7 @@ async def _serve(websocket: WebSocket, session_id: str, rt: Runtime, token: str 
         await limits.refuse_failing_address(rt, address)
         secret = await _token(websocket, token, rt.settings.live_query_token)
         try:
-            await sessions.authorize(rt, session_id, secret)
+            owner = await sessions.authorize_reader(rt, session_id, secret)
         except ServiceError:
             await limits.check_auth_failure(rt, address)  # TooMany past the limit
             raise
@@ -138,11 +142,13 @@ async def _serve(websocket: WebSocket, session_id: str, rt: Runtime, token: str 
 
         tg.start_soon(forward)
         with contextlib.suppress(*GONE):
-            await _read(sock, rt, session_id, secret)
+            await _read(sock, rt, session_id, secret, owner)
         tg.cancel_scope.cancel()
 
 
-async def _read(sock: _Socket, rt: Runtime, session_id: str, secret: str) -> None:
+async def _read(sock: _Socket, rt: Runtime, session_id: str, secret: str, owner: bool) -> None:
+    """Batches sent over the socket, applied in turn; ``owner``: the socket was opened
+    with the session's token (a key's socket follows only)."""
     while True:
         message = await sock.ws.receive()
         if message["type"] == "websocket.disconnect":
@@ -155,6 +161,10 @@ async def _read(sock: _Socket, rt: Runtime, session_id: str, secret: str) -> Non
         except ValidationError as exc:
             errors = [dict(e) for e in exc.errors()]
             await sock.send({"type": "error", "status": 422, **validation_detail(errors)})
+            continue
+        if not owner:
+            detail = problem("authorization", FOLLOW_ONLY, "Forbidden")
+            await sock.send({"type": "error", "status": 403, "seq": batch.seq, **detail})
             continue
         try:
             events = to_events(batch.events)
@@ -182,5 +192,6 @@ async def _read(sock: _Socket, rt: Runtime, session_id: str, secret: str) -> Non
                 "replayed": result.replayed,
                 "fixes": result.fixes,
                 "reinitialised": result.reinitialised,
+                "not_used": result.not_used,
             }
         )

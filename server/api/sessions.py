@@ -1,24 +1,42 @@
-"""Device routes: positioning sessions and their batches."""
+"""Device routes: positioning sessions and their batches; reading and listing them with a
+``viewer`` key (``services.sessions`` says who may do what)."""
 
 from __future__ import annotations
 
+from typing import Annotated
+
 import orjson
-from fastapi import APIRouter, Response, status
+from fastapi import APIRouter, Query, Response, status
 
 from server.api.convert import to_events
-from server.api.deps import AddressDep, BearerDep, Device, IdPath, RuntimeDep
+from server.api.deps import (
+    AddressDep,
+    BearerDep,
+    Device,
+    IdPath,
+    PageQuery,
+    RuntimeDep,
+    Viewer,
+    page_query,
+)
+from server.api.schemas.pages import CREATED, encode_cursor
 from server.api.schemas.sessions import (
     BatchIn,
     BatchOut,
     FixOut,
     SessionCreate,
     SessionCreated,
+    SessionList,
     SessionRead,
+    SessionSummary,
+    SessionTrack,
 )
 from server.logs import session_context
 from server.services import limits, sessions, telemetry
 
 router = APIRouter(prefix="/v1/sessions", tags=["sessions"])
+SessionPage = Annotated[PageQuery, page_query("sessions", CREATED)]
+MAX_TRACK = 5000  # Settings.session_track_len's bound
 
 
 @router.post("", status_code=status.HTTP_201_CREATED)
@@ -67,12 +85,38 @@ async def post_batch(
         "replayed": result.replayed,
         "fixes": result.fixes,
         "reinitialised": result.reinitialised,
+        "not_used": result.not_used,
     }
     return Response(orjson.dumps(answer), media_type="application/json")
 
 
+@router.get("")
+async def list_sessions(
+    rt: RuntimeDep,
+    principal: Viewer,
+    page: SessionPage,
+    site_id: Annotated[
+        str | None, Query(pattern=r"^[0-9a-f]{32}$", description="one site's only")
+    ] = None,
+    active: Annotated[
+        bool | None,
+        Query(description="true: active ones only (possibly live); false: ended or idle only"),
+    ] = None,
+) -> SessionList:
+    """Sessions newest first, from their records (a key of one site sees that site's).
+    Follow one with a viewer key over GET /v1/sessions/{id}/live."""
+    principal.require("viewer", site_id)
+    site_id = site_id or principal.site_id
+    found = await sessions.list_sessions(rt, site_id, active, page.after, page.limit)
+    items = [SessionSummary.model_validate(x, from_attributes=True) for x in found.rows]
+    cursor = encode_cursor("sessions", found.next_key) if found.next_key is not None else None
+    return SessionList(items=items, count=len(items), next_cursor=cursor)
+
+
 @router.get("/{session_id}")
 async def get_session(session_id: IdPath, rt: RuntimeDep, token: BearerDep) -> SessionRead:
+    """The session's state, for its token or for a key with the viewer scope for its
+    site."""
     with session_context(session_id):
         info = await sessions.get_session(rt, session_id, token)
     return SessionRead(
@@ -83,6 +127,22 @@ async def get_session(session_id: IdPath, rt: RuntimeDep, token: BearerDep) -> S
         last_fix=FixOut.model_validate(info.last_fix) if info.last_fix else None,
         idle_timeout_s=info.idle_timeout_s,
     )
+
+
+@router.get("/{session_id}/track")
+async def get_track(
+    session_id: IdPath,
+    rt: RuntimeDep,
+    token: BearerDep,
+    limit: Annotated[int, Query(ge=1, le=MAX_TRACK, description="newest fixes wanted")] = 200,
+) -> SessionTrack:
+    """The session's newest fixes, oldest first: at most ``limit``, and at most the
+    server keeps (``max_fixes``), for its token or for a key with the viewer scope for
+    its site."""
+    with session_context(session_id):
+        fixes = await sessions.get_track(rt, session_id, token, limit)
+    items = [FixOut.model_validate(f) for f in fixes]
+    return SessionTrack(items=items, count=len(items), max_fixes=rt.settings.session_track_len)
 
 
 @router.delete("/{session_id}", status_code=status.HTTP_204_NO_CONTENT)

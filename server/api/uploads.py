@@ -21,9 +21,19 @@ from pydantic.json_schema import models_json_schema
 from starlette.requests import ClientDisconnect
 
 from server.api.convert import to_events
-from server.api.deps import IdPath, MapsWriter, RuntimeDep, SqlDep, Viewer, client_address
+from server.api.deps import (
+    IdPath,
+    MapsWriter,
+    PageQuery,
+    RuntimeDep,
+    SqlDep,
+    Viewer,
+    client_address,
+    page_query,
+)
 from server.api.schemas.common import DeviceModel
-from server.api.schemas.uploads import UploadRead, UploadTraceIn
+from server.api.schemas.pages import CREATED, encode_cursor
+from server.api.schemas.uploads import UploadList, UploadRead, UploadStatus, UploadTraceIn
 from server.services import limits, traces, uploads
 from server.services.errors import Invalid, TooLarge
 from server.services.upload_payloads import ILC_TEXT
@@ -32,6 +42,7 @@ router = APIRouter(prefix="/v1", tags=["uploads"])
 log = logging.getLogger("indoorpos.api.uploads")
 
 XZ_TYPES = {"application/x-xz", "application/xz"}
+UploadPage = Annotated[PageQuery, page_query("uploads", CREATED)]
 
 
 async def _body(request: Request, limit: int) -> bytes:
@@ -145,6 +156,28 @@ async def create_upload(
     else:
         response.status_code = status.HTTP_200_OK
     return out
+
+
+@router.get("/uploads")
+async def list_uploads(
+    s: SqlDep,
+    principal: Viewer,
+    page: UploadPage,
+    site_id: Annotated[
+        str | None, Query(pattern=r"^[0-9a-f]{32}$", description="one site's only")
+    ] = None,
+    upload_status: Annotated[
+        UploadStatus | None, Query(alias="status", description="in this status only")
+    ] = None,
+) -> UploadList:
+    """Uploads newest first, with their status and report (a key of one site sees that
+    site's)."""
+    principal.require("viewer", site_id)
+    site_id = site_id or principal.site_id
+    found = await uploads.list_uploads(s, site_id, upload_status, page.after, page.limit)
+    items = [_read(row) for row in found.rows]
+    cursor = encode_cursor("uploads", found.next_key) if found.next_key is not None else None
+    return UploadList(items=items, count=len(items), next_cursor=cursor)
 
 
 @router.get("/uploads/{upload_id}")

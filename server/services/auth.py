@@ -29,6 +29,7 @@ from server.services.errors import Forbidden, Invalid, NotFound
 from server.storage.models import ApiKey
 from server.storage.repositories import api_keys as key_repo
 from server.storage.repositories import sites as site_repo
+from server.storage.repositories.pages import Key, Page
 
 KEY_PREFIX = "ipk_"
 SCOPES = ("admin", "maps:write", "viewer", "device", "contribute")
@@ -100,6 +101,13 @@ async def create_key(
 
 async def list_keys(s: AsyncSession, include_revoked: bool = False) -> Sequence[ApiKey]:
     return await key_repo.list_api_keys(s, include_revoked=include_revoked)
+
+
+async def key_page(
+    s: AsyncSession, include_revoked: bool, after: Key | None, limit: int
+) -> Page[ApiKey]:
+    """Keys newest first (live ones only unless ``include_revoked``)."""
+    return await key_repo.api_key_page(s, include_revoked, after, limit)
 
 
 async def _live_key(s: AsyncSession, key_id: str) -> ApiKey:

@@ -6,6 +6,10 @@ state under ``engine/`` (``state_codec``, layout ``state_codec.LAYOUT``), the la
 ``seq``, the replies of the last few batches and the last fix. An engine state written
 under another layout is not decoded: :class:`StaleEngineState` says so, and the session
 goes on from a fresh engine state (``services.sessions``).
+
+A session's SQL row says when it was last active (``SessionRecord.last_active_at``, lagging
+the last batch by up to half an idle timeout); :func:`active_since` is how far back that
+may be for the session to be live still.
 """
 
 from __future__ import annotations
@@ -14,6 +18,7 @@ import hashlib
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from datetime import datetime, timedelta
 from typing import Any
 
 import numpy as np
@@ -24,8 +29,18 @@ from server.positioning.events import Event, Fix, ImuEvent
 from server.positioning.sitemaps import SiteMaps
 from server.positioning.state_codec import StateError
 from server.storage.codec import array_to_str, decode_arrays, encode_arrays, str_to_array
+from server.storage.models import utcnow
 
 ENGINE_PREFIX = "engine/"
+# a row's last_active_at lags the last batch by up to half an idle timeout: a session is
+# live (and rebuilt, should the store lose it) only if that is at most 1.5 idle timeouts
+# ago (never taking a live one for gone)
+REBUILD_IDLE_FACTOR = 1.5
+
+
+def active_since(idle_s: float) -> datetime:
+    """The oldest ``last_active_at`` of a session row that may still be live."""
+    return utcnow() - timedelta(seconds=REBUILD_IDLE_FACTOR * idle_s)
 
 
 class StaleEngineState(ValueError):

@@ -16,6 +16,11 @@ batch's ``seq`` as it comes, answered ``reinitialised: true``. A session missing
 epoch it was made in, ended, or idle longer than ``REBUILD_IDLE_FACTOR`` idle timeouts by
 its row's ``last_active_at`` (refreshed by a batch at most every half idle timeout)
 expired, and stays gone.
+
+Who may do what: the session's own token applies batches, reads, follows and ends it; an
+API key with the ``viewer`` scope for the session's site (``admin`` and ``maps:write``
+imply it) reads and follows it, and its track: the newest fixes, kept in the store beside
+the state (``session_track_len`` of them) by the write that applies each batch.
 """
 
 from __future__ import annotations
@@ -31,6 +36,7 @@ import uuid
 from collections.abc import AsyncIterator, Mapping, Sequence
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
+from datetime import datetime
 from typing import Any
 
 import anyio
@@ -38,32 +44,49 @@ import numpy as np
 import orjson
 
 from server.positioning.engines import NEEDS_GRAPHS, get_engine
-from server.positioning.events import Event, ImuEvent, StepEvent
+from server.positioning.events import (
+    BleEvent,
+    Event,
+    GnssEvent,
+    ImuEvent,
+    MagEvent,
+    StepEvent,
+    WifiEvent,
+)
 from server.positioning.sitemaps import SiteMaps
-from server.services import engine_settings, limits, telemetry, traces, uploads
+from server.services import auth, engine_settings, limits, telemetry, traces, uploads
 from server.services.device_offsets import on_common_level
-from server.services.errors import Conflict, Forbidden, Invalid
+from server.services.errors import Conflict, Forbidden, Invalid, NotFound
 from server.services.maps import site_maps, with_graphs
 from server.services.runtime import Runtime
 from server.services.session_records import (
+    REBUILD_IDLE_FACTOR,
     Reply,
     SessionMeta,
     SessionState,
     StaleEngineState,
+    active_since,
     events_digest,
     fix_to_wire,
 )
 from server.storage.models import SessionRecord, utcnow
 from server.storage.repositories import sessions as repo
+from server.storage.repositories.pages import Key, Page
 from server.storage.session_store import SessionExists, StoredSession
 
 logger = logging.getLogger(__name__)
-# a row's last_active_at lags the last batch by up to half an idle timeout: a session is
-# rebuilt only if that is at most 1.5 idle timeouts ago (never refusing a live one)
-REBUILD_IDLE_FACTOR = 1.5
 SEQ_POLL_S = 0.01
 INLINE_MAX_STEPS = 2  # batches with more steps, or any raw samples, run in a worker thread
 INLINE_MAX_EVENTS = 32
+# the wire's name of each event kind (what an engine's ``uses`` holds)
+EVENT_KINDS: dict[type, str] = {
+    StepEvent: "step",
+    WifiEvent: "wifi",
+    BleEvent: "ble",
+    MagEvent: "mag",
+    ImuEvent: "imu",
+    GnssEvent: "gnss",
+}
 
 
 @dataclass(frozen=True)
@@ -81,6 +104,7 @@ class BatchResult:
     replayed: bool
     fixes: list[dict[str, Any]]
     reinitialised: bool = False  # the session was rebuilt before this batch
+    not_used: tuple[str, ...] = ()  # event kinds of the batch the engine does not read
 
 
 @dataclass(frozen=True)
@@ -222,10 +246,11 @@ async def _load(rt: Runtime, session_id: str, token: str) -> tuple[StoredSession
 
 
 async def _load_decoded(
-    rt: Runtime, session_id: str, token: str
+    rt: Runtime, session_id: str, token: str | None
 ) -> tuple[int, SessionMeta, SessionState]:
     """The session's version, meta and decoded state; from this process's cache when the
-    store still holds the version it has (``services.session_cache``)."""
+    store still holds the version it has (``services.session_cache``). ``token`` None:
+    for a reader whose key the caller checked (no rebuild then, and no token check)."""
     cached = rt.states.get(session_id)
     if cached is None:
         stored: StoredSession | int | None = await rt.store.get(session_id)
@@ -233,10 +258,10 @@ async def _load_decoded(
         stored = await rt.store.get_changed(session_id, cached[0])
     if stored is None:
         rt.states.drop(session_id)
-        if await _rebuild(rt, session_id, token):
+        if token is not None and await _rebuild(rt, session_id, token):
             stored = await rt.store.get(session_id)
         if stored is None:
-            raise _no_session()
+            raise _no_session() if token is not None else _not_live(session_id)
     if isinstance(stored, int):
         assert cached is not None
         version, meta, state = cached
@@ -252,13 +277,42 @@ async def _load_decoded(
             logger.warning("session %s: engine state not readable (%s), restarted", session_id, e)
             state = _fresh_state(meta, last_seq=-1)
         rt.states.put(session_id, version, meta, state)
-    if not hmac.compare_digest(meta.token_digest, _digest(token)):
+    if token is not None and not hmac.compare_digest(meta.token_digest, _digest(token)):
         raise _no_session()
     return version, meta, state
 
 
-async def authorize(rt: Runtime, session_id: str, token: str) -> SessionMeta:
-    return (await _load(rt, session_id, token))[1]
+def _not_live(session_id: str) -> NotFound:
+    return NotFound(f"no live session {session_id} (it ended or expired)", field="session_id")
+
+
+async def _viewer_key(rt: Runtime, session_id: str, secret: str) -> SessionMeta:
+    """The session's meta for an API key that may view the session's site; Forbidden for
+    anything else (a device key reads only the sessions it holds the tokens of)."""
+    async with rt.read() as s:
+        principal = await auth.authenticate(s, rt.settings, secret)
+    if principal is None:
+        raise _no_session()
+    principal.require("viewer")
+    stored = await rt.store.get(session_id)
+    if stored is None:
+        raise _not_live(session_id)
+    meta = SessionMeta.from_bytes(stored.meta)
+    principal.require("viewer", meta.site_id)
+    return meta
+
+
+async def authorize_reader(rt: Runtime, session_id: str, secret: str) -> bool:
+    """Let a reader of the session in: True for the session's own token (which may apply
+    batches too), False for an API key with the ``viewer`` scope for the session's site
+    (which reads and follows only); Forbidden (or NotFound, for such a key and a session
+    that is not live) otherwise."""
+    try:
+        await _load(rt, session_id, secret)
+    except Forbidden:
+        await _viewer_key(rt, session_id, secret)
+        return False
+    return True
 
 
 async def apply_batch(
@@ -323,9 +377,10 @@ async def _attempt(
     if charge is not None:
         await limits.check_batch(rt, session_id, charge)
     spec = get_engine(meta.engine)
+    not_used = not_read(spec.uses, events)
     rebuilt = state.last_seq < 0  # the first batch after a rebuild: its seq is the next one
     if seq <= state.last_seq:
-        return _replay(state, seq, digest)
+        return _replay(state, seq, digest, not_used)
     if seq > state.last_seq + 1 and not rebuilt:
         if time.monotonic() >= deadline:
             raise Conflict(
@@ -361,7 +416,8 @@ async def _attempt(
         rt.states.drop(session_id)  # never reuse a state an engine failed on
         raise
     wire = [fix_to_wire(f, maps, meta.engine) for f in fixes]
-    body = orjson.dumps(wire)
+    each = [orjson.dumps(f) for f in wire]  # for the track; the reply is their list
+    body = b"[" + b",".join(each) + b"]"
     replies = (*state.replies, Reply(seq, digest, body))[-rt.settings.replay_window :]
     now_ms = _now_ms()
     touch = now_ms - state.touched_ms > 500 * rt.settings.session_idle_s  # half the timeout
@@ -369,20 +425,26 @@ async def _attempt(
         last_seq=seq,
         engine_state=new_engine_state,
         replies=replies,
-        last_fix=orjson.dumps(wire[-1]) if wire else state.last_fix,
+        last_fix=each[-1] if each else state.last_fix,
         rebuilt_seq=seq if rebuilt else state.rebuilt_seq,
         touched_ms=now_ms if touch else state.touched_ms,
     )
     live = orjson.dumps({"seq": seq, "fixes": wire}) if wire else None
     ok = await rt.store.compare_and_set(
-        session_id, version, new_state.to_bytes(spec), rt.settings.session_idle_s, live
+        session_id,
+        version,
+        new_state.to_bytes(spec),
+        rt.settings.session_idle_s,
+        live,
+        track=each,
+        track_len=rt.settings.session_track_len,
     )
     if ok:
         rt.states.put(session_id, version + 1, meta, new_state)
         if touch:  # the row says the session is alive, should the store lose it
             async with rt.transaction() as s:
                 await repo.touch_session_record(s, session_id)
-        return BatchResult(seq, False, wire, reinitialised=rebuilt)
+        return BatchResult(seq, False, wire, reinitialised=rebuilt, not_used=not_used)
     return _Retry.LOST  # another writer got there first: read the new state and try again
 
 
@@ -395,7 +457,16 @@ def _runs_inline(events: Sequence[Event]) -> bool:
     return sum(isinstance(e, StepEvent) for e in events) <= INLINE_MAX_STEPS
 
 
-def _replay(state: SessionState, seq: int, digest: bytes) -> BatchResult:
+def not_read(uses: frozenset[str], events: Sequence[Event]) -> tuple[str, ...]:
+    """The kinds of ``events`` an engine that reads ``uses`` ignores, sorted (for
+    ``auto``: what none of the engines it may pick reads)."""
+    kinds = {EVENT_KINDS.get(type(e), type(e).__name__) for e in events}
+    return tuple(sorted(kinds - uses))
+
+
+def _replay(
+    state: SessionState, seq: int, digest: bytes, not_used: tuple[str, ...] = ()
+) -> BatchResult:
     if seq < state.rebuilt_seq:
         raise Conflict(
             f"the session was reinitialised at seq {state.rebuilt_seq} (the server had "
@@ -408,7 +479,7 @@ def _replay(state: SessionState, seq: int, digest: bytes) -> BatchResult:
             if reply.digest != digest:
                 raise Conflict(f"seq {seq} was already applied with different events", field="seq")
             reinitialised = seq == state.rebuilt_seq
-            return BatchResult(seq, True, orjson.loads(reply.body), reinitialised)
+            return BatchResult(seq, True, orjson.loads(reply.body), reinitialised, not_used)
     raise Conflict(
         f"seq {seq} was applied long ago and its reply is no longer kept; "
         f"the session is at seq {state.last_seq}",
@@ -416,8 +487,14 @@ def _replay(state: SessionState, seq: int, digest: bytes) -> BatchResult:
     )
 
 
-async def get_session(rt: Runtime, session_id: str, token: str) -> SessionInfo:
-    _, meta, state = await _load_decoded(rt, session_id, token)
+async def get_session(rt: Runtime, session_id: str, secret: str) -> SessionInfo:
+    """The session as its token, or a key that may view its site, sees it (module
+    docstring)."""
+    try:
+        _, meta, state = await _load_decoded(rt, session_id, secret)
+    except Forbidden:
+        await _viewer_key(rt, session_id, secret)
+        _, meta, state = await _load_decoded(rt, session_id, None)
     return SessionInfo(
         id=session_id,
         site_id=meta.site_id,
@@ -426,6 +503,58 @@ async def get_session(rt: Runtime, session_id: str, token: str) -> SessionInfo:
         last_fix=orjson.loads(state.last_fix) if state.last_fix else None,
         idle_timeout_s=rt.settings.session_idle_s,
     )
+
+
+async def get_track(rt: Runtime, session_id: str, secret: str, limit: int) -> list[dict[str, Any]]:
+    """The session's newest ``limit`` fixes (at most ``session_track_len`` are kept),
+    oldest first, for its token or a key that may view its site."""
+    await authorize_reader(rt, session_id, secret)
+    return [orjson.loads(fix) for fix in await rt.store.track(session_id, limit)]
+
+
+@dataclass(frozen=True)
+class SessionSummary:
+    """A session as its SQL row has it (what is known of it without its live state)."""
+
+    id: str
+    site_id: str
+    engine: str
+    contribute: bool
+    device_model: str | None
+    created_at: datetime
+    last_active_at: datetime
+    ended_at: datetime | None
+    active: bool  # not ended, and active within the last REBUILD_IDLE_FACTOR idle timeouts
+
+
+async def list_sessions(
+    rt: Runtime,
+    site_id: str | None,
+    active: bool | None,
+    after: Key | None,
+    limit: int,
+) -> Page[SessionSummary]:
+    """Sessions newest first (of one site when given; only active or only inactive ones
+    with ``active``). An active session is not ended and was active recently enough to be
+    live still (``session_records.active_since``)."""
+    since = active_since(rt.settings.session_idle_s)
+    async with rt.read() as s:
+        page = await repo.session_page(s, site_id, since, active, after, limit)
+        rows = [
+            SessionSummary(
+                id=r.id,
+                site_id=r.site_id,
+                engine=r.engine,
+                contribute=r.contribute,
+                device_model=r.device_model or None,
+                created_at=r.created_at,
+                last_active_at=r.last_active_at,
+                ended_at=r.ended_at,
+                active=r.ended_at is None and r.last_active_at >= since,
+            )
+            for r in page.rows
+        ]
+    return Page(rows, page.next_key)
 
 
 async def end_session(rt: Runtime, session_id: str, token: str) -> str | None:

@@ -38,6 +38,7 @@ from server.services.upload_payloads import parse_payload
 from server.storage.models import Floor, Upload
 from server.storage.repositories import sites as site_repo
 from server.storage.repositories import uploads as upload_repo
+from server.storage.repositories.pages import Key, Page
 
 QUEUED, PROCESSING, DONE, REJECTED, FAILED = "queued", "processing", "done", "rejected", "failed"
 SETTLED = frozenset({DONE, REJECTED, FAILED})
@@ -96,6 +97,13 @@ async def get_upload(s: AsyncSession, upload_id: str) -> Upload:
     if row is None:
         raise NotFound(f"upload {upload_id} not found", field="upload_id")
     return row
+
+
+async def list_uploads(
+    s: AsyncSession, site_id: str | None, status: str | None, after: Key | None, limit: int
+) -> Page[Upload]:
+    """Uploads newest first (of one site, in one status, when given)."""
+    return await upload_repo.upload_page(s, site_id, status, after, limit)
 
 
 async def stranded_ids(s: AsyncSession, idle_s: float) -> list[str]:

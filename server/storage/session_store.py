@@ -4,13 +4,17 @@ A record is immutable ``meta`` (written once at create), a ``state`` blob and a 
 that starts at 1 and grows by one per successful :meth:`SessionStore.compare_and_set`.
 Writers read, compute, then compare-and-set on the version they read, so two replicas
 working on one session never overwrite each other: the loser re-reads and retries.
-Every record expires after ``ttl_s`` seconds without a successful write.
+Every record expires after ``ttl_s`` seconds without a successful write. Beside it, each
+session keeps its *track*: the newest fixes it made (at most the ``track_len`` a write
+asks for), pushed by the same :meth:`SessionStore.compare_and_set` that writes the state
+and expiring with it.
 
 Two implementations behind one :class:`SessionStore` protocol:
 
 - :class:`RedisSessionStore` (production): one hash per session at
-  ``{prefix}:sess:{<session_id>}:state:v1`` with fields ``ver``, ``meta``, ``state``,
-  written by Lua scripts so check, write and expiry happen atomically; live messages on
+  ``{prefix}:sess:{<session_id>}:state:v1`` with fields ``ver``, ``meta``, ``state``, and
+  a capped list ``{prefix}:sess:{<session_id>}:track:v1`` of its newest fixes, written by
+  Lua scripts so check, write, track and expiry happen atomically; live messages on
   the sharded pub/sub channel ``{prefix}:sess:{<session_id>}:live:v1`` (``SPUBLISH`` /
   ``SSUBSCRIBE``, Redis 7). The braces are a Redis Cluster hash tag: the keys and the
   channel of one session live in one slot, so the same code runs on one Redis or on a
@@ -27,9 +31,9 @@ from __future__ import annotations
 import asyncio
 import time
 import uuid
-from collections.abc import AsyncIterator, Awaitable, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable, Sequence
 from contextlib import AbstractAsyncContextManager, asynccontextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Protocol, cast
 
 import anyio
@@ -81,15 +85,24 @@ class SessionStore(Protocol):
         state: bytes,
         ttl_s: int,
         publish: bytes | None = None,
+        track: Sequence[bytes] = (),
+        track_len: int = 0,
     ) -> bool:
         """Atomically: if the record exists at ``expected_version``, store ``state``,
-        bump the version, reset the expiry to ``ttl_s``, send ``publish`` (when given) to
-        the session's subscribers as :meth:`publish` would, and return ``True``; otherwise
+        bump the version, reset the expiry (of the record and its track) to ``ttl_s``,
+        append ``track`` (fixes, oldest first) to the session's track keeping its newest
+        ``track_len`` entries (none with 0), send ``publish`` (when given) to the
+        session's subscribers as :meth:`publish` would, and return ``True``; otherwise
         change nothing, send nothing and return ``False``."""
         ...
 
+    async def track(self, session_id: str, limit: int) -> list[bytes]:
+        """The newest ``limit`` (>= 1) entries of the session's track, oldest first;
+        empty when the session has none or is gone."""
+        ...
+
     async def delete(self, session_id: str) -> bool:
-        """Remove the record; ``True`` if it existed."""
+        """Remove the record and its track; ``True`` if the record existed."""
         ...
 
     async def publish(self, session_id: str, message: bytes) -> None:
@@ -125,6 +138,11 @@ def _ttl_ms(ttl_s: int) -> int:
     return int(ttl_s * 1000)
 
 
+def _kept(track: Sequence[bytes], track_len: int) -> list[bytes]:
+    """What of ``track`` can stay on a track of ``track_len`` entries."""
+    return [bytes(b) for b in track[-track_len:]] if track_len > 0 else []
+
+
 # --- in memory ------------------------------------------------------------------------------
 
 
@@ -134,6 +152,7 @@ class _Record:
     meta: bytes
     state: bytes
     expires_at: float
+    track: list[bytes] = field(default_factory=list)
 
 
 class _QueueMessages:
@@ -222,6 +241,8 @@ class MemorySessionStore:
         state: bytes,
         ttl_s: int,
         publish: bytes | None = None,
+        track: Sequence[bytes] = (),
+        track_len: int = 0,
     ) -> bool:
         _ttl_ms(ttl_s)
         record = self._live(session_id)
@@ -230,9 +251,16 @@ class MemorySessionStore:
         record.state = bytes(state)
         record.version += 1
         record.expires_at = self._clock() + ttl_s
+        if kept := _kept(track, track_len):
+            record.track.extend(kept)
+            del record.track[:-track_len]
         if publish is not None:
             await self.publish(session_id, publish)
         return True
+
+    async def track(self, session_id: str, limit: int) -> list[bytes]:
+        record = self._live(session_id)
+        return record.track[-limit:] if record is not None and limit > 0 else []
 
     async def delete(self, session_id: str) -> bool:
         existed = self._live(session_id) is not None
@@ -275,17 +303,21 @@ class MemorySessionStore:
 
 # --- Redis ----------------------------------------------------------------------------------
 
-# KEYS[1] = state key; ARGV = meta, state, ttl_ms, version. Returns 1 if created, 0 if present.
+# KEYS[1] = state key, KEYS[2] = track key; ARGV = meta, state, ttl_ms, version. Returns 1
+# if created, 0 if present. A new record starts with an empty track.
 _CREATE_LUA = """
 if redis.call('EXISTS', KEYS[1]) == 1 then
   return 0
 end
 redis.call('HSET', KEYS[1], 'ver', ARGV[4], 'meta', ARGV[1], 'state', ARGV[2])
 redis.call('PEXPIRE', KEYS[1], ARGV[3])
+redis.call('DEL', KEYS[2])
 return 1
 """
 
-# KEYS[1] = state key; ARGV = expected version, state, ttl_ms. Returns 1 if written, else 0.
+# KEYS[1] = state key, KEYS[2] = track key; ARGV = expected version, state, ttl_ms, track
+# length, live channel ('' for none), live message, then the fixes to push onto the track
+# (none, or at most track length of them). Returns 1 if written, else 0.
 _CAS_LUA = """
 local ver = redis.call('HGET', KEYS[1], 'ver')
 if not ver or tonumber(ver) ~= tonumber(ARGV[1]) then
@@ -294,8 +326,13 @@ end
 redis.call('HSET', KEYS[1], 'state', ARGV[2])
 redis.call('HINCRBY', KEYS[1], 'ver', 1)
 redis.call('PEXPIRE', KEYS[1], ARGV[3])
-if ARGV[4] then
-  redis.call('SPUBLISH', ARGV[4], ARGV[5])
+if #ARGV > 6 then
+  redis.call('RPUSH', KEYS[2], unpack(ARGV, 7))
+  redis.call('LTRIM', KEYS[2], -tonumber(ARGV[4]), -1)
+end
+redis.call('PEXPIRE', KEYS[2], ARGV[3])
+if ARGV[5] ~= '' then
+  redis.call('SPUBLISH', ARGV[5], ARGV[6])
 end
 return 1
 """
@@ -354,6 +391,10 @@ class RedisSessionStore:
         """The hash holding the session's ``ver``, ``meta`` and ``state``."""
         return f"{self._prefix}:sess:{{{session_id}}}:state:v1"
 
+    def track_key(self, session_id: str) -> str:
+        """The list of the session's newest fixes, oldest first."""
+        return f"{self._prefix}:sess:{{{session_id}}}:track:v1"
+
     def live_channel(self, session_id: str) -> str:
         """The pub/sub channel of the session's live messages."""
         return f"{self._prefix}:sess:{{{session_id}}}:live:v1"
@@ -362,7 +403,8 @@ class RedisSessionStore:
         self, session_id: str, meta: bytes, state: bytes, ttl_s: int, version: int = 1
     ) -> None:
         created = await self._create(
-            keys=[self.state_key(session_id)], args=[meta, state, _ttl_ms(ttl_s), version]
+            keys=[self.state_key(session_id), self.track_key(session_id)],
+            args=[meta, state, _ttl_ms(ttl_s), version],
         )
         if not created:
             raise SessionExists(session_id)
@@ -392,15 +434,26 @@ class RedisSessionStore:
         state: bytes,
         ttl_s: int,
         publish: bytes | None = None,
+        track: Sequence[bytes] = (),
+        track_len: int = 0,
     ) -> bool:
-        args: list[Any] = [expected_version, state, _ttl_ms(ttl_s)]
-        if publish is not None:  # in the same script: one round trip for both
-            args += [self.live_channel(session_id), publish]
-        written = await self._cas(keys=[self.state_key(session_id)], args=args)
+        # state, track and live message in one script: one round trip for all three
+        channel = self.live_channel(session_id) if publish is not None else ""
+        args: list[Any] = [expected_version, state, _ttl_ms(ttl_s), max(track_len, 0)]
+        args += [channel, publish or b"", *_kept(track, track_len)]
+        keys = [self.state_key(session_id), self.track_key(session_id)]
+        written = await self._cas(keys=keys, args=args)
         return bool(written)
+
+    async def track(self, session_id: str, limit: int) -> list[bytes]:
+        if limit < 1:
+            return []
+        found = self._client.lrange(self.track_key(session_id), -limit, -1)
+        return list(await cast("Awaitable[list[bytes]]", found))
 
     async def delete(self, session_id: str) -> bool:
         removed: int = await self._client.delete(self.state_key(session_id))
+        await self._client.delete(self.track_key(session_id))
         return removed > 0
 
     async def publish(self, session_id: str, message: bytes) -> None:

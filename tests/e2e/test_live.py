@@ -11,7 +11,7 @@ import pytest
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed
 
-from tests.api.toy_site import ToySite, build_toy_site, rssi_at
+from tests.api.toy_site import ToySite, build_toy_site, device_headers, rssi_at
 from tests.conftest import ADMIN_KEY
 
 T0 = 1_700_000_000_000
@@ -164,3 +164,57 @@ async def test_a_token_in_the_url_is_refused(live_url: str) -> None:
             err = await _recv(ws)
             assert err["status"] == 401
             assert "URL" in err["message"]
+
+
+async def test_a_viewer_key_of_the_site_follows_a_session(live_url: str) -> None:
+    async with httpx.AsyncClient(base_url=live_url) as client:
+        site = await build_toy_site(client, ADMIN)
+        sid, token = await _session(client, site)
+        viewer = await device_headers(client, ADMIN, ("viewer",), site.site_id)
+        async with connect(_ws_url(live_url, sid), additional_headers=viewer) as ws:
+            assert (await _recv(ws))["type"] == "ready"
+            batch = {
+                "seq": 1,
+                "events": [
+                    {"type": "wifi", "t": T0, "readings": rssi_at(4, 4, 0)},
+                    {"type": "step", "t": T0 + 600, "length_m": 0.7, "heading_rad": 0.0},
+                ],
+            }
+            r = await client.post(f"/v1/sessions/{sid}/batches", json=batch, headers=_bearer(token))
+            assert r.status_code == 200, r.text
+            fixes = r.json()["fixes"]
+            assert [(await _recv(ws))["fix"] for _ in fixes] == fixes
+            # the key follows; it does not send batches (the socket stays open)
+            await ws.send(json.dumps({**batch, "type": "batch", "seq": 2}))
+            err = await _recv(ws)
+            assert (err["type"], err["status"], err["seq"]) == ("error", 403, 2)
+            assert err["message"].startswith("authorization: ")
+            r = await client.get(f"/v1/sessions/{sid}", headers=_bearer(token))
+            assert r.json()["last_seq"] == 1
+            # an admin key follows too, authenticating as a browser does
+            async with connect(_ws_url(live_url, sid)) as admin_ws:
+                await admin_ws.send(json.dumps({"type": "auth", "token": ADMIN_KEY}))
+                assert (await _recv(admin_ws))["type"] == "ready"
+            # the session's end closes the follower's socket
+            r = await client.delete(f"/v1/sessions/{sid}", headers=_bearer(token))
+            assert r.status_code == 204
+            with pytest.raises(ConnectionClosed):
+                await asyncio.wait_for(ws.recv(), timeout=5)
+
+
+@pytest.mark.parametrize("scopes", [("device",), ("viewer",)])
+async def test_keys_that_may_not_view_the_site_are_refused(
+    live_url: str, scopes: tuple[str, ...]
+) -> None:
+    async with httpx.AsyncClient(base_url=live_url) as client:
+        site = await build_toy_site(client, ADMIN)
+        other = await build_toy_site(client, ADMIN)
+        sid, _ = await _session(client, site)
+        # a device key of the site itself, or a viewer key of another site
+        key_site = site.site_id if scopes == ("device",) else other.site_id
+        key = await device_headers(client, ADMIN, scopes, key_site)
+        async with connect(_ws_url(live_url, sid), additional_headers=key) as ws:
+            err = await _recv(ws)
+            assert err["status"] == 403
+            assert err["message"].startswith("authorization: ")
+            await _closed_with(ws, 4403)

@@ -212,6 +212,53 @@ async def test_delete(store: SessionStore, new_id: Callable[..., str]) -> None:
     assert await store.get(other) is not None
 
 
+async def test_compare_and_set_keeps_the_newest_fixes_on_the_track(
+    store: SessionStore, new_id: Callable[..., str]
+) -> None:
+    sid = new_id()
+    await store.create(sid, b"m", b"s1", TTL_S)
+    assert await store.track(sid, 10) == []
+    assert await store.compare_and_set(sid, 1, b"s2", TTL_S, track=[b"f1", b"f2"], track_len=3)
+    assert await store.compare_and_set(sid, 2, b"s3", TTL_S, track=[b"f3", b"f4"], track_len=3)
+    assert await store.track(sid, 10) == [b"f2", b"f3", b"f4"]  # capped at 3, oldest first
+    assert await store.track(sid, 2) == [b"f3", b"f4"]
+    # a batch of more fixes than the track holds keeps its newest only
+    batch = [f"g{i}".encode() for i in range(7)]
+    assert await store.compare_and_set(sid, 3, b"s4", TTL_S, track=batch, track_len=3)
+    assert await store.track(sid, 10) == batch[-3:]
+    # a lost write pushes nothing; a write without fixes, or with no track kept, neither
+    assert not await store.compare_and_set(sid, 1, b"stale", TTL_S, track=[b"lost"], track_len=3)
+    assert await store.compare_and_set(sid, 4, b"s5", TTL_S, track_len=3)
+    assert await store.compare_and_set(sid, 5, b"s6", TTL_S, track=[b"off"], track_len=0)
+    assert await store.track(sid, 10) == batch[-3:]
+    stored = await store.get(sid)
+    assert stored is not None
+    assert (stored.version, stored.state) == (6, b"s6")
+
+
+async def test_track_goes_with_its_session(
+    store: SessionStore, new_id: Callable[..., str], sleep: Sleep
+) -> None:
+    sid, other = new_id(), new_id()
+    for session_id in (sid, other):
+        await store.create(session_id, b"m", b"s", TTL_S)
+        assert await store.compare_and_set(session_id, 1, b"s", TTL_S, track=[b"f"], track_len=5)
+    assert await store.delete(sid)
+    assert await store.track(sid, 5) == []
+    assert await store.track(other, 5) == [b"f"]  # another session's track is its own
+    await store.create(sid, b"m", b"s", TTL_S)  # the id again: a new, empty track
+    assert await store.track(sid, 5) == []
+    # the track expires with the record, and a write refreshes both
+    assert await store.compare_and_set(sid, 1, b"s", 1, track=[b"f1"], track_len=5)
+    await sleep(0.6)
+    assert await store.compare_and_set(sid, 2, b"s", 1)  # no fixes, the track lives on
+    await sleep(0.6)
+    assert await store.track(sid, 5) == [b"f1"]
+    await sleep(0.6)
+    assert await store.get(sid) is None
+    assert await store.track(sid, 5) == []
+
+
 async def _next(messages: AsyncIterator[bytes]) -> bytes:
     async with asyncio.timeout(WAIT_S):
         return await anext(messages)
@@ -328,6 +375,9 @@ async def test_odd_session_ids_stay_in_their_own_keys(
         finally:
             await client.aclose()
         assert keys == {store.state_key(sid).encode() for sid in ids if sid != ids[1]}
+        # the track is in the session's slot too (one script writes state and track)
+        assert await store.compare_and_set(ids[2], 1, b"s", TTL_S, track=[b"f"], track_len=1)
+        assert await store.track(ids[2], 1) == [b"f"]
 
 
 async def test_ping(store: SessionStore) -> None:

@@ -8,6 +8,7 @@ from typing import Annotated, Literal
 from pydantic import Field
 
 from server.api.schemas.common import Id, Name, Strict, StrictIn
+from server.api.schemas.pages import NextCursor, PageCount
 
 Scope = Literal["admin", "maps:write", "viewer", "device", "contribute"]
 
@@ -34,7 +35,8 @@ class ApiKeyRead(Strict):
 
 class ApiKeyList(Strict):
     items: list[ApiKeyRead]
-    count: int
+    count: PageCount
+    next_cursor: NextCursor
 
 
 class ApiKeyCreated(ApiKeyRead):

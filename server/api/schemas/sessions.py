@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+from datetime import datetime
 from typing import Annotated, Any, Literal
 
 from pydantic import Field, field_validator
 
 from server.api.schemas.common import LAX_ARRAY, DeviceModel, Id, Strict, StrictIn
 from server.api.schemas.events import EventIn, ImuIn
+from server.api.schemas.pages import NextCursor, PageCount
 
 MAX_EVENTS_PER_BATCH = 2000
 # a batch holds a minute of raw motion samples of all five sensors at 200 Hz
@@ -93,6 +95,40 @@ class SessionRead(Strict):
     idle_timeout_s: int
 
 
+class SessionSummary(Strict):
+    """A session as the list of sessions shows it (from its record, not its live state)."""
+
+    id: str
+    site_id: str
+    engine: str
+    contribute: bool
+    device_model: str | None
+    created_at: datetime
+    last_active_at: datetime = Field(
+        description="when a batch last refreshed it: lags the newest batch by up to half "
+        "an idle timeout"
+    )
+    ended_at: datetime | None
+    active: bool = Field(
+        description="not ended and active within the last 1.5 idle timeouts: possibly "
+        "live (what blocks deleting its site, buildings and floors)"
+    )
+
+
+class SessionList(Strict):
+    items: list[SessionSummary]
+    count: PageCount
+    next_cursor: NextCursor
+
+
+class SessionTrack(Strict):
+    items: list[FixOut] = Field(description="the newest fixes of the session, oldest first")
+    count: int
+    max_fixes: int = Field(
+        description="how many fixes the server keeps per session (INDOORPOS_SESSION_TRACK_LEN)"
+    )
+
+
 class BatchIn(StrictIn):
     seq: Annotated[int, Field(ge=1, description="1, 2, 3, ... per session")]
     events: Annotated[
@@ -123,6 +159,12 @@ class BatchOut(Strict):
         False,
         description="true when the session had to be rebuilt before this batch (the "
         "server lost its state): the filter started again from this batch",
+    )
+    not_used: list[str] = Field(
+        default_factory=list,
+        description="kinds of events in this batch the session's engine does not read "
+        "(accepted and ignored: e.g. step events for two_stage_ekf, which runs its own "
+        "PDR on imu samples); GET /v1/engines lists what each engine reads",
     )
 
 

@@ -8,6 +8,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from server.api.schemas.common import FiniteFloat, Name, Strict, StrictIn
+from server.api.schemas.pages import NextCursor, PageCount
 
 
 class SiteCreate(StrictIn):
@@ -22,7 +23,8 @@ class SiteRead(Strict):
 
 class SiteList(Strict):
     items: list[SiteRead]
-    count: int
+    count: PageCount
+    next_cursor: NextCursor
 
 
 class BuildingCreate(StrictIn):
@@ -46,7 +48,8 @@ class BuildingRead(Strict):
 
 class BuildingList(Strict):
     items: list[BuildingRead]
-    count: int
+    count: PageCount
+    next_cursor: NextCursor
 
 
 class FloorCreate(StrictIn):
@@ -65,7 +68,8 @@ class FloorRead(Strict):
 
 class FloorList(Strict):
     items: list[FloorRead]
-    count: int
+    count: PageCount
+    next_cursor: NextCursor
 
 
 class FloorPlan(BaseModel):

@@ -9,6 +9,7 @@ from pydantic import Field
 
 from server.api.schemas.common import Coordinate, Strict, StrictIn, TimestampMs
 from server.api.schemas.events import EventIn
+from server.api.schemas.pages import NextCursor, PageCount
 
 MAX_UPLOAD_EVENTS = 200_000
 MAX_UPLOAD_ANCHORS = 10_000
@@ -30,16 +31,25 @@ class UploadTraceIn(StrictIn):
     anchors: Annotated[list[UploadAnchorIn], Field(max_length=MAX_UPLOAD_ANCHORS)] = []
 
 
+UploadStatus = Literal["queued", "processing", "done", "rejected", "failed"]
+
+
 class UploadRead(Strict):
     id: str
     site_id: str
     building_id: str | None
     floor: int | None = Field(description="the floor hint given with the upload")
     device_model: str | None
-    status: Literal["queued", "processing", "done", "rejected", "failed"]
+    status: UploadStatus
     attempts: int
     report: dict[str, Any] | None = Field(
         description="what was used, what was not and why; the reason when rejected or failed"
     )
     created_at: datetime
     updated_at: datetime
+
+
+class UploadList(Strict):
+    items: list[UploadRead]
+    count: PageCount
+    next_cursor: NextCursor

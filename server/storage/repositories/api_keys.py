@@ -8,6 +8,7 @@ from sqlalchemy import select
 from sqlalchemy.ext.asyncio import AsyncSession
 
 from server.storage.models import ApiKey, utcnow
+from server.storage.repositories.pages import Key, Page, keyset_page
 
 
 async def create_api_key(
@@ -33,6 +34,16 @@ async def list_api_keys(s: AsyncSession, include_revoked: bool = False) -> Seque
     if not include_revoked:
         stmt = stmt.where(ApiKey.revoked_at.is_(None))
     return (await s.scalars(stmt)).all()
+
+
+async def api_key_page(
+    s: AsyncSession, include_revoked: bool, after: Key | None, limit: int
+) -> Page[ApiKey]:
+    """Keys newest first (live ones only unless ``include_revoked``)."""
+    stmt = select(ApiKey)
+    if not include_revoked:
+        stmt = stmt.where(ApiKey.revoked_at.is_(None))
+    return await keyset_page(s, stmt, (ApiKey.created_at, ApiKey.id), after, limit, descending=True)
 
 
 async def revoke_api_key(s: AsyncSession, key: ApiKey) -> None:

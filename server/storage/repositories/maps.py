@@ -4,7 +4,7 @@ which version is current (``next_activation``)."""
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import datetime, timedelta
 from typing import Any
 
@@ -18,6 +18,7 @@ from server.positioning.magnetic import MagneticGrid
 from server.storage.codec import array_to_str, compress_arrays, decompress_arrays, str_to_array
 from server.storage.models import (
     Emitter,
+    Floor,
     MagneticMapVersion,
     RadioMapVersion,
     RadioStat,
@@ -131,12 +132,16 @@ async def list_radio_maps(s: AsyncSession, building_id: str) -> Sequence[RadioMa
 
 
 async def load_radio_map(s: AsyncSession, map_id: str, missing_dbm: float) -> RadioMapArrays:
+    """A stored version without the reference points of floors deleted since it was
+    made (a version outlives the floors it covered)."""
     row = await s.get(RadioMapVersion, map_id)
     if row is not None and row.arrays is not None:
         return await _radio_map_from_blob(s, row, missing_dbm)
     rps = (
         await s.execute(
-            select(ReferencePoint.floor_id, ReferencePoint.x_m, ReferencePoint.y_m)
+            select(
+                ReferencePoint.floor_id, ReferencePoint.x_m, ReferencePoint.y_m, ReferencePoint.idx
+            )
             .where(ReferencePoint.map_id == map_id)
             .order_by(ReferencePoint.idx)
         )
@@ -156,6 +161,9 @@ async def load_radio_map(s: AsyncSession, map_id: str, missing_dbm: float) -> Ra
             .where(RadioStat.map_id == map_id)
         )
     ).all()
+    # a deleted floor took its reference points with it (the foreign key's cascade)
+    row_of = {r[3]: i for i, r in enumerate(rps)}
+    stats = [r for r in stats if r[0] in row_of]
     columns = sorted({(kind, key) for *_, kind, key in stats})
     col_of = {k: i for i, k in enumerate(columns)}
     n_rp, n_em = len(rps), len(columns)
@@ -163,7 +171,7 @@ async def load_radio_map(s: AsyncSession, map_id: str, missing_dbm: float) -> Ra
     var = np.zeros((n_rp, n_em), dtype=np.float32)
     count = np.zeros((n_rp, n_em), dtype=np.int32)
     if stats:
-        rp_idx = np.fromiter((r[0] for r in stats), dtype=np.int64, count=len(stats))
+        rp_idx = np.fromiter((row_of[r[0]] for r in stats), dtype=np.int64, count=len(stats))
         col = np.fromiter((col_of[(r[5], r[6])] for r in stats), dtype=np.int64, count=len(stats))
         mean[rp_idx, col] = [r[2] for r in stats]
         var[rp_idx, col] = [r[3] for r in stats]
@@ -195,7 +203,7 @@ async def _radio_map_from_blob(
     mean[a["heard_rp"], a["heard_em"]] = a["mean_dbm"]
     var[a["heard_rp"], a["heard_em"]] = a["var_db2"]
     count[a["heard_rp"], a["heard_em"]] = a["count"]
-    return RadioMapArrays(
+    stored = RadioMapArrays(
         map_id=row.id,
         rp_floor_id=[floor_ids[i] for i in a["rp_floor"].tolist()],
         rp_xy=a["rp_xy"],
@@ -204,6 +212,19 @@ async def _radio_map_from_blob(
         var_db2=var,
         count=count,
         rp_points=a["rp_points"],
+    )
+    existing = set(await s.scalars(select(Floor.id).where(Floor.id.in_(set(floor_ids)))))
+    if existing.issuperset(floor_ids):
+        return stored
+    keep = np.array([f in existing for f in stored.rp_floor_id], dtype=bool)
+    return replace(
+        stored,
+        rp_floor_id=[f for f in stored.rp_floor_id if f in existing],
+        rp_xy=stored.rp_xy[keep],
+        mean_dbm=mean[keep],
+        var_db2=var[keep],
+        count=count[keep],
+        rp_points=a["rp_points"][keep],
     )
 
 

@@ -5,10 +5,11 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from sqlalchemy import select
+from sqlalchemy import delete, select
 from sqlalchemy.ext.asyncio import AsyncSession
 
-from server.storage.models import Building, Floor, Site
+from server.storage.models import Building, Floor, SessionContribution, SessionRecord, Site
+from server.storage.repositories.pages import Key, Page, keyset_page
 
 
 async def create_site(s: AsyncSession, name: str) -> Site:
@@ -22,8 +23,35 @@ async def list_sites(s: AsyncSession) -> Sequence[Site]:
     return (await s.scalars(select(Site).order_by(Site.created_at, Site.id))).all()
 
 
+async def site_page(
+    s: AsyncSession, after: Key | None, limit: int, site_id: str | None = None
+) -> Page[Site]:
+    """Sites newest first (only ``site_id``, when given)."""
+    stmt = select(Site)
+    if site_id is not None:
+        stmt = stmt.where(Site.id == site_id)
+    return await keyset_page(s, stmt, (Site.created_at, Site.id), after, limit, descending=True)
+
+
 async def get_site(s: AsyncSession, site_id: str) -> Site | None:
     return await s.get(Site, site_id)
+
+
+async def delete_site(s: AsyncSession, site_id: str) -> None:
+    """Delete the site; the database's cascades take everything that belongs to it. The
+    batches its contributing sessions kept (no foreign key: they outlive a session's
+    row until it ends) go first."""
+    of_site = select(SessionRecord.id).where(SessionRecord.site_id == site_id)
+    await s.execute(delete(SessionContribution).where(SessionContribution.session_id.in_(of_site)))
+    await s.execute(delete(Site).where(Site.id == site_id))
+
+
+async def delete_building(s: AsyncSession, building_id: str) -> None:
+    await s.execute(delete(Building).where(Building.id == building_id))
+
+
+async def delete_floor(s: AsyncSession, floor_id: str) -> None:
+    await s.execute(delete(Floor).where(Floor.id == floor_id))
 
 
 async def create_building(s: AsyncSession, site_id: str, **fields: Any) -> Building:
@@ -36,6 +64,14 @@ async def create_building(s: AsyncSession, site_id: str, **fields: Any) -> Build
 async def list_buildings(s: AsyncSession, site_id: str) -> Sequence[Building]:
     stmt = select(Building).where(Building.site_id == site_id).order_by(Building.created_at)
     return (await s.scalars(stmt)).all()
+
+
+async def building_page(
+    s: AsyncSession, site_id: str, after: Key | None, limit: int
+) -> Page[Building]:
+    """The site's buildings, oldest first."""
+    stmt = select(Building).where(Building.site_id == site_id)
+    return await keyset_page(s, stmt, (Building.created_at, Building.id), after, limit)
 
 
 async def get_building(s: AsyncSession, building_id: str) -> Building | None:
@@ -63,6 +99,14 @@ async def find_floor(s: AsyncSession, building_id: str, level: int) -> Floor | N
 async def list_floors(s: AsyncSession, building_id: str) -> Sequence[Floor]:
     stmt = select(Floor).where(Floor.building_id == building_id).order_by(Floor.level)
     return (await s.scalars(stmt)).all()
+
+
+async def floor_page(
+    s: AsyncSession, building_id: str, after: Key | None, limit: int
+) -> Page[Floor]:
+    """The building's floors by level, lowest first."""
+    stmt = select(Floor).where(Floor.building_id == building_id)
+    return await keyset_page(s, stmt, (Floor.level, Floor.id), after, limit)
 
 
 async def get_floor(s: AsyncSession, floor_id: str) -> Floor | None:

@@ -10,6 +10,7 @@ from sqlalchemy import select
 from sqlalchemy.ext.asyncio import AsyncSession
 
 from server.storage.models import Upload
+from server.storage.repositories.pages import Key, Page, keyset_page
 
 
 async def create_upload(s: AsyncSession, **fields: Any) -> Upload:
@@ -21,6 +22,22 @@ async def create_upload(s: AsyncSession, **fields: Any) -> Upload:
 
 async def get_upload(s: AsyncSession, upload_id: str) -> Upload | None:
     return await s.get(Upload, upload_id)
+
+
+async def upload_page(
+    s: AsyncSession,
+    site_id: str | None,
+    status: str | None,
+    after: Key | None,
+    limit: int,
+) -> Page[Upload]:
+    """Uploads newest first (of one site, in one status, when given)."""
+    stmt = select(Upload)
+    if site_id is not None:
+        stmt = stmt.where(Upload.site_id == site_id)
+    if status is not None:
+        stmt = stmt.where(Upload.status == status)
+    return await keyset_page(s, stmt, (Upload.created_at, Upload.id), after, limit, descending=True)
 
 
 async def find_upload_by_key(s: AsyncSession, key: str) -> Upload | None:
