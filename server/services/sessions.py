@@ -357,6 +357,7 @@ class _NeedMaps:
 class _Retry(enum.Enum):
     WAIT = "the predecessor seq is not applied yet"
     LOST = "another writer changed the session first"
+    READ = "this process's copy of the session needs the store's word"
 
 
 async def _attempt(
@@ -373,12 +374,24 @@ async def _attempt(
     """One read-compute-write of the batch; ``known_maps``: the site's maps as the caller
     read them since the last attempt; ``charge``: the address to count the batch against
     (the first attempt only)."""
-    version, meta, state = await _load_decoded(rt, session_id, token)
+    # one round trip to the store where this process wrote the session last: the
+    # compare-and-set below refuses a stale version (then _Retry.LOST reads it again);
+    # anything answered without a write (a replay, a wait) asks the store first
+    trusted = rt.states.current(session_id)
+    if trusted is None:
+        version, meta, state = await _load_decoded(rt, session_id, token)
+    else:
+        version, meta, state = trusted
+        if not hmac.compare_digest(meta.token_digest, _digest(token)):
+            raise _no_session()
     if charge is not None:
         await limits.check_batch(rt, session_id, charge)
     spec = get_engine(meta.engine)
     not_used = not_read(spec.uses, events)
     rebuilt = state.last_seq < 0  # the first batch after a rebuild: its seq is the next one
+    if trusted is not None and seq != state.last_seq + 1:
+        rt.states.put(session_id, version, meta, state)  # no longer trusted: read it
+        return _Retry.READ
     if seq <= state.last_seq:
         return _replay(state, seq, digest, not_used)
     if seq > state.last_seq + 1 and not rebuilt:
@@ -440,11 +453,12 @@ async def _attempt(
         track_len=rt.settings.session_track_len,
     )
     if ok:
-        rt.states.put(session_id, version + 1, meta, new_state)
+        rt.states.put(session_id, version + 1, meta, new_state, written=True)
         if touch:  # the row says the session is alive, should the store lose it
             async with rt.transaction() as s:
                 await repo.touch_session_record(s, session_id)
         return BatchResult(seq, False, wire, reinitialised=rebuilt, not_used=not_used)
+    rt.states.drop(session_id)
     return _Retry.LOST  # another writer got there first: read the new state and try again
 
 

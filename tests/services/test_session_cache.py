@@ -85,3 +85,43 @@ def test_cache_keeps_the_most_recently_used() -> None:
     off: SessionCache[str, str] = SessionCache(0)
     off.put("x", 1, "m", "s")
     assert off.get("x") is None
+
+
+async def test_batches_to_the_process_that_wrote_last_skip_the_read(
+    app: FastAPI, client: httpx.AsyncClient, admin: dict[str, str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """One round trip per batch (the compare-and-set) while a session's batches reach one
+    process; a copy another process's write made stale is noticed, and the fixes stay
+    exact."""
+    site = await build_toy_site(client, admin)
+    base: Runtime = app.state.runtime
+    a, b, plain = _process(base, 16), _process(base, 16), _process(base, 0)
+    reads: list[str] = []
+    store = base.store
+    for name in ("get", "get_changed"):
+        real = getattr(store, name)
+
+        async def counted(*args: object, _real: object = real, _name: str = name) -> object:
+            reads.append(_name)
+            return await _real(*args)  # type: ignore[operator]
+
+        monkeypatch.setattr(store, name, counted)
+    session = await sessions.create_session(a, site.site_id, "step_ekf")
+    per_batch, fixes = [], []
+    for seq, (events, rt) in enumerate(zip(_batches(), [a, a, a, b, a, a], strict=True), start=1):
+        before = len(reads)
+        got = await sessions.apply_batch(rt, session.id, session.token, seq, events)
+        per_batch.append(len(reads) - before)
+        fixes.append(got.fixes)
+    # a reads once, then goes on from its own writes; b reads a's write (and once more
+    # after reading the site's maps); a's copy is then stale, which seq 5 shows (it does
+    # not follow a's last seq 3): a asks the store, and goes on from its own writes again
+    assert per_batch == [1, 0, 0, 2, 1, 0]
+    reference = await sessions.create_session(plain, site.site_id, "step_ekf")
+    for seq, events in enumerate(_batches(), start=1):
+        want = await sessions.apply_batch(plain, reference.id, reference.token, seq, events)
+        assert want.fixes == fixes[seq - 1]
+    # a retried batch is answered as a replay after the store's word
+    again = await sessions.apply_batch(a, session.id, session.token, 6, _batches()[5])
+    assert again.replayed
+    assert again.fixes == fixes[5]
