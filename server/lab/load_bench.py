@@ -5,9 +5,11 @@ with N = 3000 particles (``papers/001_*``, section IV-B). This measures our figu
 
 1. **Service.** The api runs as it does in production -- ``uvicorn`` with ``k`` worker
    processes, sessions in Redis, maps in PostgreSQL, no access log -- as a child process
-   of this one. With one api process and at least two CPUs, the api is pinned to CPU 0
-   and this process (the simulator) to the others, so the api has one core to itself and
-   "users per core" means what it says. Two api processes are not pinned.
+   of this one. With at least two CPUs the api is pinned to one CPU per process (CPU 0,
+   then 1, ...) and this process (the simulator) to the others, keeping at least one CPU
+   for the simulator, so the api has its cores to itself and "users per core" means what
+   it says. On a two-CPU machine two api processes therefore share CPU 0: their figure
+   measures what a second process costs or saves on the same core, not a second core.
 2. **Site.** One synthetic site is set up through the admin API (``client_sim``) and
    reused by every level.
 3. **Levels.** ``client_sim.run.run_walkers`` walks ``U`` users for ``hold_s`` seconds,
@@ -29,7 +31,8 @@ with N = 3000 particles (``papers/001_*``, section IV-B). This measures our figu
    second of engine time alone. ``ceiling_ratio`` is the steps per second the one-process
    service held, over that.
 6. **Scale-out.** Steps 3-4 again with two api processes; ``two_process_ratio`` is the
-   users two processes held over the users one held.
+   users two processes held over the users one held, and ``two_process_cpus`` the CPUs
+   they had (1 on a two-CPU machine, see 1.).
 
 Linux only (CPU times from ``/proc``, pinning by ``sched_setaffinity``).
 """
@@ -211,7 +214,7 @@ def run_load_bench(
     walk: _Walk | None = None
     try:
         for processes in configs:
-            api_cpus = {cpus[0]} if processes == 1 and len(cpus) >= 2 else None
+            api_cpus = _api_cpus(cpus, processes)
             stage(f"starting {processes} api process(es)")
             api = ApiProcesses(processes, env, api_cpus)
             os.sched_setaffinity(0, own_cpus - api_cpus if api_cpus else own_cpus)
@@ -259,6 +262,7 @@ def run_load_bench(
         if best and two_processes
         else None,
         "two_process_users": best_two.users if best_two else None,
+        "two_process_cpus": len(_api_cpus(cpus, 2) or cpus) if two_processes else None,
         "engine": engine,
         "transport": transport,
         "batch_steps": batch_steps,
@@ -270,6 +274,14 @@ def run_load_bench(
         "levels": [asdict(level) for levels in runs.values() for level in levels],
     }
     return result
+
+
+def _api_cpus(cpus: list[int], processes: int) -> set[int] | None:
+    """The api's CPUs: one per process, leaving the simulator at least one of its own
+    (None, unpinned, on a one-CPU machine)."""
+    if len(cpus) < 2:
+        return None
+    return set(cpus[: min(processes, len(cpus) - 1)])
 
 
 def find_capacity(hold: Callable[[int], Level], start: int, users_max: int) -> list[Level]:
