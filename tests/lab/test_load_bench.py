@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from server.lab.load_bench import Level, find_capacity
+from server.lab.load_bench import Level, _api_cpus, find_capacity
 
 
 def _level(users: int, held: bool) -> Level:
@@ -40,3 +40,10 @@ def test_nothing_held_ends_at_one_user() -> None:
     levels = find_capacity(lambda users: _level(users, False), 50, 100)
     assert levels[-1].users == 1
     assert not any(level.held for level in levels)
+
+
+def test_the_api_gets_a_cpu_per_process_and_the_simulator_keeps_one() -> None:
+    assert _api_cpus([0], 1) is None  # one CPU: nothing to pin
+    assert _api_cpus([0, 1], 1) == {0}
+    assert _api_cpus([0, 1], 2) == {0}  # two CPUs: both processes share the api's
+    assert _api_cpus([0, 1, 2, 3], 2) == {0, 1}
