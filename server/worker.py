@@ -8,6 +8,12 @@ timeout until the upload runs out of attempts (``services.uploads``). At start, 
 every ``RESCAN_S`` seconds while idle, uploads owed an outcome that nobody touched for a
 visibility timeout are queued again: that recovers entries a queue lost (a restarted
 process, a Redis that keeps nothing on disk).
+
+Each delivery is logged at INFO on ``indoorpos.worker``: the attempt taken, then how it
+settled: ``folded`` (with the map versions it made), ``rejected`` (with the reason),
+``retry`` (the attempt raised and the upload comes back after the visibility timeout) or
+``failed`` (out of attempts). The lines carry ``upload_id`` and ``outcome`` as extra fields
+(``INDOORPOS_LOG_FORMAT=json`` writes them out).
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ from functools import partial
 import anyio
 
 from server.services import upload_anchors, upload_contribution, uploads
+from server.services.errors import NotFound
 from server.services.runtime import Runtime
 from server.storage.upload_queue import Delivery, MemoryUploadQueue
 
@@ -44,13 +51,58 @@ async def requeue_stranded(rt: Runtime, idle_s: float) -> int:
     return len(ids)
 
 
+def _settled_line(upload_id: str, status: str, report: dict[str, object], took_s: float) -> None:
+    """The INFO line for an upload just settled ``done`` or ``rejected``."""
+    extra = {"upload_id": upload_id, "outcome": status, "took_s": round(took_s, 3)}
+    if status == uploads.REJECTED:
+        reason = report.get("reason")
+        log.info("upload %s: rejected: %s (%.1f s)", upload_id, reason, took_s, extra=extra)
+        return
+    made = [
+        f"{kind} map v{report[key]}"
+        for kind, key in (("radio", "radio_map_version"), ("magnetic", "magnetic_map_version"))
+        if key in report
+    ]
+    extra["outcome"] = "folded"
+    log.info(
+        "upload %s: folded into %s (%.1f s)",
+        upload_id,
+        " and ".join(made) or "no map (nothing to add)",
+        took_s,
+        extra=extra,
+    )
+
+
 async def handle(rt: Runtime, delivery: Delivery) -> None:
     """Process one delivery (see the module docstring)."""
+    upload_id = delivery.upload_id
+    started = time.monotonic()
     async with rt.transaction() as s:
-        upload = await uploads.begin_attempt(s, delivery.upload_id)
+        upload = await uploads.begin_attempt(s, upload_id)
+        if upload is None:  # for the log line: settled already, out of attempts, or gone
+            try:
+                status = (await uploads.get_upload(s, upload_id)).status
+            except NotFound:
+                status = "unknown"
     if upload is None:
+        log.info(
+            "upload %s: not taken (it is %s)",
+            upload_id,
+            status,
+            extra={"upload_id": upload_id, "outcome": "skipped", "status": status},
+        )
         await rt.uploads.ack(delivery)
         return
+    log.info(
+        "upload %s: attempt %d of %d taken (site %s, %s, %d bytes)",
+        upload_id,
+        upload.attempts,
+        uploads.MAX_ATTEMPTS,
+        upload.site_id,
+        upload.content_type,
+        len(upload.payload),
+        extra={"upload_id": upload_id, "outcome": "taken", "attempt": upload.attempts},
+    )
     try:
         async with rt.transaction() as s:  # after the attempt is counted: its failures count
             context = await upload_anchors.anchor_context(s, upload)
@@ -62,17 +114,41 @@ async def handle(rt: Runtime, delivery: Delivery) -> None:
                 inertial_selection=rt.settings.upload_inertial_selection,
             )
         )
+        settled: tuple[str, dict[str, object]] | None = None  # its status and report
         async with rt.transaction() as s:
-            await uploads.settle(s, delivery.upload_id, result)
+            if await uploads.settle(s, upload_id, result):
+                row = await uploads.get_upload(s, upload_id)
+                settled = (row.status, dict(row.report or {}))
     except Exception as exc:
-        log.exception("upload %s: attempt %d failed", delivery.upload_id, upload.attempts)
+        log.exception("upload %s: attempt %d failed", upload_id, upload.attempts)
         async with rt.transaction() as s:
-            settled = await uploads.record_failure(
-                s, delivery.upload_id, f"{type(exc).__name__}: {exc}"
+            gave_up = await uploads.record_failure(s, upload_id, f"{type(exc).__name__}: {exc}")
+        if gave_up:
+            log.warning(
+                "upload %s: failed after %d attempts; it is not retried",
+                upload_id,
+                upload.attempts,
+                extra={"upload_id": upload_id, "outcome": "failed", "attempt": upload.attempts},
             )
-        if settled:
             await rt.uploads.ack(delivery)
+        else:
+            log.info(
+                "upload %s: attempt %d of %d failed; retried after the visibility timeout (%g s)",
+                upload_id,
+                upload.attempts,
+                uploads.MAX_ATTEMPTS,
+                rt.settings.upload_visibility_s,
+                extra={"upload_id": upload_id, "outcome": "retry", "attempt": upload.attempts},
+            )
         return
+    if settled is None:
+        log.info(
+            "upload %s: settled meanwhile by another worker; nothing folded",
+            upload_id,
+            extra={"upload_id": upload_id, "outcome": "skipped"},
+        )
+    else:
+        _settled_line(upload_id, *settled, time.monotonic() - started)
     rt.maps.invalidate(upload.site_id)
     await rt.uploads.ack(delivery)
 

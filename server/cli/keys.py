@@ -3,28 +3,36 @@
 from __future__ import annotations
 
 import asyncio
+from pathlib import Path
 from typing import Annotated, Any
 
 import typer
 from rich.table import Table
 
-from server.cli.output import console
+from server.cli.output import console, masked_url
+from server.cli.service import checked_settings, migrate_or_exit
 from server.config import get_settings
 from server.services import auth
 from server.services.errors import ServiceError
 from server.services.runtime import open_runtime
-from server.storage import db
 
 keys_app = typer.Typer(help="Admin API keys.", no_args_is_help=True)
 
 
-def _database() -> str:
-    """The database the key commands act on, without credentials, for the operator."""
+def _database(*, for_a_new_key: bool = False) -> str:
+    """The database the key commands act on, its URL with the password masked. The
+    embedded one is named as such, with its file's full path, so that an operator who
+    forgot INDOORPOS_DATABASE_URL sees where a new key went."""
     settings = get_settings()
-    url = settings.resolved_database_url
-    where = url.split("@")[-1]
-    if settings.database_url is None:
-        return f"the embedded SQLite database {where} (set INDOORPOS_DATABASE_URL for another)"
+    if settings.database_url is not None:
+        return f"the database {masked_url(settings.database_url)}"
+    path = Path(settings.resolved_database_url.removeprefix("sqlite:///")).resolve()
+    where = f"the embedded SQLite database sqlite:///{path.as_posix()}"
+    if for_a_new_key:
+        where += (
+            " (INDOORPOS_DATABASE_URL is not set: a server using another database will not "
+            "know this key)"
+        )
     return where
 
 
@@ -36,7 +44,7 @@ async def _in_transaction(work: Any) -> Any:
 def run_keys(work: Any) -> Any:
     """``work(session)`` in one transaction on the migrated database; a service's refusal is
     printed and ends the command with status 1."""
-    db.migrate(get_settings().resolved_database_url)
+    migrate_or_exit(checked_settings().resolved_database_url)
     try:
         return asyncio.run(_in_transaction(work))
     except ServiceError as exc:
@@ -59,7 +67,7 @@ def keys_create(
     row, key = run_keys(lambda s: auth.create_key(s, label, scopes, site))
     console.print(
         f"key id {row.id} ({row.scopes}; {'site ' + row.site_id if row.site_id else 'all sites'})"
-        f" in {_database()}; keep this key, it is not shown again:"
+        f" in {_database(for_a_new_key=True)}; keep this key, it is not shown again:"
     )
     typer.echo(key)
 
@@ -92,5 +100,7 @@ def keys_revoke(key_id: Annotated[str, typer.Argument(help="the key's id")]) -> 
 def keys_rotate(key_id: Annotated[str, typer.Argument(help="the key's id")]) -> None:
     """Give a key a new secret (printed once); the old one stops working."""
     _, key = run_keys(lambda s: auth.rotate_key(s, key_id))
-    console.print(f"key {key_id} rotated in {_database()}; its new secret, shown once:")
+    console.print(
+        f"key {key_id} rotated in {_database(for_a_new_key=True)}; its new secret, shown once:"
+    )
     typer.echo(key)

@@ -2,11 +2,17 @@
 
 from __future__ import annotations
 
+import re
+from typing import NoReturn
+
+import typer
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TaskID, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
 console = Console()
+_PASSWORD_PARAM = re.compile(r"([?&]password=)[^&]*", re.IGNORECASE)
+_MASK = r"\1***"
 
 
 def progress_bar(counter: str = "{task.completed}/{task.total}") -> Progress:
@@ -40,3 +46,23 @@ def print_report(title: str, result: dict[str, object]) -> None:
         text = f"{value:.3f}" if isinstance(value, float) else str(value)
         table.add_row(name, text)
     console.print(table)
+
+
+def masked_url(url: str) -> str:
+    """``url`` with its password, in the user part or a ``password=`` query parameter,
+    replaced by ``***`` (for showing an operator which database a command used)."""
+    scheme, sep, rest = url.partition("://")
+    if not sep:
+        return url
+    end = min((i for i in (rest.find("/"), rest.find("?")) if i >= 0), default=len(rest))
+    authority, tail = rest[:end], rest[end:]
+    userinfo, at, hostport = authority.rpartition("@")
+    if at and ":" in userinfo:
+        authority = f"{userinfo.split(':', 1)[0]}:***@{hostport}"
+    return f"{scheme}://{authority}{_PASSWORD_PARAM.sub(_MASK, tail)}"
+
+
+def fail(message: str) -> NoReturn:
+    """One line on stderr (never wrapped, no traceback) and exit status 1."""
+    typer.echo(f"error: {message}", err=True)
+    raise typer.Exit(1)

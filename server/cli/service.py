@@ -9,10 +9,11 @@ from typing import Annotated
 
 import typer
 import uvicorn
+from pydantic import ValidationError
 
 from server.app import create_app
-from server.cli.output import console
-from server.config import get_settings
+from server.cli.output import console, fail, masked_url
+from server.config import Settings, get_settings
 from server.services.runtime import open_runtime
 from server.storage import db
 
@@ -70,11 +71,45 @@ def worker() -> None:
     asyncio.run(main())
 
 
+def checked_settings() -> Settings:
+    """The settings, or one line naming each bad ``INDOORPOS_`` variable and exit 1."""
+    try:
+        return get_settings()
+    except ValidationError as exc:
+        fail(
+            "; ".join(
+                f"INDOORPOS_{'_'.join(str(part) for part in error['loc']).upper()}: {error['msg']}"
+                for error in exc.errors()
+            )
+        )
+
+
+def migrate_or_exit(url: str) -> None:
+    """Bring the schema at ``url`` up to date, or say in one line on stderr why not (a
+    server that does not answer, a database that does not exist, a refused login) and
+    exit 1. At this edge the cause is nearly always the URL or the server, whichever
+    library raised it, so it is one line and not a traceback."""
+    try:
+        db.migrate(url)
+    except Exception as exc:
+        detail = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+        password = _password(url)
+        if password:
+            detail = detail.replace(password, "***")
+        cause = f"{type(exc).__name__}: {detail}" if detail else type(exc).__name__
+        fail(f"cannot migrate the database {masked_url(url)}: {cause}")
+
+
+def _password(url: str) -> str:
+    userinfo = url.partition("://")[2].split("/", 1)[0].rpartition("@")[0]
+    return userinfo.partition(":")[2]
+
+
 def migrate() -> None:
     """Bring the database schema up to date (alembic upgrade head)."""
-    url = get_settings().resolved_database_url
-    db.migrate(url)
-    console.print(f"[green]schema up to date[/] on {url.split('@')[-1]}")
+    url = checked_settings().resolved_database_url
+    migrate_or_exit(url)
+    console.print(f"[green]schema up to date[/] on {masked_url(url)}")
 
 
 def openapi(

@@ -36,11 +36,40 @@ robust loss (``loss="soft_l1"`` etc.; the papers use plain least squares) ``H`` 
 scipy's loss-weighted Jacobian, so ``P`` is the Gauss-Newton approximation of the robust
 cost.
 
-The start is the weighted centroid of the strongest quarter of the readings (weights in
-linear power, ``10^((r_j - r_max)/10)``), then ``P0`` and ``gamma`` by linear least squares
-with the emitter there. The cost has local minima (a noiseless model was missed by 3 m
-from that start alone), so the solver also starts at the three strongest readings'
-places and the run with the lowest cost is kept.
+Starts (our addition, not in the papers)
+---------------------------------------
+The cost has local minima: a trust-region run from one place can stop metres from the
+truth even on noiseless readings. So the solver runs from several starts and keeps the
+run with the lowest cost; adding a start can only lower the cost found.
+
+The first start is a linearisation that is exact for noiseless readings beyond 1 m. With
+``gamma`` fixed, the model says ``d_j^2 = K s_j``, with ``s_j = 10^((r_max - r_j)/(5 gamma))``
+and ``K = 10^((P0 - r_max)/(5 gamma))``. Writing ``d_j^2 = |p|^2 - 2 u_j . p + |u_j|^2``
+(places centred on their mean) turns each reading into a linear equation in
+``(x, y, c, K)``, with ``c = |p|^2`` taken as a fourth unknown::
+
+    -2 u_j . p + c - K s_j = -|u_j|^2                                      (L1)
+
+An RSS error ``delta_j`` moves row ``j`` by about ``d_j^2 ln 10 / (5 gamma) delta_j``. Since
+``d_j^2`` is proportional to ``s_j``, the rows are divided by ``s_j nu_j`` (weighted least
+squares), and the residual of each row is turned back into dB by dividing it by
+``K ln 10 / (5 gamma)``. The sum of these squares, the misfit, can be compared across
+``gamma``, and it is 0 at the true ``gamma`` when there is no noise. (L1) is solved on a
+grid over ``gamma`` (``GAMMA_GRID_STEP`` over ``GAMMA_RANGE``). Each of the deepest
+``GAMMA_VALLEYS`` valleys of the misfit is then searched on finer grids (``GAMMA_PASSES``,
+each ten times finer). The position with the lowest misfit gets ``P0`` and ``gamma`` by
+linear least squares there. The misfit is used rather than the cost itself because the
+cost, followed along ``gamma``, jumps wherever the position passes within 1 m of a reading:
+its valley around the truth can be narrower than a grid step.
+
+A reading within 1 m of the emitter (flat, ``r_j = P0``) breaks (L1). That reading is then
+the strongest, and the emitter lies within 1 m of it, where one of the other starts is.
+The other starts are the weighted centroid of the strongest quarter of the readings
+(weights in linear power, ``10^((r_j - r_max)/10)``) and the places of the three
+strongest readings, each with ``P0`` and ``gamma`` found by linear least squares there.
+With noise, no start is sure to reach the global minimum, and each of these is sometimes
+the only one that finds the lowest cost (seen with outliers or few readings), so all of
+them stay.
 
 Where the papers differ or slip: ``papers/003_*`` writes ``d_{i,j}`` of eq 9 as the
 distance implied by the RSS, ``10^((r_j - P0) / (10 gamma))``, but the derivative of the
@@ -72,6 +101,11 @@ MIN_OBSERVATIONS = 4  # four unknowns: x, y, P0, gamma
 MIN_DISTANCE_M = 1.0  # d_min: the model is for d >= 1 m, where P0 is defined
 STRONGEST_FRACTION = 0.25  # share of the readings whose centroid starts the solver
 EXTRA_STARTS = 3  # further starts, at the strongest readings' places
+GAMMA_RANGE = (1.0, 6.0)  # the path-loss exponents a start may take
+GAMMA_GRID_STEP = 0.1  # the linearised start's first grid over gamma, on GAMMA_RANGE
+GAMMA_VALLEYS = 3  # valleys of that grid searched further
+GAMMA_ZOOM_POINTS = 21  # each further grid spans the previous one's neighbours: 10 times finer
+GAMMA_PASSES = 2  # further grids per valley: 0.1 down to 1e-3
 MAX_CONDITION = 1e10  # a design matrix worse conditioned than this is singular
 _LN10 = math.log(10.0)
 
@@ -143,16 +177,20 @@ def rss_at(fit: EmitterFit, xy: ArrayLike) -> FloatArray:
     return np.asarray(rss.reshape(pts.shape[:-1]), dtype=np.float64)
 
 
-def _starts(points: FloatArray, rss: FloatArray) -> list[FloatArray]:
-    """Where the solver starts: the weighted centroid of the strongest readings, then the
-    places of the ``EXTRA_STARTS`` strongest readings themselves (the cost has local
-    minima; the best of these runs is kept)."""
+def _starts(points: FloatArray, rss: FloatArray, nu: FloatArray) -> list[FloatArray]:
+    """Where the solver starts (module docstring): the linearised start when it exists,
+    the weighted centroid of the strongest readings, then the places of the
+    ``EXTRA_STARTS`` strongest readings themselves."""
     k = max(3, math.ceil(STRONGEST_FRACTION * rss.size))
     strongest = np.argpartition(-rss, k - 1)[:k]
     w = 10.0 ** ((rss[strongest] - rss.max()) / 10.0)
     centroid = w @ points[strongest] / w.sum()
     loudest = np.argsort(-rss, kind="stable")[:EXTRA_STARTS]
-    return [_start_at(centroid, points, rss)] + [_start_at(points[i], points, rss) for i in loudest]
+    starts = [_start_at(centroid, points, rss)] + [
+        _start_at(points[i], points, rss) for i in loudest
+    ]
+    linear = _linearised_start(points, rss, nu)
+    return starts if linear is None else [linear, *starts]
 
 
 def _start_at(xy: FloatArray, points: FloatArray, rss: FloatArray) -> FloatArray:
@@ -160,10 +198,121 @@ def _start_at(xy: FloatArray, points: FloatArray, rss: FloatArray) -> FloatArray
     _, d = _distance(xy, points)
     A = np.column_stack([np.ones_like(d), -10.0 * np.log10(d)])
     (p0, gamma), *_ = np.linalg.lstsq(A, rss, rcond=None)
-    if not (np.isfinite(p0) and np.isfinite(gamma) and 1.0 <= gamma <= 6.0):
-        gamma = float(np.clip(gamma, 1.0, 6.0)) if np.isfinite(gamma) else 2.0
+    lo, hi = GAMMA_RANGE
+    if not (np.isfinite(p0) and np.isfinite(gamma) and lo <= gamma <= hi):
+        gamma = float(np.clip(gamma, lo, hi)) if np.isfinite(gamma) else 2.0
         p0 = float(np.mean(rss + 10.0 * gamma * np.log10(d)))
     return np.array([xy[0], xy[1], p0, gamma])
+
+
+def _profiled(
+    candidates: FloatArray, points: FloatArray, rss: FloatArray, nu: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The weighted cost at each candidate position with ``P0`` and ``gamma`` solved there
+    by linear least squares.
+
+    Parameters
+    ----------
+    candidates : ndarray, shape (m, 2)
+    points : ndarray, shape (n, 2)
+    rss, nu : ndarray, shape (n,)
+
+    Returns
+    -------
+    cost, p0, gamma : ndarray, shape (m,)
+        ``sum_j ((P0 - 10 gamma log10 d_j - r_j) / nu_j)^2`` at its minimum over ``P0`` and
+        ``gamma``, and that ``P0`` and ``gamma`` (``gamma`` 0 where all ``d_j`` are equal).
+    """
+    diff = candidates[:, None, :] - points[None, :, :]
+    L = -10.0 * np.log10(np.maximum(np.sqrt(np.einsum("mnk,mnk->mn", diff, diff)), 1.0))
+    w = 1.0 / nu**2
+    L_mean = L @ w / w.sum()
+    r_mean = float(rss @ w / w.sum())
+    Lc, rc = L - L_mean[:, None], rss - r_mean
+    s_LL, s_Lr, s_rr = (Lc * Lc) @ w, (Lc * rc) @ w, float((rc * rc) @ w)
+    gamma = np.divide(s_Lr, s_LL, out=np.zeros_like(s_Lr), where=s_LL > 0)
+    return np.maximum(s_rr - gamma * s_Lr, 0.0), r_mean - gamma * L_mean, gamma
+
+
+def _linearised(
+    gammas: FloatArray, points: FloatArray, rss: FloatArray, nu: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """The linearised model (module docstring) solved for each ``gamma``.
+
+    Parameters
+    ----------
+    gammas : ndarray, shape (g,)
+    points : ndarray, shape (n, 2)
+    rss, nu : ndarray, shape (n,)
+
+    Returns
+    -------
+    xy : ndarray, shape (g, 2)
+        The emitter position.
+    misfit : ndarray, shape (g,)
+        The weighted sum of squared row residuals, each turned into dB by the row's
+        sensitivity ``K ln 10 / (5 gamma)`` (so comparable across ``gamma``); ``inf`` where
+        ``K <= 0``.
+    """
+    centre = points.mean(axis=0)
+    u = points - centre
+    a = np.column_stack([-2.0 * u, np.ones(len(u))])  # row j's (x, y, c) coefficients, (n, 3)
+    c = np.einsum("ij,ij->i", u, u)  # |u_j|^2
+    s = 10.0 ** ((rss.max() - rss)[None, :] / (5.0 * gammas[:, None]))  # (g, n)
+    # normal equations of the rows divided by s_j nu_j, summed as (g, n) @ (n, k) products
+    q, t = 1.0 / (s * nu) ** 2, 1.0 / (s * nu**2)
+    AtA = np.empty((gammas.size, 4, 4))
+    AtA[:, :3, :3] = (q @ np.einsum("ni,nk->nik", a, a).reshape(-1, 9)).reshape(-1, 3, 3)
+    AtA[:, :3, 3] = AtA[:, 3, :3] = -(t @ a)
+    AtA[:, 3, 3] = np.sum(1.0 / nu**2)
+    Atb = np.column_stack([-(q @ (c[:, None] * a)), t @ c])
+    scale = np.sqrt(np.einsum("gkk->gk", AtA))  # unit diagonal before the (g, 4, 4) solve
+    AtA = AtA / scale[:, :, None] / scale[:, None, :]
+    sol = np.einsum("gkl,gl->gk", np.linalg.pinv(AtA, hermitian=True), Atb / scale) / scale
+    K = sol[:, 3]
+    rows = (sol[:, :3] @ a.T - s * K[:, None] + c) / (s * nu)  # (g, n)
+    db = K * _LN10 / (5.0 * gammas)
+    misfit = np.where(K > 0, np.einsum("gn,gn->g", rows, rows) / db**2, np.inf)
+    return np.asarray(sol[:, :2] + centre, dtype=np.float64), np.asarray(misfit, dtype=np.float64)
+
+
+def _linearised_start(points: FloatArray, rss: FloatArray, nu: FloatArray) -> FloatArray | None:
+    """The linearised start ``[x, y, P0, gamma]`` (module docstring), or None when it
+    comes out non-finite. The misfit over ``gamma`` can have more than one valley, of
+    nearly equal depth on a coarse grid, so each of the deepest ``GAMMA_VALLEYS`` valleys
+    of the first grid is searched ``GAMMA_PASSES`` times, each grid between the neighbours
+    of the previous one's best."""
+
+    def scored(gammas: FloatArray) -> tuple[FloatArray, FloatArray]:
+        xy, misfit = _linearised(gammas, points, rss, nu)
+        return xy, np.where(np.isfinite(misfit) & np.all(np.isfinite(xy), axis=1), misfit, np.inf)
+
+    lo, hi = GAMMA_RANGE
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        grid = np.linspace(lo, hi, round((hi - lo) / GAMMA_GRID_STEP) + 1)
+        xy, misfit = scored(grid)
+        padded = np.concatenate([[np.inf], misfit, [np.inf]])
+        valleys = np.flatnonzero(
+            (misfit <= padded[:-2]) & (misfit <= padded[2:]) & np.isfinite(misfit)
+        )
+        if valleys.size == 0:
+            return None
+        valleys = valleys[np.argsort(misfit[valleys], kind="stable")[:GAMMA_VALLEYS]]
+        step = np.full(valleys.size, GAMMA_GRID_STEP)
+        centre = grid[valleys]
+        for _ in range(GAMMA_PASSES):
+            offsets = np.linspace(-1.0, 1.0, GAMMA_ZOOM_POINTS)
+            gammas = np.clip(centre[:, None] + step[:, None] * offsets, lo, hi)  # (v, k)
+            xy, misfit = scored(gammas.ravel())
+            best = np.argmin(misfit.reshape(gammas.shape), axis=1)
+            centre = gammas[np.arange(valleys.size), best]
+            step = step * 2.0 / (GAMMA_ZOOM_POINTS - 1)
+    i = int(np.argmin(misfit))
+    if not np.isfinite(misfit[i]):
+        return None
+    _, p0, gamma = _profiled(xy[i : i + 1], points, rss, nu)
+    theta = np.array([xy[i, 0], xy[i, 1], p0[0], gamma[0]])
+    return theta if np.all(np.isfinite(theta)) else None
 
 
 def fit_emitter(
@@ -248,7 +397,7 @@ def fit_emitter(
 
     runs = [
         least_squares(residuals, x0, jac=jacobian, loss=loss, f_scale=f_scale_db)
-        for x0 in _starts(points, rss)
+        for x0 in _starts(points, rss, nu)
     ]
     good = [r for r in runs if r.success and np.all(np.isfinite(r.x))]
     if not good:
