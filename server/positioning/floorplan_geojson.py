@@ -453,8 +453,16 @@ def _check_frame(features: Sequence[Any], origin_deg: tuple[float, float] | None
             continue
         try:
             xy = shapely.get_coordinates(shapely.geometry.shape(dict(geometry)))
-        except (KeyError, TypeError, ValueError, AttributeError, shapely.errors.ShapelyError):
-            continue  # a malformed point: anchors skip it
+        except (
+            KeyError,
+            IndexError,
+            OverflowError,
+            TypeError,
+            ValueError,
+            AttributeError,
+            shapely.errors.ShapelyError,
+        ):
+            continue  # a malformed geometry the reading skipped (an anchor point, say)
         if xy.size == 0:
             continue
         first = index if first is None else first
