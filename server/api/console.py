@@ -56,6 +56,12 @@ def _root(request: Request) -> str:
     return str(request.scope.get("root_path", "")).rstrip("/")
 
 
+@router.get("/")
+async def root_redirect() -> RedirectResponse:
+    # a browser pointed at the service lands on the console
+    return RedirectResponse("console/")
+
+
 @router.get("/console")
 async def console_redirect() -> RedirectResponse:
     # the page's URLs are relative to /console/, so that a path prefix keeps working
