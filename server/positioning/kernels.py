@@ -18,7 +18,13 @@ inputs):
 * ``mass_centered_weights``: the mass-centered branch of ``particle._weight_update`` after
   the map sampling (window shift, eq (b)-(c), the median for unknown windows and
   ``particle_cloud.normalised``), whose log-sum-exp adds in another order than numpy's
-  pairwise sum: the float32 log weights agree to a unit in the last place.
+  pairwise sum: the float32 log weights agree to a unit in the last place;
+* ``constrained_step``: ``particle.step``'s move and mass-centered update for a cloud on
+  one floor, in one call over the kernels above (``particle.step_on_floor``), with
+  ``effective_sample_size`` and ``systematic_rows`` (``particle._resample``'s rows, in one
+  merge pass over the sorted points);
+* ``dtw``: ``magnetic_distance.dtw_distance`` per candidate, two rows of the table at a
+  time.
 
 Compiled on first use and cached on disk (``cache=True``); no Python object crosses into
 them.
@@ -501,6 +507,14 @@ def systematic_rows(log_w: NDArray[np.float32], u: float) -> NDArray[np.intp]:
     return rows
 
 
+# ``constrained_step`` without a plan or a map: arrays of the right types, never read
+NO_PLAN: PlanArgs = (
+    np.zeros(1, dtype=np.bool_), 0.0, 0.0, 1.0, 0, 0, np.zeros(1, dtype=np.uint8),
+    np.zeros(256), 0, 0.0, 0.0, 1.0, 1.0, 0, 0, np.zeros(1, dtype=np.intp), np.zeros((0, 8)),
+)  # fmt: skip
+NO_GRID: GridArgs = (0.0, 0.0, 1.0, 0, 0, np.zeros(1), np.zeros(1), 0.0)
+
+
 def warm_up() -> None:
     """Compile (or load from the disk cache) every kernel on tiny inputs, so the first
     request that needs one does not wait for the compiler (a few seconds when cold)."""
@@ -522,3 +536,11 @@ def warm_up() -> None:
         mags, live, np.zeros(1), np.zeros(2, dtype=np.float32), 2,
         np.zeros(1, dtype=np.float32), 0.05, 4.2,
     )  # fmt: skip
+    far = np.full((1, 2), 1e6, dtype=np.float32)  # outside the dummy plan and map
+    log_w = np.zeros(1, dtype=np.float32)
+    for known in (False, True):
+        constrained_step(
+            far, log_w, mags, np.zeros(2, dtype=np.float32), 2, np.zeros((2, 1)), 0.7, 0.0,
+            0.1, 0.1, known, NO_PLAN, known, NO_GRID, known, 0.05, 4.2,
+        )  # fmt: skip
+    systematic_rows(log_w, 0.5)

@@ -121,13 +121,6 @@ BoolArray = NDArray[np.bool_]
 
 _INIT_ROUNDS = 32  # redraw rounds in ``initialise`` before giving up
 
-# ``step_on_floor`` without a plan or a map: arrays of the right types, never read
-_NO_PLAN: kernels.PlanArgs = (
-    np.zeros(1, dtype=np.bool_), 0.0, 0.0, 1.0, 0, 0, np.zeros(1, dtype=np.uint8),
-    np.zeros(256), 0, 0.0, 0.0, 1.0, 1.0, 0, 0, np.zeros(1, dtype=np.intp), np.zeros((0, 8)),
-)  # fmt: skip
-_NO_GRID: kernels.GridArgs = (0.0, 0.0, 1.0, 0, 0, np.zeros(1), np.zeros(1), 0.0)
-
 
 def initialise(
     centre_xy: ArrayLike,
@@ -503,8 +496,8 @@ def step_on_floor(
         np.ascontiguousarray(p.xy), np.ascontiguousarray(p.log_w),
         np.ascontiguousarray(p.mags), observed, count, noise, length_m, heading_rad,
         params.step_sd_m, params.heading_sd_rad,
-        plan is not None, _NO_PLAN if plan is None else floorplan.kernel_args(plan),
-        grid is not None, _NO_GRID if grid is None else magnetic.kernel_args(grid),
+        plan is not None, kernels.NO_PLAN if plan is None else floorplan.kernel_args(plan),
+        grid is not None, kernels.NO_GRID if grid is None else magnetic.kernel_args(grid),
         weigh, params.t, math.log(params.k),
     )  # fmt: skip
     if ess == 0.0:  # dead (``step`` returns it before the update)
