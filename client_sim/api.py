@@ -183,6 +183,13 @@ class ApiClient:
         )
         return result
 
+    async def list_radio_maps(self, building_id: str) -> dict[str, Any]:
+        """The building's radio map versions (``RadioMapList``)."""
+        result: dict[str, Any] = await self._admin(
+            "GET", f"/v1/buildings/{building_id}/radio-maps", None
+        )
+        return result
+
     async def post_magnetic_survey(self, floor_id: str, body: Mapping[str, Any]) -> dict[str, Any]:
         """``body`` is a ``MagneticSurveyIn``; the answer the new ``MagneticMapRead``."""
         result: dict[str, Any] = await self._admin(

@@ -40,58 +40,129 @@ async def replay_over_http(
     upload_reports: list[dict[str, Any]] | None = None,
     params: Mapping[str, Any] | None = None,
 ) -> list[list[dict[str, Any]]]:
-    """Provision a site with ``levels``, their floor ``plans`` (GeoJSON by level), the
-    survey and the ``magnetic_points`` (``MagneticPointIn`` bodies by level), replay each
-    trace (a list of batches, each a list of wire events) in its own session; the fixes
-    per trace. ``uploads`` (floor level, ILC 2.0 trace text) go through ``/v1/uploads``
-    before the replay, which waits until the service has settled every one of them; their
-    final states are appended to ``upload_reports``. Every session runs the engine with
-    ``params`` over its defaults (nested overrides, as ``POST /v1/sessions`` takes them)."""
+    """``provision_site`` then ``replay_sessions`` in one client: the fixes per trace."""
     async with httpx.AsyncClient(base_url=base_url, timeout=REQUEST_TIMEOUT_S) as http:
         api = ApiClient(http, admin_key)
-        site = await api.create_site(site_name)
-        building = await api.create_building(site["id"], site_name)
-        floor_ids = {}
-        for level in levels:
-            floor = await api.create_floor(building["id"], level, f"level {level}")
-            floor_ids[level] = floor["id"]
-            if plans and level in plans:
-                await api.put_plan(floor["id"], plans[level])
-        magnetic = magnetic_points or {}
-        for done, (level, points) in enumerate(magnetic.items(), start=1):
-            for start in range(0, len(points), MAGNETIC_POINTS_PER_REQUEST):
-                chunk = list(points[start : start + MAGNETIC_POINTS_PER_REQUEST])
-                await api.post_magnetic_survey(floor_ids[level], {"points": chunk})
+        site_id = await provision_site(
+            api,
+            site_name=site_name,
+            levels=levels,
+            survey_points=survey_points,
+            plans=plans,
+            magnetic_points=magnetic_points,
+            uploads=uploads,
+            on_progress=on_progress,
+            upload_reports=upload_reports,
+        )
+        return await replay_sessions(
+            api,
+            site_id,
+            engine,
+            traces,
+            on_progress=on_progress,
+            concurrency=concurrency,
+            params=params,
+        )
+
+
+async def provision_site(
+    api: ApiClient,
+    *,
+    site_name: str,
+    levels: Sequence[int],
+    survey_points: Sequence[Mapping[str, Any]],
+    plans: Mapping[int, Mapping[str, Any]] | None = None,
+    magnetic_points: Mapping[int, Sequence[Mapping[str, Any]]] | None = None,
+    uploads: Sequence[tuple[int, bytes]] = (),
+    on_progress: Callable[[str, int, int], None] | None = None,
+    upload_reports: list[dict[str, Any]] | None = None,
+) -> str:
+    """Create a site with ``levels``, their floor ``plans`` (GeoJSON by level), the
+    survey and the ``magnetic_points`` (``MagneticPointIn`` bodies by level), and wait
+    until the service has built the maps of its current radio map version; the site id.
+    ``uploads`` (floor level, ILC 2.0 trace text) go through ``/v1/uploads``, and the
+    wait covers them too; their final states are appended to ``upload_reports``."""
+    site = await api.create_site(site_name)
+    building = await api.create_building(site["id"], site_name)
+    floor_ids = {}
+    for level in levels:
+        floor = await api.create_floor(building["id"], level, f"level {level}")
+        floor_ids[level] = floor["id"]
+        if plans and level in plans:
+            await api.put_plan(floor["id"], plans[level])
+    magnetic = magnetic_points or {}
+    for done, (level, points) in enumerate(magnetic.items(), start=1):
+        for start in range(0, len(points), MAGNETIC_POINTS_PER_REQUEST):
+            chunk = list(points[start : start + MAGNETIC_POINTS_PER_REQUEST])
+            await api.post_magnetic_survey(floor_ids[level], {"points": chunk})
+        if on_progress:
+            on_progress("magnetic survey upload", done, len(magnetic))
+    bodies = list(survey_bodies([dict(p) for p in survey_points]))
+    for done, body in enumerate(bodies, start=1):
+        await api.post_survey(building["id"], body)
+        if on_progress:
+            on_progress("survey upload", done, len(bodies))
+
+    settled = await upload_and_wait(api, site["id"], uploads, on_progress)
+    if upload_reports is not None:
+        upload_reports.extend(settled)
+    await maps_built(api, building["id"], on_progress)
+    return str(site["id"])
+
+
+async def maps_built(
+    api: ApiClient,
+    building_id: str,
+    on_progress: Callable[[str, int, int], None] | None = None,
+    poll_s: float = UPLOAD_POLL_S,
+) -> dict[str, Any] | None:
+    """Wait until the worker has built (or given up on) the maps of the building's current
+    radio map version; that version (None: the building has no radio map)."""
+    while True:
+        versions = (await api.list_radio_maps(building_id))["items"]
+        if not versions:
+            return None
+        current = max(versions, key=lambda v: v["activated_at"])
+        if current["build_status"] not in ("pending", "building"):
             if on_progress:
-                on_progress("magnetic survey upload", done, len(magnetic))
-        bodies = list(survey_bodies([dict(p) for p in survey_points]))
-        for done, body in enumerate(bodies, start=1):
-            await api.post_survey(building["id"], body)
-            if on_progress:
-                on_progress("survey upload", done, len(bodies))
+                on_progress("maps built", 1, 1)
+            return dict(current)
+        if on_progress:
+            on_progress("maps built", 0, 1)
+        await asyncio.sleep(poll_s)
 
-        settled = await upload_and_wait(api, site["id"], uploads, on_progress)
-        if upload_reports is not None:
-            upload_reports.extend(settled)
 
-        gate = asyncio.Semaphore(concurrency)
-        finished = 0
+async def replay_sessions(
+    api: ApiClient,
+    site_id: str,
+    engine: str,
+    traces: Sequence[Sequence[Sequence[Mapping[str, Any]]]],
+    *,
+    on_progress: Callable[[str, int, int], None] | None = None,
+    concurrency: int = 4,
+    params: Mapping[str, Any] | None = None,
+) -> list[list[dict[str, Any]]]:
+    """Replay each trace (a list of batches, each a list of wire events) in its own
+    session of ``engine`` (with ``params`` over its defaults, nested overrides as ``POST
+    /v1/sessions`` takes them); the fixes per trace."""
+    gate = asyncio.Semaphore(concurrency)
+    finished = 0
 
-        async def one(batches: Sequence[Sequence[Mapping[str, Any]]]) -> list[dict[str, Any]]:
-            nonlocal finished
-            async with gate:
-                session = await api.create_session(site["id"], engine, params)
-                fixes: list[dict[str, Any]] = []
-                for seq, batch in enumerate(batches, start=1):
-                    result = await api.post_batch(session, seq, list(batch))
-                    fixes += [dict(f.raw) for f in result.fixes]
-                await api.delete_session(session)
-            finished += 1
-            if on_progress:
-                on_progress("replay over HTTP", finished, len(traces))
-            return fixes
+    async def one(batches: Sequence[Sequence[Mapping[str, Any]]]) -> list[dict[str, Any]]:
+        nonlocal finished
+        async with gate:
+            session = await api.create_session(site_id, engine, params)
+            fixes: list[dict[str, Any]] = []
+            for seq, batch in enumerate(batches, start=1):
+                result = await api.post_batch(session, seq, list(batch))
+                fixes += [dict(f.raw) for f in result.fixes]
+            await api.delete_session(session)
+        finished += 1
+        if on_progress:
+            on_progress("replay over HTTP", finished, len(traces))
+        return fixes
 
-        return list(await asyncio.gather(*(one(t) for t in traces)))
+    return list(await asyncio.gather(*(one(t) for t in traces)))
 
 
 async def upload_and_wait(

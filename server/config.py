@@ -96,6 +96,14 @@ class Settings(BaseSettings):
     upload_max_bytes: int = Field(
         64 * 1024 * 1024, ge=1024, description="largest upload, after decompression"
     )
+    walk_retention_days: float | None = Field(
+        None,
+        gt=0,
+        description="how long the recorded walks (survey points with their walks, the "
+        "points of uploads) are kept after they were folded into a radio map; the maps "
+        "keep their statistics, but a later build learns its fix-error table and graph "
+        "moves only from the walks still kept. None (the default): kept for good",
+    )
     upload_visibility_s: float = Field(
         120.0,
         gt=0,

@@ -1,5 +1,8 @@
 """The upload worker: takes uploads from the queue and folds them into the maps.
 
+When the queue is quiet it builds what is owed of new radio map versions (the fix-error table,
+FAI maps and floor graphs: ``build_maps``, ``services.map_builds``).
+
 One delivery at a time per worker (the work is CPU-bound; run more worker processes to go
 faster). For each delivery: count the attempt (committed), compute the contribution in a
 thread, fold it and settle the upload in one transaction, then acknowledge the queue
@@ -26,7 +29,7 @@ from functools import partial
 
 import anyio
 
-from server.services import upload_anchors, upload_contribution, uploads
+from server.services import map_builds, sites, upload_anchors, upload_contribution, uploads
 from server.services.errors import NotFound
 from server.services.runtime import Runtime
 from server.storage.upload_queue import Delivery, MemoryUploadQueue
@@ -153,6 +156,48 @@ async def handle(rt: Runtime, delivery: Delivery) -> None:
     await rt.uploads.ack(delivery)
 
 
+async def build_maps(rt: Runtime) -> int:
+    """Build what is owed of every pending radio map version (``services.map_builds``),
+    one after the other; how many were built."""
+    done = 0
+    while True:
+        async with rt.transaction() as s:
+            row = await map_builds.claim(s)
+            if row is None:
+                return done
+            version_id, building_id, attempt = row.id, row.building_id, row.build_attempts
+            inputs = await map_builds.build_inputs(s, row)
+            site_id = await sites.site_of(s, building_id, None)
+        extra = {"radio_map_id": version_id, "outcome": "taken", "attempt": attempt}
+        log.info("radio map %s: map build taken (attempt %d)", version_id, attempt, extra=extra)
+        try:
+            # a process shutting down does not wait for the build: its lease runs out and
+            # another worker (or this one, restarted) builds the version again
+            built = await anyio.to_thread.run_sync(map_builds.build, inputs, abandon_on_cancel=True)
+        except Exception as exc:
+            log.exception("radio map %s: map build failed", version_id)
+            async with rt.transaction() as s:
+                gave_up = await map_builds.record_failure(
+                    s, version_id, f"{type(exc).__name__}: {exc}"
+                )
+            extra["outcome"] = "failed" if gave_up else "retry"
+            log.warning("radio map %s: map build %s", version_id, extra["outcome"], extra=extra)
+            continue
+        async with rt.transaction() as s:
+            await map_builds.store(s, version_id, built)
+        extra["outcome"] = "built"
+        log.info(
+            "radio map %s: maps built in %.1f s (%d scans)",
+            version_id,
+            built.seconds,
+            len(inputs.records.scans),
+            extra=extra,
+        )
+        if site_id is not None:
+            rt.maps.invalidate(site_id)
+        done += 1
+
+
 async def run(rt: Runtime, consumer: str, stop: anyio.Event | None = None) -> None:
     """Serve the queue until ``stop`` is set (forever without one)."""
     idle_s = rt.settings.upload_visibility_s
@@ -161,6 +206,12 @@ async def run(rt: Runtime, consumer: str, stop: anyio.Event | None = None) -> No
         await requeue_stranded(rt, 0.0 if isinstance(rt.uploads, MemoryUploadQueue) else idle_s)
     except Exception:
         log.exception("could not re-queue stranded uploads; the idle rescan will")
+    if isinstance(rt.uploads, MemoryUploadQueue):  # the only worker: its old leases died
+        try:
+            async with rt.transaction() as s:
+                await map_builds.release_leases(s)
+        except Exception:
+            log.exception("could not release the map builds' leases; they run out")
     last_scan = time.monotonic()
     while stop is None or not stop.is_set():
         deliveries = []
@@ -176,6 +227,11 @@ async def run(rt: Runtime, consumer: str, stop: anyio.Event | None = None) -> No
                 log.exception(
                     "upload %s: could not be handled; it will be redelivered", delivery.upload_id
                 )
+        if not deliveries:  # uploads first: a build waits until the queue is quiet
+            try:
+                await build_maps(rt)
+            except Exception:  # the store failed under us: the lease runs out, it comes back
+                log.exception("map builds could not be taken; trying again later")
         if not deliveries and time.monotonic() - last_scan >= RESCAN_S:
             # an idle (or cut off) worker looks for uploads whose queue entry was lost
             last_scan = time.monotonic()
@@ -183,3 +239,12 @@ async def run(rt: Runtime, consumer: str, stop: anyio.Event | None = None) -> No
                 await requeue_stranded(rt, idle_s)
             except Exception:
                 log.exception("could not re-queue stranded uploads; trying again later")
+            retention = rt.settings.walk_retention_days
+            if retention is not None:
+                try:
+                    async with rt.transaction() as s:
+                        pruned = await map_builds.prune_walks(s, retention)
+                    if pruned:
+                        log.info("deleted %d survey points past the walks' retention", pruned)
+                except Exception:
+                    log.exception("could not prune old walks; trying again later")

@@ -195,6 +195,8 @@ async def post_survey(building_id: IdPath, body: SurveyIn, s: SqlDep) -> RadioMa
             wifi=wifi_pairs(p.wifi),
             ble=ble_pairs(p.ble),
             mag_ut=p.mag_ut,
+            walk=p.walk,
+            route=p.route,
         )
         for p in body.points
     ]

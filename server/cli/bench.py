@@ -46,6 +46,27 @@ def bench_particle(
         console.print(f"figures written to {json_path}")
 
 
+@bench_app.command("map-build")
+def bench_map_build(
+    site_dir: Annotated[
+        Path, typer.Argument(exists=True, file_okay=False, help="ILC site or floor directory")
+    ],
+    split_seed: Annotated[int, typer.Option(help="seed of the per-floor path split")] = 0,
+    json_path: Annotated[Path | None, typer.Option("--json", help="write the figures here")] = None,
+) -> None:
+    """The worker's build of a site's maps (fix-error table, FAI maps, floor graphs) from
+    its training traces surveyed into a throw-away embedded service: time and peak memory."""
+    from server.cli.output import StageProgress, progress_bar
+    from server.lab.map_build_bench import map_build_bench
+
+    with progress_bar() as bar:
+        result = map_build_bench(site_dir, split_seed=split_seed, progress=StageProgress(bar))
+    print_report(f"map build, {site_dir.name}", result)
+    if json_path is not None:
+        json_path.write_text(json.dumps(result, indent=2) + "\n")
+        console.print(f"figures written to {json_path}")
+
+
 @bench_app.command("load")
 def bench_load(
     users_max: Annotated[int, typer.Option(min=1, max=20_000, help="most users to try")] = 3000,

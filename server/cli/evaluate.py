@@ -102,6 +102,8 @@ def evaluate_ilc(
         except (KeyError, ValueError) as e:
             raise typer.BadParameter(str(e.args[0]), param_hint="--param") from None
 
+    from server.lab.ilc_evaluation import prepare_ilc
+
     runs = []
     crowd_reports: list[list[dict[str, Any]]] = []
     with contextlib.ExitStack() as stack, progress_bar() as bar:
@@ -109,6 +111,16 @@ def evaluate_ilc(
         service = (via_http, admin_key or "") if via_http else None
         if map_source is MapSource.crowd and service is None:
             service = stack.enter_context(embedded_service())
+        sites: dict[int, str] = {}  # the service's site of the training set, shared
+        # the maps every engine reads, built once for all of them
+        setup = prepare_ilc(
+            site_dir,
+            engine,
+            split_seed=split_seed,
+            train_fraction=train_fraction,
+            progress=progress,
+            validation=validation,
+        )
 
         for name in engine:
             progress.tasks.clear()
@@ -117,7 +129,7 @@ def evaluate_ilc(
                 reports = []
                 crowd_reports.append(reports)
             replayer = (
-                http_replayer(service[0], service[1], progress, reports, nested(param or []))
+                http_replayer(service[0], service[1], progress, reports, nested(param or []), sites)
                 if service is not None
                 else in_process_replayer(split_seed, progress, chosen[name])
             )
@@ -130,6 +142,7 @@ def evaluate_ilc(
                     progress=progress,
                     replayer=replayer,
                     validation=validation,
+                    setup=setup,
                 )
             )
 
@@ -142,7 +155,7 @@ def evaluate_ilc(
             run.summary["params"] = overrides
         if reports is not None:
             summarise_crowd(run.summary, reports)
-        if via_http or reports is not None:  # the service's maps learn no radio error
+        if reports is not None:  # the crowd maps' radio error is the service's own
             run.summary.pop("radio_error_68_m", None)
         title = f"ILC {run.site.name} · {run.summary['engine']}"
         per_floor: dict[str, dict[str, object]] = run.summary.get("per_floor", {})
@@ -198,11 +211,25 @@ def evaluate_ipin(
         list[str] | None,
         typer.Option(help="NAME=VALUE: an engine parameter other than its default (repeatable)"),
     ] = None,
+    via_http: Annotated[
+        str | None,
+        typer.Option(
+            help="replay through the service at this URL instead: each fold's training logs "
+            "go up as a survey, each left-out log is one session"
+        ),
+    ] = None,
+    admin_key: Annotated[
+        str | None, typer.Option(envvar="INDOORPOS_ADMIN_KEY", help="admin key for --via-http")
+    ] = None,
 ) -> None:
     """Replay IPIN 2023 Track 3 logs through engines, leaving one trial out of the maps."""
     from server.lab import ipin_evaluation
     from server.lab.engine_params import engine_params
+    from server.lab.service_replay import http_replayer
+    from server.positioning.params import assignments as nested
 
+    if via_http and not admin_key:
+        raise typer.BadParameter("--via-http needs --admin-key (or INDOORPOS_ADMIN_KEY)")
     overrides = dict(p.partition("=")[::2] for p in param or [])
     for name in engine:
         try:
@@ -212,8 +239,20 @@ def evaluate_ipin(
     runs = []
     with progress_bar() as bar:
         progress = StageProgress(bar)
+        sites: dict[int, str] = {}  # the service's site of each fold, shared by the engines
+        # the logs read and each fold's maps built once for every engine
+        setup = ipin_evaluation.prepare_ipin(
+            venue_dir, engine, validation=validation, progress=progress
+        )
         for name in engine:
             progress.tasks.clear()
+            replayer = (
+                http_replayer(
+                    via_http, admin_key or "", progress, params=nested(param or []), sites=sites
+                )
+                if via_http
+                else None
+            )
             runs.append(
                 ipin_evaluation.evaluate_ipin(
                     venue_dir,
@@ -221,6 +260,8 @@ def evaluate_ipin(
                     validation=validation,
                     progress=progress,
                     params=overrides or None,
+                    setup=setup,
+                    replayer=replayer,
                 )
             )
     for run in runs:

@@ -38,19 +38,18 @@ from server.datasets.ipin_log import IpinLog, read_log
 from server.datasets.walk import Walk
 from server.lab.engine_params import engine_params
 from server.lab.progress import Progress
-from server.lab.replay import replay, trace_events
+from server.lab.replay import Replayer, in_process_replayer, trace_events
 from server.lab.scoring import PathResult, estimates_at_waypoints, summarize
 from server.lab.training_maps import (
     LabelledField,
     LabelledScans,
-    learned_fix_error,
+    TrainingSurvey,
+    parts_for,
     site_floors,
-    with_fai_maps,
-    with_graphs,
 )
 from server.positioning.engines import get_engine
 from server.positioning.events import Fix
-from server.positioning.fingerprint import in_place_order
+from server.positioning.mapping.map_set import MAGNETIC, SiteRecords, build_map_set
 from server.positioning.metrics import ipin_score
 from server.positioning.sitemaps import SiteMaps
 
@@ -97,35 +96,95 @@ def floor_parts(trace: Walk, venue: IpinVenue) -> Iterator[tuple[int, Walk]]:
             )
 
 
-def fold_maps(
-    venue: IpinVenue, logs: Sequence[IpinLog], *, magnetic: bool, version: str
-) -> SiteMaps:
-    """Radio map (and with ``magnetic`` the magnetic map) of the venue from these logs."""
+def fold_records(venue: IpinVenue, logs: Sequence[IpinLog], *, magnetic: bool) -> TrainingSurvey:
+    """What a fold's maps are built from: every scan (and with ``magnetic`` every
+    magnetometer sample) of these logs placed between their POSI lines. A log is one walk
+    (cut at its floor changes); the repetitions of a trial walk one route, so they share
+    one group in the fix-error folds."""
     scans = LabelledScans()
     field = LabelledField()
     for log in logs:
         for floor_index, part in floor_parts(log.trace, venue):
-            # repetitions of a trial walk one route: one group in the fix-error folds
-            scans.add_trace(part, floor_index, group=log.trial)
+            scans.add_trace(part, floor_index, group=log.trial, walk=log.trace.path_id)
             if magnetic:
                 field.add_trace(part, floor_index)
-    radio = in_place_order(scans.radio_map()) if scans.events else None
-    maps = SiteMaps(
-        site_floors(venue.site), radio, version=version, fix_error=learned_fix_error(scans)
-    )
-    if magnetic:
-        maps = replace(maps, magnetic=field.magnetic_map(venue.site))
-    return maps
+    return TrainingSurvey(scans, field if magnetic else None, (None,) * len(venue.floors))
 
 
-def fold_walks(venue: IpinVenue, logs: Sequence[IpinLog]) -> dict[int, list[NDArray[np.float64]]]:
-    """The POSI positions of the logs, by floor index: the walks a fold's floor graphs
-    learn their moves from."""
-    walks: dict[int, list[NDArray[np.float64]]] = {}
-    for log in logs:
-        for floor_index, part in floor_parts(log.trace, venue):
-            walks.setdefault(floor_index, []).append(part.waypoint_xy_m)
-    return walks
+def fold_maps(
+    venue: IpinVenue,
+    training: TrainingSurvey,
+    *,
+    parts: Collection[str],
+    version: str,
+) -> SiteMaps:
+    """The venue's map set from a fold's records (``map_set.build_map_set``)."""
+    fields = training.field.floor_fields(venue.site) if training.field is not None else {}
+    records = SiteRecords(site_floors(venue.site), training.scans.surveyed(), (), fields)
+    return build_map_set(records, parts=parts, version=version)
+
+
+@dataclass(frozen=True)
+class IpinFold:
+    """One left-out trial: the maps from the other trials' logs and what they were
+    built from, and the logs scored on them."""
+
+    trial: int
+    maps: SiteMaps
+    training: TrainingSurvey
+    map_logs: int
+    test: tuple[IpinLog, ...]
+
+
+@dataclass(frozen=True)
+class IpinSetup:
+    """What every engine of one evaluation shares: the logs read once and each fold's
+    maps built once for all the engines (``training_maps.parts_for``)."""
+
+    venue: IpinVenue
+    logs: tuple[IpinLog, ...]
+    folds: tuple[IpinFold, ...]
+    validation: bool
+
+
+def prepare_ipin(
+    venue_dir: Path,
+    engines: Collection[str],
+    *,
+    validation: bool = False,
+    progress: Progress | None = None,
+    trials: Collection[int] | None = None,
+    repetitions: Collection[int] | None = None,
+) -> IpinSetup:
+    """Read the chosen logs and build each fold's maps for ``engines`` (see
+    ``evaluate_ipin``)."""
+    for engine in engines:
+        get_engine(engine)  # fail early on an unknown engine name
+    venue = read_venue(venue_dir)
+    chosen = [
+        f
+        for f in venue.logs
+        if (trials is None or f.trial in trials)
+        and (repetitions is None or f.repetition in repetitions)
+        and (not validation or f.repetition in VALIDATION_REPETITIONS)
+    ]
+    logs: list[IpinLog] = []
+    for done, file in enumerate(chosen, start=1):
+        logs.append(read_log(file.path, venue.frame))
+        if progress:
+            progress("read logs", done, len(chosen))
+    parts = parts_for(engines)
+    folds = []
+    fold_trials = sorted({log.trial for log in logs if log.trial is not None})
+    for done, trial in enumerate(fold_trials, start=1):
+        train = [log for log in logs if log.trial != trial]
+        training = fold_records(venue, train, magnetic=MAGNETIC in parts)
+        maps = fold_maps(venue, training, parts=parts, version=f"not-trial-{trial}")
+        test = tuple(log for log in logs if log.trial == trial)
+        folds.append(IpinFold(trial, maps, training, len(train), test))
+        if progress:
+            progress("maps", done, len(fold_trials))
+    return IpinSetup(venue, tuple(logs), tuple(folds), validation)
 
 
 def score_log(log: IpinLog, venue: IpinVenue, fixes: Sequence[Fix]) -> PathResult:
@@ -171,6 +230,8 @@ def evaluate_ipin(
     seed: int = 0,
     trials: Collection[int] | None = None,
     repetitions: Collection[int] | None = None,
+    setup: IpinSetup | None = None,
+    replayer: Replayer | None = None,
 ) -> IpinEvaluation:
     """Leave-one-trial-out evaluation of an engine on a venue's logs (module docstring).
 
@@ -190,6 +251,12 @@ def evaluate_ipin(
         Seed of every replay.
     trials, repetitions : collection of int, optional
         Only these trials and repetitions are read (for a quick run); all by default.
+    setup : IpinSetup, optional
+        The logs and fold maps of ``prepare_ipin`` (shared between engines); read and
+        built here otherwise.
+    replayer : Replayer, optional
+        Replays a fold's logs (in process with ``seed`` and ``params`` by default; through
+        a service with ``service_replay.http_replayer``).
 
     Returns
     -------
@@ -200,45 +267,39 @@ def evaluate_ipin(
     KeyError
         Unknown engine. ``ValueError`` for a parameter it refuses (before any log is read).
     """
-    spec = get_engine(engine)  # fail early on an unknown engine name
+    get_engine(engine)  # fail early on an unknown engine name
     engine_settings = engine_params(engine, params)
-    venue = read_venue(venue_dir)
-    chosen = [
-        f
-        for f in venue.logs
-        if (trials is None or f.trial in trials)
-        and (repetitions is None or f.repetition in repetitions)
-        and (not validation or f.repetition in VALIDATION_REPETITIONS)
-    ]
-    logs: list[IpinLog] = []
-    for done, file in enumerate(chosen, start=1):
-        logs.append(read_log(file.path, venue.frame))
-        if progress:
-            progress("read logs", done, len(chosen))
-
-    magnetic = "mag" in spec.uses
+    if setup is None:
+        setup = prepare_ipin(
+            venue_dir,
+            [engine],
+            validation=validation,
+            progress=progress,
+            trials=trials,
+            repetitions=repetitions,
+        )
+    venue, logs = setup.venue, setup.logs
+    replayer = replayer or in_process_replayer(seed, params=engine_settings)
     results: list[PathResult] = []
     folds: dict[str, dict[str, float]] = {}
-    fold_trials = sorted({log.trial for log in logs if log.trial is not None})
-    for trial in fold_trials:
-        train = [log for log in logs if log.trial != trial]
-        maps = fold_maps(venue, train, magnetic=magnetic, version=f"not-trial-{trial}")
-        maps = with_fai_maps(maps, engine)
-        maps = with_graphs(maps, engine, [], fold_walks(venue, train))
-        test = [log for log in logs if log.trial == trial]
-        for log in test:
-            fixes = replay(
-                engine, trace_events(log.trace, engine), maps, seed=seed, params=engine_settings
-            )
-            results.append(score_log(log, venue, fixes))
-            if progress:
-                progress("replay", len(results), len(logs))
-        folds[f"{trial:02d}"] = {
-            "map_logs": len(train),
-            "test_logs": len(test),
-            "reference_points": int(maps.radio.rp_xy.shape[0]) if maps.radio else 0,
-            "radio_error_68_m": maps.fix_error.error_68_m,
+    for fold in setup.folds:
+        fixes = replayer(
+            engine,
+            fold.maps,
+            fold.training,
+            [trace_events(log.trace, engine) for log in fold.test],
+        )
+        for log, log_fixes in zip(fold.test, fixes, strict=True):
+            results.append(score_log(log, venue, log_fixes))
+        if progress:
+            progress("replay", len(results), len(logs))
+        folds[f"{fold.trial:02d}"] = {
+            "map_logs": fold.map_logs,
+            "test_logs": len(fold.test),
+            "reference_points": int(fold.maps.radio.rp_xy.shape[0]) if fold.maps.radio else 0,
+            "radio_error_68_m": fold.maps.fix_error.error_68_m,
         }
+    fold_trials = [fold.trial for fold in setup.folds]
 
     by_id = {log.trace.path_id: log for log in logs}
     per_log: dict[str, dict[str, Any]] = {}
@@ -259,7 +320,7 @@ def evaluate_ipin(
         results,
         floor_names=[f.name for f in venue.floors],
         engine=engine,
-        dataset=f"ipin:{venue.name}" + (":validation" if validation else ""),
+        dataset=f"ipin:{venue.name}" + (":validation" if setup.validation else ""),
         protocol="leave one trial out",
         seed=seed,
         logs=len(logs),

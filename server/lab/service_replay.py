@@ -17,7 +17,10 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from client_sim.replay import keep_end_anchors, replay_over_http
+import httpx
+
+from client_sim.api import ApiClient
+from client_sim.replay import REQUEST_TIMEOUT_S, keep_end_anchors, provision_site, replay_sessions
 from server.api.convert import fix_from_wire, to_wire
 from server.lab.progress import Progress
 from server.lab.replay import Replayer, batches
@@ -32,41 +35,59 @@ def http_replayer(
     progress: Progress,
     crowd_reports: list[dict[str, Any]] | None = None,
     params: Mapping[str, Any] | None = None,
+    sites: dict[int, str] | None = None,
 ) -> Replayer:
-    """Replay through a running service: training scans go up as a survey (with the floor
-    plans and the magnetometer samples when the engine reads them), each test trace
+    """Replay through a running service: training scans go up as a survey (each point
+    with its walk and route, with the floor plans and the magnetometer samples), the
+    replay waits until the service's worker has built the maps, and each test trace
     becomes one session's batches. With ``crowd_reports`` the training traces go up as
     crowd uploads instead (every waypoint dropped but the first and last) and the service
     builds the maps from them; the uploads' final states are appended to the list. The
-    sessions run with ``params`` (nested overrides of the engine's defaults)."""
+    sessions run with ``params`` (nested overrides of the engine's defaults). ``sites``
+    remembers the site provisioned for each training set (by identity), so that replays of
+    several engines over one training set share one site and one map build."""
+    provisioned = sites if sites is not None else {}
+
+    async def replay(
+        engine: str, maps: SiteMaps, training: TrainingSurvey, traces: list[list[Event]]
+    ) -> list[list[dict[str, Any]]]:
+        levels = [f.level for f in maps.floors]
+        async with httpx.AsyncClient(base_url=base_url, timeout=REQUEST_TIMEOUT_S) as http:
+            api = ApiClient(http, admin_key)
+            site_id = provisioned.get(id(training))
+            if site_id is None or crowd_reports is not None:
+                uploads: list[tuple[int, bytes]] = []
+                scans = training.scans
+                if crowd_reports is not None:
+                    uploads = crowd_uploads(training.traces, levels)
+                    scans = LabelledScans()
+                plans = {levels[i]: plan for i, plan in enumerate(training.plans) if plan}
+                site_id = await provision_site(
+                    api,
+                    site_name=f"evaluation {maps.floors[0].building_id} {maps.version}",
+                    levels=levels,
+                    survey_points=survey_points(scans, levels),
+                    plans=plans,
+                    magnetic_points=magnetic_points(training.field, levels),
+                    uploads=uploads,
+                    on_progress=progress,
+                    upload_reports=crowd_reports,
+                )
+                provisioned[id(training)] = site_id
+            return await replay_sessions(
+                api,
+                site_id,
+                engine,
+                [[[to_wire(e) for e in b] for b in batches(t)] for t in traces],
+                on_progress=progress,
+                params=params,
+            )
 
     def run(
         engine: str, maps: SiteMaps, training: TrainingSurvey, traces: list[list[Event]]
     ) -> list[list[Fix]]:
-        levels = [f.level for f in maps.floors]
-        uploads: list[tuple[int, bytes]] = []
-        if crowd_reports is not None:
-            uploads = crowd_uploads(training.traces, levels)
-            training = TrainingSurvey(LabelledScans(), plans=training.plans)
-        plans = {levels[i]: plan for i, plan in enumerate(training.plans) if plan}
-        fixes = asyncio.run(
-            replay_over_http(
-                base_url,
-                admin_key,
-                site_name=f"evaluation {maps.floors[0].building_id}",
-                levels=levels,
-                survey_points=survey_points(training.scans, levels),
-                engine=engine,
-                traces=[[[to_wire(e) for e in b] for b in batches(t)] for t in traces],
-                plans=plans,
-                magnetic_points=magnetic_points(training.field, levels),
-                uploads=uploads,
-                on_progress=progress,
-                upload_reports=crowd_reports,
-                params=params,
-            )
-        )
-        index = {level: i for i, level in enumerate(levels)}
+        fixes = asyncio.run(replay(engine, maps, training, traces))
+        index = {f.level: i for i, f in enumerate(maps.floors)}
         return [[fix_from_wire(f, index) for f in path] for path in fixes]
 
     return run
@@ -88,22 +109,29 @@ def crowd_uploads(
 
 def survey_points(labelled: LabelledScans, levels: Sequence[int]) -> list[dict[str, Any]]:
     """Every labelled scan as a survey point body (``SurveyPoint``): its position, floor
-    level, time and readings."""
+    level, time, readings, walk and route (where walks share one)."""
     survey = []
-    for (x_m, y_m), floor, event in zip(
-        labelled.xy_m, labelled.floor, labelled.events, strict=True
+    for (x_m, y_m), floor, event, walk, route in zip(
+        labelled.xy_m,
+        labelled.floor,
+        labelled.events,
+        labelled.walk,
+        labelled.route,
+        strict=True,
     ):
         wire = to_wire(event)
         key = "wifi" if wire["type"] == "wifi" else "ble"
-        survey.append(
-            {
-                "x_m": x_m,
-                "y_m": y_m,
-                "floor": levels[floor],
-                "t": event.t_ms,
-                key: wire["readings"],
-            }
-        )
+        point: dict[str, Any] = {
+            "x_m": x_m,
+            "y_m": y_m,
+            "floor": levels[floor],
+            "t": event.t_ms,
+            key: wire["readings"],
+            "walk": str(walk),
+        }
+        if route is not None:
+            point["route"] = str(route)
+        survey.append(point)
     return survey
 
 

@@ -1,5 +1,6 @@
-"""Radio maps: survey points in, a new version out; site map sets (radio, plans, magnetic;
-reference-point graphs for the engines that read them) cached in memory by version."""
+"""Radio maps: survey points in, a new version out; site map sets (radio, plans, magnetic,
+and what the worker built of the current versions: the fix-error table, FAI maps and floor
+graphs, ``services.map_builds``) cached in memory by version."""
 
 from __future__ import annotations
 
@@ -15,10 +16,13 @@ import anyio
 import numpy as np
 from sqlalchemy.ext.asyncio import AsyncSession
 
+from server.positioning import fix_error
 from server.positioning.anchors import anchors_from_plan
 from server.positioning.events import radio_key
+from server.positioning.fai import FaiMaps, FaiParams, spreads
 from server.positioning.fingerprint import MISSING_DBM, RadioMap, in_place_order
-from server.positioning.floor_graph import site_graphs
+from server.positioning.fix_error import FixErrorModel
+from server.positioning.floor_graph import FloorGraph, attach, site_graphs
 from server.positioning.floorplan import FloorPlan
 from server.positioning.floorplan_geojson import plan_from_geojson
 from server.positioning.magnetic import MagneticMap
@@ -30,6 +34,7 @@ from server.positioning.sitemaps import FloorRef, SiteMaps
 from server.services.device_offsets import building_offsets
 from server.services.errors import Invalid, NotFound
 from server.services.magnetic_maps import fold_sources
+from server.storage.map_artefacts import decode_artefacts, fix_error_from_json, plan_digest
 from server.storage.models import RadioMapVersion
 from server.storage.repositories import maps as map_repo
 from server.storage.repositories import sites as site_repo
@@ -41,6 +46,12 @@ SURVEY_CELL_M = 1.0
 # How long a process trusts its cached map set before asking SQL for a newer version.
 VERSION_CHECK_S = 2.0
 
+# What the worker has made of a radio map version beside the map (services.map_builds).
+PENDING = "pending"
+BUILT = "built"
+FAILED = "failed"
+SUPERSEDED = "superseded"
+
 
 @dataclass(frozen=True)
 class SurveyPointData:
@@ -51,6 +62,8 @@ class SurveyPointData:
     wifi: Sequence[tuple[str, float]]
     ble: Sequence[tuple[str, float]]
     mag_ut: tuple[float, float, float] | None
+    walk: str | None = None  # the recorded walk the point was taken on
+    route: str | None = None  # walks along one route share it
 
 
 class MapCache:
@@ -119,7 +132,7 @@ async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None
     stored = [f.plan_geojson for f, _ in floors]
     version = "|".join(
         [f.floor_id for f in refs]
-        + [m.id for m in latest]
+        + [f"{m.id}:{m.build_status}" for m in latest]
         + [m.id if m else "-" for m in magnetic]
         + [_digest(stored)]
     )
@@ -138,6 +151,14 @@ async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None
         )
     merged = merge_radio_maps(parts)
     radio = in_place_order(merged) if merged is not None else None
+    built = [
+        (row, blob)
+        for row in latest
+        if row.build_status == BUILT and (blob := await map_repo.load_artefacts(s, row.id))
+    ]
+    learned = await anyio.to_thread.run_sync(
+        lambda: _learned(built, radio, refs, stored, single=len(latest) == 1)
+    )
     offsets: dict[str, DeviceOffset] = {}
     for building_id in building_ids:  # per model, from the building with most evidence
         for model, found in (await building_offsets(s, building_id)).items():
@@ -151,7 +172,68 @@ async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None
         plans=plans,
         magnetic=MagneticMap(grids, version) if any(g is not None for g in grids) else None,
         device_offsets={model: o.offset_db for model, o in offsets.items()},
+        fix_error=learned.fix_error,
+        fai=learned.fai,
+        graphs=learned.graphs,
     )
+
+
+@dataclass(frozen=True)
+class _Learned:
+    fix_error: FixErrorModel
+    fai: FaiMaps | None
+    graphs: tuple[FloorGraph | None, ...]
+
+
+def _learned(
+    built: Sequence[tuple[RadioMapVersion, bytes]],
+    radio: RadioMap | None,
+    refs: Sequence[FloorRef],
+    plans: Sequence[dict[str, Any] | None],
+    *,
+    single: bool,
+) -> _Learned:
+    """What the worker built of the site's current versions, as the site's map set
+    holds it: the fix-error table of the version learned from the most fixes, the FAI
+    emitter fits by emitter key (the DSF as stored for a one-building site, computed
+    here otherwise), and each floor's graph where it was built on the floor's current
+    plan, attached to the site's reference points."""
+    if not built or radio is None:
+        return _Learned(fix_error.DEFAULT, None, ())
+    tables = [fix_error_from_json(row.fix_error) for row, _ in built if row.fix_error]
+    table = max(tables, key=lambda t: sum(sum(c) for c in t.counts.values()), default=None)
+    decoded = [decode_artefacts(blob) for _, blob in built]
+    fits: dict[str, tuple[np.ndarray, float, float]] = {}
+    dsf = None
+    for artefacts in decoded:
+        if artefacts.fai is not None:
+            found = artefacts.fai
+            for j, key in enumerate(artefacts.fai_keys):
+                fits[key] = (
+                    found.emitter_xy[j],
+                    float(found.p0_dbm[j]),
+                    float(found.exponent[j]),
+                )
+            if single and artefacts.fai.dsf_m.shape[0] == radio.rp_xy.shape[0]:
+                dsf = artefacts.fai.dsf_m
+    fai: FaiMaps | None = None
+    if fits:
+        nan = (np.full(2, np.nan), np.nan, np.nan)
+        rows = [fits.get(key, nan) for key in radio.emitters]
+        params = FaiParams()
+        fai = FaiMaps(
+            np.array([r[0] for r in rows], dtype=np.float64).reshape(-1, 2),
+            np.array([r[1] for r in rows], dtype=np.float64),
+            np.array([r[2] for r in rows], dtype=np.float64),
+            dsf if dsf is not None else spreads(radio, params.kappa_d, params.min_sd_db),
+        )
+    by_floor = {k: v for artefacts in decoded for k, v in artefacts.graphs.items()}
+    graphs: list[FloorGraph | None] = []
+    for i, ref in enumerate(refs):
+        graph, digest = by_floor.get(ref.floor_id, (None, ""))
+        current = plan_digest(plans[i]) if i < len(plans) else ""
+        graphs.append(attach(graph, radio, i) if graph is not None and digest == current else None)
+    return _Learned(table or fix_error.DEFAULT, fai, tuple(graphs))
 
 
 def stored_radio_map(stored: map_repo.RadioMapArrays, floor_index: Mapping[str, int]) -> RadioMap:
@@ -175,13 +257,20 @@ GRAPH_CACHE_SIZE = 16  # map sets with graphs kept per process
 
 
 async def with_graphs(maps: SiteMaps) -> SiteMaps:
-    """The map set with each floor's reference-point graph (``floor_graph``: from its
-    plan, else over its reference points; moves uniform, as the service keeps no walks to
-    learn them from), for the engines that read them; built once per map version."""
+    """The map set with each floor's reference-point graph, for the engines that read
+    them: the worker's (moves learned from the walks, ``services.map_builds``) where it
+    has built them, else built here once per map version (``floor_graph``: from the plan,
+    else over the reference points; moves uniform)."""
+    if maps.graphs and all(g is not None for i, g in enumerate(maps.graphs) if _has_space(maps, i)):
+        return maps
     found = _GRAPHS.get(maps.version)
     if found is None:
-        graphs = await anyio.to_thread.run_sync(
+        built = await anyio.to_thread.run_sync(
             lambda: site_graphs(maps.plans, [], maps.radio, len(maps.floors))
+        )
+        graphs = tuple(
+            maps.graphs[i] if i < len(maps.graphs) and maps.graphs[i] is not None else g
+            for i, g in enumerate(built)
         )
         found = replace(maps, graphs=graphs)
         _GRAPHS[maps.version] = found
@@ -189,6 +278,13 @@ async def with_graphs(maps: SiteMaps) -> SiteMaps:
             _GRAPHS.popitem(last=False)
     _GRAPHS.move_to_end(maps.version)
     return found
+
+
+def _has_space(maps: SiteMaps, floor: int) -> bool:
+    """Whether a floor can have a graph: a plan, or reference points."""
+    if floor < len(maps.plans) and maps.plans[floor] is not None:
+        return True
+    return maps.radio is not None and bool(np.any(maps.radio.rp_floor == floor))
 
 
 async def site_maps(s: AsyncSession, cache: MapCache, site_id: str) -> SiteMaps:
@@ -217,6 +313,13 @@ async def add_survey(
                 f"floor level {p.floor_level} does not exist in building {building_id}",
                 field=f"points.{i}.floor",
             )
+    radio = await fold_survey(
+        s,
+        building_id,
+        points,
+        {level: f.id for level, f in floor_by_level.items()},
+        source="upload" if upload_id else "survey",
+    )
     await survey_repo.add_survey_points(
         s,
         [
@@ -227,6 +330,10 @@ async def add_survey(
                 "y_m": p.y_m,
                 "t_ms": p.t_ms,
                 "upload_id": upload_id,
+                # an upload is one walk; its points are held out together
+                "walk": p.walk if p.walk is not None or upload_id is None else upload_id,
+                "route": p.route,
+                "radio_map_id": radio.id,
                 "readings": {
                     "wifi": [[k.lower(), v] for k, v in p.wifi],
                     "ble": [[k.lower(), v] for k, v in p.ble],
@@ -235,13 +342,6 @@ async def add_survey(
             }
             for p in points
         ],
-    )
-    radio = await fold_survey(
-        s,
-        building_id,
-        points,
-        {level: f.id for level, f in floor_by_level.items()},
-        source="upload" if upload_id else "survey",
     )
     # the magnetometer readings of the points go into their floors' magnetic maps
     for level, floor in floor_by_level.items():
@@ -307,6 +407,7 @@ async def fold_survey(
         radio=radio,
         emitter_ids=[ids[(k, v)] for k, v in kinds_keys],
         source=source,
+        parent_id=current.id if current is not None else None,
     )
 
 
@@ -322,4 +423,8 @@ async def activate_radio_map(s: AsyncSession, building_id: str, version: int) ->
     row.activated_at = await map_repo.next_activation(
         s, RadioMapVersion, RadioMapVersion.building_id, building_id
     )
+    if row.build_status in (SUPERSEDED, FAILED):  # never built: the worker builds it now
+        row.build_status = PENDING
+        row.build_attempts = 0
+        row.build_leased_until = None
     return row

@@ -15,8 +15,10 @@ from sqlalchemy.ext.asyncio import AsyncSession
 
 from server.positioning.floorplan_geojson import PlanError, validate_plan
 from server.services.errors import Conflict, Invalid, NotFound
+from server.services.maps import PENDING
 from server.services.session_records import active_since
 from server.storage.models import Building, Floor, Site
+from server.storage.repositories import maps as map_repo
 from server.storage.repositories import sessions as session_repo
 from server.storage.repositories import sites as site_repo
 from server.storage.repositories.pages import Key, Page
@@ -86,7 +88,8 @@ async def put_floor_plan(s: AsyncSession, floor_id: str, plan: dict[str, Any]) -
     """Store a floor's plan once it passes ``floorplan_geojson.validate_plan`` (with the
     building's geo-reference, if any, to tell degrees from metres); Invalid naming the
     feature and the property otherwise. IMDF-style features are stored with the kind
-    they map to."""
+    they map to. The building's current radio map version is built again by the worker
+    (its floor graphs follow the plan)."""
     floor = await get_floor(s, floor_id)
     building = await get_building(s, floor.building_id)
     origin = None
@@ -98,6 +101,12 @@ async def put_floor_plan(s: AsyncSession, floor_id: str, plan: dict[str, Any]) -
     except PlanError as exc:
         raise Invalid(exc.reason, field=exc.field) from None
     floor.plan_geojson = checked
+    # the floor graphs of the building's current radio map were built on the old plan
+    current = await map_repo.latest_radio_map(s, building.id)
+    if current is not None and current.build_status != PENDING:
+        current.build_status = PENDING
+        current.build_attempts = 0
+        current.build_leased_until = None
     await s.flush()
     return floor
 

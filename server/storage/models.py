@@ -18,6 +18,7 @@ from sqlalchemy import (
     LargeBinary,
     MetaData,
     String,
+    Text,
     TypeDecorator,
     UniqueConstraint,
 )
@@ -134,6 +135,12 @@ class SurveyPoint(Base):
     upload_id: Mapped[str | None] = mapped_column(
         ForeignKey("uploads.id", ondelete="CASCADE"), index=True
     )
+    # the recorded walk the point was taken on (None: surveyed on its own), and the route
+    # of walks repeated along one (held out together when the fix error is learned)
+    walk: Mapped[str | None] = mapped_column(String(64))
+    route: Mapped[str | None] = mapped_column(String(64))
+    # the radio map version the point was first folded into (None: before migration 0009)
+    radio_map_id: Mapped[str | None] = mapped_column(String(32), index=True)
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
 
 
@@ -156,6 +163,21 @@ class RadioMapVersion(Base):
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
     # the current version is the one activated last (rollback: activate an older one)
     activated_at: Mapped[datetime] = mapped_column(default=utcnow)
+    # the version this one was folded onto (None: the building's first)
+    parent_id: Mapped[str | None] = mapped_column(String(32))
+    # what the worker builds of the version beside its radio map (services.map_builds):
+    # "pending" | "built" | "failed"; leased by one worker at a time
+    build_status: Mapped[str] = mapped_column(
+        String(16), default="pending", server_default="pending"
+    )
+    build_attempts: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
+    build_leased_until: Mapped[datetime | None] = mapped_column()
+    build_error: Mapped[str | None] = mapped_column(Text)
+    build_seconds: Mapped[float | None] = mapped_column(Float)
+    # the learned fix-error table (fix_error.FixErrorModel as JSON) and the other
+    # artefacts (FAI emitter fits, floor graphs) as one compressed array container
+    fix_error: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    artefacts: Mapped[bytes | None] = mapped_column(LargeBinary, deferred=True)
 
 
 class ReferencePoint(Base):

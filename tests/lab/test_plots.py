@@ -26,6 +26,7 @@ from server.lab.plots import (
 from server.lab.scoring import summarize
 from server.lab.split import split_site
 from server.lab.training_maps import build_site_maps
+from server.positioning.mapping import map_set
 from server.positioning.mapping.magnetic_gridding import grid_from_samples
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -212,7 +213,7 @@ def test_missing_matplotlib_names_the_extra(
 def test_magnetic_maps_are_drawn_per_floor(tmp_path: Path) -> None:
     site = read_site(SITE2 / "F4")
     split = split_site(site, 0, 0.8)
-    maps, _, _ = build_site_maps(site, split.train[:4], magnetic=True)
+    maps, _, _ = build_site_maps(site, split.train[:4], parts={map_set.FIX_ERROR, map_set.MAGNETIC})
     summary = summarize([], floor_names=["F4"], maps=maps, engine="pf_magnetic")
     coverage = summary["per_floor"]["F4"]["magnetic_coverage"]
     assert 0.0 < coverage < 1.0  # four walks cover some of the corridors

@@ -30,6 +30,7 @@ def test_labelled_scans_become_survey_points_on_their_level() -> None:
             "floor": 3,
             "t": 1_000,
             "wifi": [{"bssid": "aa:bb:cc:dd:ee:01", "rssi_dbm": -60.0}],
+            "walk": "trace 1",
         },
         {
             "x_m": 2.5,
@@ -37,6 +38,7 @@ def test_labelled_scans_become_survey_points_on_their_level() -> None:
             "floor": 3,
             "t": 1_050,
             "ble": [{"id": "beacon-1", "rssi_dbm": -70.0}],
+            "walk": "trace 1",
         },
     ]
     SurveyIn.model_validate({"points": points})  # what the survey API accepts

@@ -16,6 +16,7 @@ def test_walks_along_one_route_share_a_cross_validation_group() -> None:
     scans.add_trace(walk, 0, group=3)
     scans.add_trace(walk, 0)
     scans.add_trace(walk, 0)
-    assert len(scans.path) == 4
-    assert scans.path[0] == scans.path[1]
-    assert len({scans.path[1], scans.path[2], scans.path[3]}) == 3
+    groups = scans.surveyed().groups().tolist()
+    assert len(groups) == 4
+    assert groups[0] == groups[1]
+    assert len({groups[1], groups[2], groups[3]}) == 3

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import math
 from datetime import datetime
-from typing import Annotated
+from typing import Annotated, Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, StringConstraints, model_validator
 from pydantic import (
     Strict as StrictMode,
 )
@@ -21,6 +21,8 @@ from server.api.schemas.common import (
 )
 from server.api.schemas.events import MAX_READINGS_PER_SCAN, BleReading, WifiReading
 
+WalkName = Annotated[str, StringConstraints(min_length=1, max_length=64)]
+
 
 class SurveyPoint(StrictIn):
     x_m: Coordinate
@@ -30,6 +32,18 @@ class SurveyPoint(StrictIn):
     wifi: Annotated[list[WifiReading], Field(max_length=MAX_READINGS_PER_SCAN)] = []
     ble: Annotated[list[BleReading], Field(max_length=MAX_READINGS_PER_SCAN)] = []
     mag_ut: Annotated[tuple[FiniteFloat, FiniteFloat, FiniteFloat], LAX_ARRAY] | None = None
+    walk: WalkName | None = Field(
+        None,
+        description="the recorded walk this point was taken on: a walk's points in time "
+        "order are where people walk (the floor graphs learn their moves from them), and "
+        "they are held out together when the map's fix error is learned; without one the "
+        "point stands on its own",
+    )
+    route: WalkName | None = Field(
+        None,
+        description="walks repeated along one route share a route name: their points are "
+        "held out together when the fix error is learned",
+    )
 
 
 class SurveyIn(StrictIn):
@@ -46,6 +60,13 @@ class RadioMapRead(Strict):
     n_survey_points: int
     created_at: datetime
     activated_at: datetime = Field(description="the current version is the one activated last")
+    build_status: Literal["pending", "built", "failed", "superseded"] = Field(
+        description="what the worker has made of the version beside its radio map (the "
+        "fix-error table sessions' radii come from, FAI maps, floor graphs with moves "
+        "learned from the walks): pending until it has; superseded: a newer version came "
+        "first (built if activated again); failed: sessions use the defaults"
+    )
+    build_seconds: float | None = Field(None, description="how long the build took")
 
 
 class RadioMapList(Strict):

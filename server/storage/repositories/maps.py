@@ -66,6 +66,7 @@ async def save_radio_map(
     radio: RadioMap,
     emitter_ids: Sequence[int],
     source: str = "survey",
+    parent_id: str | None = None,
 ) -> RadioMapVersion:
     """Store a new version (the next number for the building) and make it current. The
     arrays go into one compressed blob: RPs (position, floor as an index into
@@ -95,6 +96,7 @@ async def save_radio_map(
         n_emitters=int(np.unique(heard_em).size),
         n_survey_points=n_survey_points,
         source=source,
+        parent_id=parent_id,
         arrays=compress_arrays(arrays),
         activated_at=await next_activation(
             s, RadioMapVersion, RadioMapVersion.building_id, building_id
@@ -115,6 +117,12 @@ async def latest_radio_map(s: AsyncSession, building_id: str) -> RadioMapVersion
         .limit(1)
     )
     return (await s.scalars(stmt)).one_or_none()
+
+
+async def load_artefacts(s: AsyncSession, map_id: str) -> bytes | None:
+    """What the worker built of a version beside its map (``storage.map_artefacts``)."""
+    stmt = select(RadioMapVersion.artefacts).where(RadioMapVersion.id == map_id)
+    return (await s.execute(stmt)).scalar_one_or_none()
 
 
 async def get_radio_map_version(
