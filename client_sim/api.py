@@ -97,6 +97,17 @@ def _raise_for_status(response: httpx.Response) -> None:
     raise ApiError(response.status_code, body)
 
 
+MAX_RETRY_AFTER_S = 60.0
+
+
+def _retry_after_s(response: httpx.Response) -> float:
+    """The wait a 429 asks for (``Retry-After`` seconds; 1 s when absent or unreadable)."""
+    try:
+        return min(max(float(response.headers.get("Retry-After", "1")), 0.1), MAX_RETRY_AFTER_S)
+    except ValueError:
+        return 1.0
+
+
 def _bearer(token: str) -> dict[str, str]:
     return {"Authorization": f"Bearer {token}"}
 
@@ -109,11 +120,17 @@ class ApiClient:
         http: httpx.AsyncClient,
         admin_key: str | None = None,
         device_key: str | None = None,
+        *,
+        wait_when_limited: bool = False,
     ) -> None:
+        """With ``wait_when_limited`` a call refused for a rate limit (429) is sent again
+        after the ``Retry-After`` the service asked for (a replay that must go through);
+        without it the 429 is raised, as a load test counts it."""
         self.http = http
         self._admin_key = admin_key
         self._device_key = device_key
         self._device_lock = asyncio.Lock()
+        self._wait_when_limited = wait_when_limited
 
     @property
     def base_url(self) -> str:
@@ -128,13 +145,17 @@ class ApiClient:
         body: Any = None,
         time_limit_s: float | None = None,
     ) -> Any:
-        response = await self.http.request(
-            method,
-            path,
-            json=body,
-            headers=_bearer(token) if token is not None else None,
-            timeout=time_limit_s if time_limit_s is not None else httpx.USE_CLIENT_DEFAULT,
-        )
+        while True:
+            response = await self.http.request(
+                method,
+                path,
+                json=body,
+                headers=_bearer(token) if token is not None else None,
+                timeout=time_limit_s if time_limit_s is not None else httpx.USE_CLIENT_DEFAULT,
+            )
+            if response.status_code != 429 or not self._wait_when_limited:
+                break
+            await asyncio.sleep(_retry_after_s(response))
         _raise_for_status(response)
         return response.json() if response.content else None
 
@@ -242,12 +263,19 @@ class ApiClient:
             return self._device_key
 
     async def create_session(
-        self, site_id: str, engine: str, params: Mapping[str, Any] | None = None
+        self,
+        site_id: str,
+        engine: str,
+        params: Mapping[str, Any] | None = None,
+        seed: int | None = None,
     ) -> Session:
-        """Open a session; ``params`` override the engine's parameters (nested)."""
+        """Open a session; ``params`` override the engine's parameters (nested); ``seed``
+        fixes its random stream (a replay of an in-process run)."""
         request: dict[str, Any] = {"site_id": site_id, "engine": engine}
         if params:
             request["params"] = dict(params)
+        if seed is not None:
+            request["seed"] = seed
         body = await self._call("POST", "/v1/sessions", token=await self.device_key(), body=request)
         return Session(
             id=str(body["id"]),

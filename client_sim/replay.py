@@ -42,7 +42,7 @@ async def replay_over_http(
 ) -> list[list[dict[str, Any]]]:
     """``provision_site`` then ``replay_sessions`` in one client: the fixes per trace."""
     async with httpx.AsyncClient(base_url=base_url, timeout=REQUEST_TIMEOUT_S) as http:
-        api = ApiClient(http, admin_key)
+        api = ApiClient(http, admin_key, wait_when_limited=True)
         site_id = await provision_site(
             api,
             site_name=site_name,
@@ -141,17 +141,19 @@ async def replay_sessions(
     on_progress: Callable[[str, int, int], None] | None = None,
     concurrency: int = 4,
     params: Mapping[str, Any] | None = None,
+    seed: int | None = None,
 ) -> list[list[dict[str, Any]]]:
     """Replay each trace (a list of batches, each a list of wire events) in its own
     session of ``engine`` (with ``params`` over its defaults, nested overrides as ``POST
-    /v1/sessions`` takes them); the fixes per trace."""
+    /v1/sessions`` takes them, and ``seed`` as every session's random stream: the one an
+    in-process replay of the same seed draws); the fixes per trace."""
     gate = asyncio.Semaphore(concurrency)
     finished = 0
 
     async def one(batches: Sequence[Sequence[Mapping[str, Any]]]) -> list[dict[str, Any]]:
         nonlocal finished
         async with gate:
-            session = await api.create_session(site_id, engine, params)
+            session = await api.create_session(site_id, engine, params, seed)
             fixes: list[dict[str, Any]] = []
             for seq, batch in enumerate(batches, start=1):
                 result = await api.post_batch(session, seq, list(batch))

@@ -37,6 +37,9 @@ from server.storage.upload_queue import Delivery, MemoryUploadQueue
 log = logging.getLogger("indoorpos.worker")
 
 RESCAN_S = 30.0
+# a version is built once it has been the newest this long: a survey sent in several
+# requests makes a version per request, and only the last is worth building
+BUILD_SETTLE_S = 5.0
 READ_BLOCK_MS = 1000
 
 
@@ -156,13 +159,13 @@ async def handle(rt: Runtime, delivery: Delivery) -> None:
     await rt.uploads.ack(delivery)
 
 
-async def build_maps(rt: Runtime) -> int:
-    """Build what is owed of every pending radio map version (``services.map_builds``),
-    one after the other; how many were built."""
+async def build_maps(rt: Runtime, settle_s: float = 0.0) -> int:
+    """Build what is owed of every pending radio map version made at least ``settle_s``
+    ago (``services.map_builds``), one after the other; how many were built."""
     done = 0
     while True:
         async with rt.transaction() as s:
-            row = await map_builds.claim(s)
+            row = await map_builds.claim(s, settle_s)
             if row is None:
                 return done
             version_id, building_id, attempt = row.id, row.building_id, row.build_attempts
@@ -229,7 +232,7 @@ async def run(rt: Runtime, consumer: str, stop: anyio.Event | None = None) -> No
                 )
         if not deliveries:  # uploads first: a build waits until the queue is quiet
             try:
-                await build_maps(rt)
+                await build_maps(rt, BUILD_SETTLE_S)
             except Exception:  # the store failed under us: the lease runs out, it comes back
                 log.exception("map builds could not be taken; trying again later")
         if not deliveries and time.monotonic() - last_scan >= RESCAN_S:

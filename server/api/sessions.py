@@ -55,6 +55,7 @@ async def create_session(
         contribute=body.contribute,
         device_model=body.device_model,
         params=body.params,
+        seed=body.seed,
     )
     telemetry.touch_session(created.id, created.idle_timeout_s)
     return SessionCreated(

@@ -129,7 +129,15 @@ def evaluate_ilc(
                 reports = []
                 crowd_reports.append(reports)
             replayer = (
-                http_replayer(service[0], service[1], progress, reports, nested(param or []), sites)
+                http_replayer(
+                    service[0],
+                    service[1],
+                    progress,
+                    reports,
+                    nested(param or []),
+                    sites,
+                    seed=split_seed,  # the in-process replay's random stream
+                )
                 if service is not None
                 else in_process_replayer(split_seed, progress, chosen[name])
             )
@@ -248,7 +256,12 @@ def evaluate_ipin(
             progress.tasks.clear()
             replayer = (
                 http_replayer(
-                    via_http, admin_key or "", progress, params=nested(param or []), sites=sites
+                    via_http,
+                    admin_key or "",
+                    progress,
+                    params=nested(param or []),
+                    sites=sites,
+                    seed=0,  # evaluate_ipin's in-process seed
                 )
                 if via_http
                 else None

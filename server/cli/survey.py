@@ -123,7 +123,7 @@ def plan_floor_of_ilc(
         )
     index = names.index(floor)
     traces = [(index, path) for path in site.floors[index].trace_files]
-    maps, _, _ = build_site_maps(site, traces)
+    maps, _, _ = build_site_maps(site, traces, parts=())
     plan = site.floors[index].plan
     try:
         found = plan_floor(floor, plan, maps.radio, index, noise_distance_m)

@@ -36,6 +36,7 @@ def http_replayer(
     crowd_reports: list[dict[str, Any]] | None = None,
     params: Mapping[str, Any] | None = None,
     sites: dict[int, str] | None = None,
+    seed: int | None = None,
 ) -> Replayer:
     """Replay through a running service: training scans go up as a survey (each point
     with its walk and route, with the floor plans and the magnetometer samples), the
@@ -45,7 +46,9 @@ def http_replayer(
     builds the maps from them; the uploads' final states are appended to the list. The
     sessions run with ``params`` (nested overrides of the engine's defaults). ``sites``
     remembers the site provisioned for each training set (by identity), so that replays of
-    several engines over one training set share one site and one map build."""
+    several engines over one training set share one site and one map build. With ``seed``
+    every session draws the random stream an in-process replay of that seed draws
+    (``replay.replay``); fresh entropy per session without."""
     provisioned = sites if sites is not None else {}
 
     async def replay(
@@ -53,7 +56,7 @@ def http_replayer(
     ) -> list[list[dict[str, Any]]]:
         levels = [f.level for f in maps.floors]
         async with httpx.AsyncClient(base_url=base_url, timeout=REQUEST_TIMEOUT_S) as http:
-            api = ApiClient(http, admin_key)
+            api = ApiClient(http, admin_key, wait_when_limited=True)
             site_id = provisioned.get(id(training))
             if site_id is None or crowd_reports is not None:
                 uploads: list[tuple[int, bytes]] = []
@@ -81,6 +84,7 @@ def http_replayer(
                 [[[to_wire(e) for e in b] for b in batches(t)] for t in traces],
                 on_progress=progress,
                 params=params,
+                seed=seed,
             )
 
     def run(

@@ -43,13 +43,16 @@ PARTS = frozenset({map_set.FIX_ERROR, map_set.FAI, map_set.GRAPHS})
 request that made them)."""
 
 
-async def claim(s: AsyncSession) -> RadioMapVersion | None:
+async def claim(s: AsyncSession, settle_s: float = 0.0) -> RadioMapVersion | None:
     """Lease the oldest pending version that is its building's current one (versions a
-    newer one replaced meanwhile become ``superseded``); None when there is none."""
+    newer one replaced meanwhile become ``superseded``) and was made at least
+    ``settle_s`` ago (a survey sent in several requests makes a version per request:
+    only the last is worth building); None when there is none."""
     now = utcnow()
     stmt = (
         select(RadioMapVersion)
         .where(RadioMapVersion.build_status == PENDING)
+        .where(RadioMapVersion.created_at <= now - timedelta(seconds=settle_s))
         .where(
             (RadioMapVersion.build_leased_until.is_(None))
             | (RadioMapVersion.build_leased_until < now)

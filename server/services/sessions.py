@@ -129,10 +129,13 @@ async def create_session(
     contribute: bool = False,
     device_model: str | None = None,
     params: Mapping[str, Any] | None = None,
+    seed: int | None = None,
 ) -> CreatedSession:
     """Open a session. With ``contribute`` its batches are kept, and when it ends they
     become one upload for the map builder (``services.uploads``). ``params`` override the
-    engine's parameters, over the site's settings (``services.engine_settings``)."""
+    engine's parameters, over the site's settings (``services.engine_settings``). ``seed``
+    is the entropy of the session's random stream (fresh 128 bits by default): a replay
+    given the seed of an in-process run draws the same numbers."""
     spec = engine_settings.engine_of(engine)
     token = secrets.token_urlsafe(32)
     session_id = uuid.uuid4().hex
@@ -144,7 +147,7 @@ async def create_session(
             site_id,
             engine,
             _digest(token),
-            secrets.randbits(128),
+            secrets.randbits(128) if seed is None else seed,
             contribute,
             device_model or "",
             overrides,

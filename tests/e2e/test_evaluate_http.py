@@ -18,22 +18,36 @@ FLOOR = (
 
 @pytest.mark.skipif(not FLOOR.is_dir(), reason="../shared/data is not beside the project")
 def test_same_figures_through_the_api(live_url: str, tmp_path: Path) -> None:
+    """The service builds the maps the lab builds (its worker's fix-error table gives the
+    radii), and its sessions draw the in-process random stream: every figure is equal,
+    the particle filter's included."""
     runner = CliRunner()
-    args = ["evaluate", "ilc", str(FLOOR), "--engine", "wknn", "--json"]
-    local = runner.invoke(app, [*args, str(tmp_path / "local.json")])
+    engines = ["wknn", "step_ekf", "pf_magnetic"]
+    args = ["evaluate", "ilc", str(FLOOR), *(a for e in engines for a in ("--engine", e))]
+    local = runner.invoke(app, [*args, "--json", str(tmp_path / "local.json")])
     assert local.exit_code == 0, local.output
     remote = runner.invoke(
         app,
-        [*args, str(tmp_path / "http.json"), "--via-http", live_url, "--admin-key", ADMIN_KEY],
+        [
+            *args,
+            "--json",
+            str(tmp_path / "http.json"),
+            "--via-http",
+            live_url,
+            "--admin-key",
+            ADMIN_KEY,
+        ],
     )
     assert remote.exit_code == 0, remote.output
-    a = json.loads((tmp_path / "local.json").read_text())
-    b = json.loads((tmp_path / "http.json").read_text())
-    assert a["n_points"] > 0
-    for key in ("n_points", "n_missing", "floor_hit_rate"):
-        assert a[key] == b[key]
-    for key in ("mean_m", "p50_m", "p90_m", "max_m"):
-        assert b[key] == pytest.approx(a[key], rel=1e-6)
+    here = json.loads((tmp_path / "local.json").read_text())["runs"]
+    there = json.loads((tmp_path / "http.json").read_text())["runs"]
+    assert [r["engine"] for r in there] == engines
+    for a, b in zip(here, there, strict=True):
+        assert a["n_points"] > 0
+        for key in ("n_points", "n_missing", "floor_hit_rate", "within_68", "within_95"):
+            assert a[key] == b[key], (a["engine"], key)
+        for key in ("mean_m", "p50_m", "p90_m", "max_m"):
+            assert b[key] == pytest.approx(a[key], rel=1e-6), (a["engine"], key)
 
 
 @pytest.mark.skipif(not FLOOR.is_dir(), reason="../shared/data is not beside the project")

@@ -76,6 +76,15 @@ class SessionCreate(StrictIn):
         "site's engine settings; nested as the defaults of GET /v1/engines are, e.g. "
         '{"particles": {"n": 500}}; checked, 422 naming the dotted field',
     )
+    seed: int | None = Field(
+        None,
+        ge=0,
+        lt=2**128,
+        description="the entropy of the session's random stream (the particle filter's "
+        "draws), for a replay that must reproduce a run: batch seq n draws from "
+        "SeedSequence(seed, spawn_key=(n,)), as `indoorpos evaluate` does in process; "
+        "fresh 128 bits by default",
+    )
 
 
 class SessionCreated(Strict):

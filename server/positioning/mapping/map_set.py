@@ -2,7 +2,8 @@
 
 What a site has (``SiteRecords``): its floors, the scans surveyed on them (each at its
 position and time, on a walk and a route, ``SurveyedScans``), the magnetometer samples
-placed on each floor, and each floor's plan (GeoJSON). What comes out is a ``SiteMaps`` (with the plans parsed and the anchors they mark):
+placed on each floor, and each floor's plan (GeoJSON). What comes out is a ``SiteMaps``
+(with the plans parsed and the anchors they mark):
 
 1. **radio map**: the scans gridded into reference points (``gridding.build_radio_map``,
    cells of ``CELL_M``) and put in place order, unless the caller brings the map (the
