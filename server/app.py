@@ -36,6 +36,10 @@ from server.services import telemetry
 from server.services.runtime import open_runtime
 from server.storage import db
 
+# how long shutdown waits for the in-process worker to finish what it is doing (a queue
+# read lasts up to a second; a map build in a thread is abandoned, its lease runs out)
+WORKER_STOP_S = 3.0
+
 DESCRIPTION = (
     "Indoor positioning service. Phones post batches of steps, sensor samples and "
     "WiFi/BLE scans; the server fuses them into fixes per session and pushes them live."
@@ -84,9 +88,23 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             # the event loop, every few seconds under load; bench/performance.md)
             gc.collect()
             gc.freeze()
+            stop, stopped = anyio.Event(), anyio.Event()
+
+            async def run_worker() -> None:
+                try:
+                    await worker.run(runtime, worker.consumer_name(), stop)
+                finally:
+                    stopped.set()
+
             if settings.runs_worker_in_process:
-                tasks.start_soon(worker.run, runtime, worker.consumer_name())
+                tasks.start_soon(run_worker)
+            else:
+                stopped.set()
             yield
+            # the worker ends its transaction and stops; cancelled if it takes too long
+            stop.set()
+            with anyio.move_on_after(WORKER_STOP_S):
+                await stopped.wait()
             tasks.cancel_scope.cancel()
         telemetry.process_exited()
 

@@ -40,6 +40,7 @@ RESCAN_S = 30.0
 # a version is built once it has been the newest this long: a survey sent in several
 # requests makes a version per request, and only the last is worth building
 BUILD_SETTLE_S = 5.0
+BUILD_POLL_S = 2.0  # how often a quiet worker asks SQL for a version to build
 READ_BLOCK_MS = 1000
 
 
@@ -159,24 +160,34 @@ async def handle(rt: Runtime, delivery: Delivery) -> None:
     await rt.uploads.ack(delivery)
 
 
-async def build_maps(rt: Runtime, settle_s: float = 0.0) -> int:
+async def build_maps(
+    rt: Runtime,
+    settle_s: float = 0.0,
+    stop: anyio.Event | None = None,
+    building_id: str | None = None,
+) -> int:
     """Build what is owed of every pending radio map version made at least ``settle_s``
-    ago (``services.map_builds``), one after the other; how many were built."""
+    ago (``services.map_builds``; of one building with ``building_id``), one after the
+    other until none is left or ``stop`` is set; how many were built."""
     done = 0
-    while True:
-        async with rt.transaction() as s:
-            row = await map_builds.claim(s, settle_s)
+    while stop is None or not stop.is_set():
+        async with rt.transaction() as s:  # the lease (and the attempt) is committed first
+            row = await map_builds.claim(s, settle_s, building_id)
             if row is None:
                 return done
-            version_id, building_id, attempt = row.id, row.building_id, row.build_attempts
-            inputs = await map_builds.build_inputs(s, row)
-            site_id = await sites.site_of(s, building_id, None)
+            version_id, attempt = row.id, row.build_attempts
         extra = {"radio_map_id": version_id, "outcome": "taken", "attempt": attempt}
         log.info("radio map %s: map build taken (attempt %d)", version_id, attempt, extra=extra)
+        site_id = None
         try:
+            async with rt.transaction() as s:
+                inputs = await map_builds.build_inputs(s, version_id)
+                site_id = await sites.site_of(s, inputs.building_id, None)
             # a process shutting down does not wait for the build: its lease runs out and
             # another worker (or this one, restarted) builds the version again
             built = await anyio.to_thread.run_sync(map_builds.build, inputs, abandon_on_cancel=True)
+            async with rt.transaction() as s:
+                stored = await map_builds.store(s, inputs, built)
         except Exception as exc:
             log.exception("radio map %s: map build failed", version_id)
             async with rt.transaction() as s:
@@ -186,19 +197,19 @@ async def build_maps(rt: Runtime, settle_s: float = 0.0) -> int:
             extra["outcome"] = "failed" if gave_up else "retry"
             log.warning("radio map %s: map build %s", version_id, extra["outcome"], extra=extra)
             continue
-        async with rt.transaction() as s:
-            await map_builds.store(s, version_id, built)
-        extra["outcome"] = "built"
+        extra["outcome"] = "built" if stored else "stale"
         log.info(
-            "radio map %s: maps built in %.1f s (%d scans)",
+            "radio map %s: maps built in %.1f s (%d scans)%s",
             version_id,
             built.seconds,
             len(inputs.records.scans),
+            "" if stored else "; a floor plan changed meanwhile: built again",
             extra=extra,
         )
         if site_id is not None:
             rt.maps.invalidate(site_id)
-        done += 1
+        done += stored
+    return done
 
 
 async def run(rt: Runtime, consumer: str, stop: anyio.Event | None = None) -> None:
@@ -215,7 +226,7 @@ async def run(rt: Runtime, consumer: str, stop: anyio.Event | None = None) -> No
                 await map_builds.release_leases(s)
         except Exception:
             log.exception("could not release the map builds' leases; they run out")
-    last_scan = time.monotonic()
+    last_scan = last_build_poll = time.monotonic()
     while stop is None or not stop.is_set():
         deliveries = []
         try:
@@ -230,9 +241,11 @@ async def run(rt: Runtime, consumer: str, stop: anyio.Event | None = None) -> No
                 log.exception(
                     "upload %s: could not be handled; it will be redelivered", delivery.upload_id
                 )
-        if not deliveries:  # uploads first: a build waits until the queue is quiet
+        if not deliveries and time.monotonic() - last_build_poll >= BUILD_POLL_S:
+            # uploads first: a build waits until the queue is quiet
+            last_build_poll = time.monotonic()
             try:
-                await build_maps(rt, BUILD_SETTLE_S)
+                await build_maps(rt, BUILD_SETTLE_S, stop)
             except Exception:  # the store failed under us: the lease runs out, it comes back
                 log.exception("map builds could not be taken; trying again later")
         if not deliveries and time.monotonic() - last_scan >= RESCAN_S:

@@ -43,11 +43,14 @@ PARTS = frozenset({map_set.FIX_ERROR, map_set.FAI, map_set.GRAPHS})
 request that made them)."""
 
 
-async def claim(s: AsyncSession, settle_s: float = 0.0) -> RadioMapVersion | None:
+async def claim(
+    s: AsyncSession, settle_s: float = 0.0, building_id: str | None = None
+) -> RadioMapVersion | None:
     """Lease the oldest pending version that is its building's current one (versions a
     newer one replaced meanwhile become ``superseded``) and was made at least
     ``settle_s`` ago (a survey sent in several requests makes a version per request:
-    only the last is worth building); None when there is none."""
+    only the last is worth building); only of ``building_id`` when given; None when there
+    is none."""
     now = utcnow()
     stmt = (
         select(RadioMapVersion)
@@ -59,6 +62,8 @@ async def claim(s: AsyncSession, settle_s: float = 0.0) -> RadioMapVersion | Non
         )
         .order_by(RadioMapVersion.created_at)
     )
+    if building_id is not None:
+        stmt = stmt.where(RadioMapVersion.building_id == building_id)
     for row in (await s.scalars(stmt)).all():
         current = await map_repo.latest_radio_map(s, row.building_id)
         if current is None or current.id != row.id:
@@ -109,13 +114,17 @@ async def release_leases(s: AsyncSession) -> None:
 @dataclass(frozen=True)
 class BuildInputs:
     """What one version's build reads: the site's floors, the records (the version's
-    points), the version's radio map in place order, and the floors' ids and plans."""
+    points, and the plans of its own building's floors), the version's radio map in place
+    order, and the ids and plan digests of the site's floors, with which of them are the
+    building's."""
 
     version_id: str
+    building_id: str
     records: SiteRecords
     radio: RadioMap | None
     floor_ids: tuple[str, ...]
     plan_digests: tuple[str, ...]
+    own: tuple[bool, ...]
 
 
 async def _chain(s: AsyncSession, version: RadioMapVersion) -> set[str]:
@@ -129,13 +138,19 @@ async def _chain(s: AsyncSession, version: RadioMapVersion) -> set[str]:
     return ids
 
 
-async def build_inputs(s: AsyncSession, version: RadioMapVersion) -> BuildInputs:
+async def build_inputs(s: AsyncSession, version_id: str) -> BuildInputs:
     """Gather a version's build inputs (module docstring). The floors are the site's,
-    in the order the map cache gives them, so the artefacts index what sessions read."""
+    in the order the map cache gives them, so the artefacts index what sessions read;
+    only the version's own building's floors have their plans (and graphs)."""
+    version = await s.get(RadioMapVersion, version_id)
+    if version is None:
+        raise LookupError(f"radio map {version_id} is gone")
     building = await site_repo.get_building(s, version.building_id)
-    assert building is not None  # a version goes with its building
+    if building is None:
+        raise LookupError(f"building {version.building_id} is gone")
     floors = await site_repo.list_site_floors(s, building.site_id)
     refs = tuple(FloorRef(b.id, f.id, f.level, b.rotation_rad) for f, b in floors)
+    own = tuple(b.id == building.id for _, b in floors)
     index = {f.id: i for i, (f, _) in enumerate(floors)}
     chain = await _chain(s, version)
     stmt = (
@@ -157,15 +172,19 @@ async def build_inputs(s: AsyncSession, version: RadioMapVersion) -> BuildInputs
         route.append(p.route)
         readings.append(keyed)
     scans = SurveyedScans.of(xy, floor, readings, t_ms=t, walk=walk, route=route)
-    plans = tuple(f.plan_geojson for f, _ in floors)
+    plans = tuple(
+        f.plan_geojson if mine else None for (f, _), mine in zip(floors, own, strict=True)
+    )
     stored = await map_repo.load_radio_map(s, version.id, MISSING_DBM)
     radio = in_place_order(stored_radio_map(stored, index)) if len(stored.rp_xy) else None
     return BuildInputs(
         version.id,
+        building.id,
         SiteRecords(refs, scans, plans),
         radio,
         tuple(f.id for f, _ in floors),
         tuple(map_artefacts.plan_digest(p) for p in plans),
+        own,
     )
 
 
@@ -183,7 +202,7 @@ def build(inputs: BuildInputs) -> Built:
     maps = map_set.build_map_set(inputs.records, parts=PARTS, radio=inputs.radio)
     graphs: dict[str, tuple[FloorGraph, str]] = {}
     for i, graph in enumerate(maps.graphs):
-        if graph is not None:
+        if graph is not None and inputs.own[i]:
             graphs[inputs.floor_ids[i]] = (graph, inputs.plan_digests[i])
     emitters = inputs.radio.emitters if inputs.radio is not None else ()
     blob = map_artefacts.encode_artefacts(emitters, maps.fai, graphs)
@@ -192,16 +211,31 @@ def build(inputs: BuildInputs) -> Built:
     )
 
 
-async def store(s: AsyncSession, version_id: str, built: Built) -> None:
-    row = await s.get(RadioMapVersion, version_id)
+async def store(s: AsyncSession, inputs: BuildInputs, built: Built) -> bool:
+    """Keep what was built on its version; False (the version stays pending, to be built
+    again) when a plan of the building's floors changed while it was being built, or the
+    version is gone."""
+    row = await s.get(RadioMapVersion, inputs.version_id)
     if row is None:  # deleted with its building meanwhile
-        return
+        return False
+    floors = await site_repo.list_floors(s, inputs.building_id)
+    now = {f.id: map_artefacts.plan_digest(f.plan_geojson) for f in floors}
+    used = {
+        f: digest
+        for f, digest, mine in zip(inputs.floor_ids, inputs.plan_digests, inputs.own, strict=True)
+        if mine
+    }
+    row.build_leased_until = None
+    if now != used:
+        row.build_status = PENDING
+        row.build_attempts = 0
+        return False
     row.fix_error = built.fix_error
     row.artefacts = built.artefacts
     row.build_seconds = built.seconds
     row.build_status = BUILT
     row.build_error = None
-    row.build_leased_until = None
+    return True
 
 
 async def record_failure(s: AsyncSession, version_id: str, error: str) -> bool:
