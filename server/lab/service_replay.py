@@ -14,6 +14,7 @@ from __future__ import annotations
 import asyncio
 import lzma
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -51,10 +52,17 @@ def http_replayer(
     (``replay.replay``); fresh entropy per session without."""
     provisioned = sites if sites is not None else {}
 
+    offset_ms = 0
+
     async def replay(
         engine: str, maps: SiteMaps, training: TrainingSurvey, traces: list[list[Event]]
     ) -> list[list[dict[str, Any]]]:
+        nonlocal offset_ms
         levels = [f.level for f in maps.floors]
+        # a log timed from its own start goes up on a phone's clock (ms since the epoch)
+        first = min((e.t_ms for t in traces for e in t), default=EPOCH_MS)
+        first = min([first, *(e.t_ms for e in training.scans.events)])
+        offset_ms = EPOCH_MS if first < EPOCH_MS // 2 else 0
         async with httpx.AsyncClient(base_url=base_url, timeout=REQUEST_TIMEOUT_S) as http:
             api = ApiClient(http, admin_key, wait_when_limited=True)
             site_id = provisioned.get(id(training))
@@ -69,7 +77,7 @@ def http_replayer(
                     api,
                     site_name=f"evaluation {maps.floors[0].building_id} {maps.version}",
                     levels=levels,
-                    survey_points=survey_points(scans, levels),
+                    survey_points=survey_points(scans, levels, offset_ms),
                     plans=plans,
                     magnetic_points=magnetic_points(training.field, levels),
                     uploads=uploads,
@@ -81,7 +89,10 @@ def http_replayer(
                 api,
                 site_id,
                 engine,
-                [[[to_wire(e) for e in b] for b in batches(t)] for t in traces],
+                [
+                    [[on_clock(to_wire(e), offset_ms) for e in b] for b in batches(t)]
+                    for t in traces
+                ],
                 on_progress=progress,
                 params=params,
                 seed=seed,
@@ -92,7 +103,10 @@ def http_replayer(
     ) -> list[list[Fix]]:
         fixes = asyncio.run(replay(engine, maps, training, traces))
         index = {f.level: i for i, f in enumerate(maps.floors)}
-        return [[fix_from_wire(f, index) for f in path] for path in fixes]
+        return [
+            [replace(fix_from_wire(f, index), t_ms=f["t"] - offset_ms) for f in path]
+            for path in fixes
+        ]
 
     return run
 
@@ -111,9 +125,28 @@ def crowd_uploads(
     return uploads
 
 
-def survey_points(labelled: LabelledScans, levels: Sequence[int]) -> list[dict[str, Any]]:
+EPOCH_MS = 1_700_000_000_000
+"""Where a replay puts the zero of a log timed from its own start (the IPIN logs)."""
+
+_SAMPLED = ("accel", "gyro", "magnetic", "rotation", "pressure")
+
+
+def on_clock(wire: dict[str, Any], offset_ms: int) -> dict[str, Any]:
+    """A wire event with its time and its samples' times ``offset_ms`` later."""
+    if not offset_ms:
+        return wire
+    out = {**wire, "t": wire["t"] + offset_ms}
+    for name in _SAMPLED:
+        if name in out:
+            out[name] = [[row[0] + offset_ms, *row[1:]] for row in out[name]]
+    return out
+
+
+def survey_points(
+    labelled: LabelledScans, levels: Sequence[int], offset_ms: int = 0
+) -> list[dict[str, Any]]:
     """Every labelled scan as a survey point body (``SurveyPoint``): its position, floor
-    level, time, readings, walk and route (where walks share one)."""
+    level, time (``offset_ms`` later), readings, walk and route (where walks share one)."""
     survey = []
     for (x_m, y_m), floor, event, walk, route in zip(
         labelled.xy_m,
@@ -129,7 +162,7 @@ def survey_points(labelled: LabelledScans, levels: Sequence[int]) -> list[dict[s
             "x_m": x_m,
             "y_m": y_m,
             "floor": levels[floor],
-            "t": event.t_ms,
+            "t": event.t_ms + offset_ms,
             key: wire["readings"],
             "walk": str(walk),
         }
