@@ -9,6 +9,7 @@ import pytest
 from typer.testing import CliRunner
 
 from server.cli import app
+from server.positioning.fix_error import DEFAULT_ERROR_68_M
 from tests.conftest import ADMIN_KEY
 
 FLOOR = (
@@ -48,6 +49,12 @@ def test_same_figures_through_the_api(live_url: str, tmp_path: Path) -> None:
             assert a[key] == b[key], (a["engine"], key)
         for key in ("mean_m", "p50_m", "p90_m", "max_m"):
             assert b[key] == pytest.approx(a[key], rel=1e-6), (a["engine"], key)
+    # the radii come from the floor's learned fix-error table, far from the default's
+    assert abs(here[0]["radio_error_68_m"] - DEFAULT_ERROR_68_M) > 5.0
+    for engine in engines:
+        ours = (tmp_path / f"local.{engine}.points.csv").read_text().splitlines()
+        theirs = (tmp_path / f"http.{engine}.points.csv").read_text().splitlines()
+        assert ours == theirs, engine  # every estimate, σ and 68 / 95 % radius
 
 
 @pytest.mark.skipif(not FLOOR.is_dir(), reason="../shared/data is not beside the project")
