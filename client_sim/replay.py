@@ -21,6 +21,10 @@ from client_sim.survey import survey_bodies
 REQUEST_TIMEOUT_S = 30.0
 MAGNETIC_POINTS_PER_REQUEST = 50_000
 UPLOAD_POLL_S = 1.0
+MAP_BUILD_TIMEOUT_S = 3600.0
+# how long an api process may serve the map set it cached before it asks for a newer
+# version (the service's VERSION_CHECK_S)
+MAP_REFRESH_S = 2.0
 
 
 async def replay_over_http(
@@ -110,23 +114,42 @@ async def provision_site(
     return str(site["id"])
 
 
+class MapBuildFailed(RuntimeError):
+    """The service's worker gave up building a radio map version's maps."""
+
+
 async def maps_built(
     api: ApiClient,
     building_id: str,
     on_progress: Callable[[str, int, int], None] | None = None,
     poll_s: float = UPLOAD_POLL_S,
+    timeout_s: float = MAP_BUILD_TIMEOUT_S,
 ) -> dict[str, Any] | None:
-    """Wait until the worker has built (or given up on) the maps of the building's current
-    radio map version; that version (None: the building has no radio map)."""
+    """Wait until the worker has built the maps of the building's current radio map
+    version, and until the service's processes have seen it (``MAP_REFRESH_S``); that
+    version (None: the building has no radio map). ``MapBuildFailed`` when the worker gave
+    up, ``TimeoutError`` when nothing was built in ``timeout_s`` (is a worker running?)."""
+    deadline = asyncio.get_running_loop().time() + timeout_s
     while True:
         versions = (await api.list_radio_maps(building_id))["items"]
         if not versions:
             return None
         current = max(versions, key=lambda v: v["activated_at"])
-        if current["build_status"] not in ("pending", "building"):
+        if current["build_status"] == "built":
             if on_progress:
                 on_progress("maps built", 1, 1)
+            await asyncio.sleep(MAP_REFRESH_S)
             return dict(current)
+        if current["build_status"] == "failed":
+            raise MapBuildFailed(
+                f"the worker could not build radio map v{current['version']} of building "
+                f"{building_id}"
+            )
+        if asyncio.get_running_loop().time() > deadline:
+            raise TimeoutError(
+                f"radio map v{current['version']} of building {building_id} was not built in "
+                f"{timeout_s:.0f} s: is a worker running?"
+            )
         if on_progress:
             on_progress("maps built", 0, 1)
         await asyncio.sleep(poll_s)

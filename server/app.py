@@ -37,7 +37,8 @@ from server.services.runtime import open_runtime
 from server.storage import db
 
 # how long shutdown waits for the in-process worker to finish what it is doing (a queue
-# read lasts up to a second; a map build in a thread is abandoned, its lease runs out)
+# read lasts up to a second); a map build's thread is not stopped: the process exits
+# when it ends (its result is not kept; the version is built again)
 WORKER_STOP_S = 3.0
 
 DESCRIPTION = (

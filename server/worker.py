@@ -165,45 +165,46 @@ async def build_maps(
     settle_s: float = 0.0,
     stop: anyio.Event | None = None,
     building_id: str | None = None,
+    limit: int | None = None,
 ) -> int:
-    """Build what is owed of every pending radio map version made at least ``settle_s``
-    ago (``services.map_builds``; of one building with ``building_id``), one after the
-    other until none is left or ``stop`` is set; how many were built."""
-    done = 0
-    while stop is None or not stop.is_set():
+    """Build what is owed of pending radio map versions made at least ``settle_s`` ago
+    (``services.map_builds``; of one building with ``building_id``), one after the other
+    until none is left, ``limit`` were taken or ``stop`` is set; how many were built."""
+    done = taken = 0
+    while (stop is None or not stop.is_set()) and (limit is None or taken < limit):
         async with rt.transaction() as s:  # the lease (and the attempt) is committed first
-            row = await map_builds.claim(s, settle_s, building_id)
-            if row is None:
-                return done
-            version_id, attempt = row.id, row.build_attempts
+            claim = await map_builds.claim(s, settle_s, building_id)
+        if claim is None:
+            break
+        taken += 1
+        version_id, attempt = claim.version_id, claim.attempt
         extra = {"radio_map_id": version_id, "outcome": "taken", "attempt": attempt}
         log.info("radio map %s: map build taken (attempt %d)", version_id, attempt, extra=extra)
-        site_id = None
         try:
             async with rt.transaction() as s:
                 inputs = await map_builds.build_inputs(s, version_id)
-                site_id = await sites.site_of(s, inputs.building_id, None)
-            # a process shutting down does not wait for the build: its lease runs out and
-            # another worker (or this one, restarted) builds the version again
+                site_id = await sites.site_of(s, claim.building_id, None)
+            # CPU-bound: in a thread, the event loop keeps serving; at shutdown the task
+            # stops waiting for it (the lease runs out and the version is built again)
             built = await anyio.to_thread.run_sync(map_builds.build, inputs, abandon_on_cancel=True)
             async with rt.transaction() as s:
-                stored = await map_builds.store(s, inputs, built)
+                stored = await map_builds.store(s, inputs, built, attempt)
         except Exception as exc:
             log.exception("radio map %s: map build failed", version_id)
             async with rt.transaction() as s:
                 gave_up = await map_builds.record_failure(
-                    s, version_id, f"{type(exc).__name__}: {exc}"
+                    s, version_id, f"{type(exc).__name__}: {exc}", attempt
                 )
             extra["outcome"] = "failed" if gave_up else "retry"
             log.warning("radio map %s: map build %s", version_id, extra["outcome"], extra=extra)
             continue
-        extra["outcome"] = "built" if stored else "stale"
+        extra["outcome"] = "built" if stored else "not kept"
         log.info(
             "radio map %s: maps built in %.1f s (%d scans)%s",
             version_id,
             built.seconds,
             len(inputs.records.scans),
-            "" if stored else "; a floor plan changed meanwhile: built again",
+            "" if stored else "; not kept (a floor plan changed meanwhile, or the lease ran out)",
             extra=extra,
         )
         if site_id is not None:
@@ -245,7 +246,7 @@ async def run(rt: Runtime, consumer: str, stop: anyio.Event | None = None) -> No
             # uploads first: a build waits until the queue is quiet
             last_build_poll = time.monotonic()
             try:
-                await build_maps(rt, BUILD_SETTLE_S, stop)
+                await build_maps(rt, BUILD_SETTLE_S, stop, limit=1)  # then the queue again
             except Exception:  # the store failed under us: the lease runs out, it comes back
                 log.exception("map builds could not be taken; trying again later")
         if not deliveries and time.monotonic() - last_scan >= RESCAN_S:

@@ -38,6 +38,16 @@ def upgrade() -> None:
         batch.add_column(sa.Column("build_seconds", sa.Float(), nullable=True))
         batch.add_column(sa.Column("fix_error", sa.JSON(), nullable=True))
         batch.add_column(sa.Column("artefacts", sa.LargeBinary(), nullable=True))
+    # only each building's current version is owed a build; an older one is built if it
+    # is activated again
+    op.execute(
+        "UPDATE radio_maps SET build_status = 'superseded' WHERE EXISTS ("
+        " SELECT 1 FROM radio_maps AS newer WHERE newer.building_id = radio_maps.building_id"
+        " AND (newer.activated_at > radio_maps.activated_at"
+        " OR (newer.activated_at = radio_maps.activated_at AND newer.version > radio_maps.version)))"
+    )
+    # an upload is one walk (as the service now stores it)
+    op.execute("UPDATE survey_points SET walk = upload_id WHERE upload_id IS NOT NULL")
 
 
 def downgrade() -> None:

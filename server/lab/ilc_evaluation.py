@@ -55,6 +55,7 @@ class IlcSetup:
     validation: bool
     split_seed: int
     train_fraction: float
+    parts: frozenset[str]
 
 
 def prepare_ilc(
@@ -77,7 +78,8 @@ def prepare_ilc(
     if validation:
         training_only = restrict(site, split.train)
         split = split_site(training_only, split_seed + 1, train_fraction)
-    maps, survey, bad_lines = build_site_maps(site, split.train, progress, parts=parts_for(engines))
+    parts = parts_for(engines)
+    maps, survey, bad_lines = build_site_maps(site, split.train, progress, parts=parts)
     traces = []
     for done, (floor_index, path) in enumerate(split.test, start=1):
         trace = read_trace(path, site.floors[floor_index].name)
@@ -86,7 +88,16 @@ def prepare_ilc(
         if progress:
             progress("read test traces", done, len(split.test))
     return IlcSetup(
-        site, split, maps, survey, tuple(traces), bad_lines, validation, split_seed, train_fraction
+        site,
+        split,
+        maps,
+        survey,
+        tuple(traces),
+        bad_lines,
+        validation,
+        split_seed,
+        train_fraction,
+        parts,
     )
 
 
@@ -102,7 +113,8 @@ def evaluate_ilc(
     setup: IlcSetup | None = None,
 ) -> IlcEvaluation:
     """Build maps from the training traces and score the engine on the test traces
-    (``prepare_ilc``; pass its ``setup`` to share the maps between engines)."""
+    (``prepare_ilc``; pass its ``setup`` to share the maps between engines: its split,
+    seed and validation choice are then the run's, the arguments here are not read)."""
     if setup is None:
         setup = prepare_ilc(
             site_dir,
@@ -113,6 +125,9 @@ def evaluate_ilc(
             validation=validation,
         )
     get_engine(engine)
+    missing = parts_for([engine]) - setup.parts
+    if missing:
+        raise ValueError(f"the setup's maps were built without {sorted(missing)} for {engine}")
     site, split, maps, traces = setup.site, setup.split, setup.maps, setup.traces
     replayer = replayer or in_process_replayer(setup.split_seed, progress)
     fixes = replayer(engine, maps, setup.survey, [trace_events(t, engine) for _, t in traces])

@@ -145,6 +145,7 @@ class IpinSetup:
     logs: tuple[IpinLog, ...]
     folds: tuple[IpinFold, ...]
     validation: bool
+    parts: frozenset[str]
 
 
 def prepare_ipin(
@@ -184,7 +185,7 @@ def prepare_ipin(
         folds.append(IpinFold(trial, maps, training, len(train), test))
         if progress:
             progress("maps", done, len(fold_trials))
-    return IpinSetup(venue, tuple(logs), tuple(folds), validation)
+    return IpinSetup(venue, tuple(logs), tuple(folds), validation, parts)
 
 
 def score_log(log: IpinLog, venue: IpinVenue, fixes: Sequence[Fix]) -> PathResult:
@@ -278,6 +279,9 @@ def evaluate_ipin(
             trials=trials,
             repetitions=repetitions,
         )
+    missing = parts_for([engine]) - setup.parts
+    if missing:
+        raise ValueError(f"the setup's maps were built without {sorted(missing)} for {engine}")
     venue, logs = setup.venue, setup.logs
     replayer = replayer or in_process_replayer(seed, params=engine_settings)
     results: list[PathResult] = []

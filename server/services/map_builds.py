@@ -38,63 +38,79 @@ from server.storage.repositories import sites as site_repo
 
 LEASE_S = 900.0  # a build of a mall takes a minute or two; a dead worker's lease runs out
 MAX_ATTEMPTS = 3
+RETRY_S = 60.0  # a failed build is tried again after this (times the attempts so far)
+CLAIM_SCAN = 50  # pending versions looked at per claim
+POINTS_PER_READ = 5000  # survey points read from SQL at a time
 PARTS = frozenset({map_set.FIX_ERROR, map_set.FAI, map_set.GRAPHS})
 """What the worker builds of a version (its radio and magnetic maps are written on the
 request that made them)."""
 
 
+@dataclass(frozen=True)
+class Claim:
+    """A version leased to this worker, and the attempt it is on."""
+
+    version_id: str
+    building_id: str
+    attempt: int
+
+
 async def claim(
     s: AsyncSession, settle_s: float = 0.0, building_id: str | None = None
-) -> RadioMapVersion | None:
+) -> Claim | None:
     """Lease the oldest pending version that is its building's current one (versions a
     newer one replaced meanwhile become ``superseded``) and was made at least
     ``settle_s`` ago (a survey sent in several requests makes a version per request:
     only the last is worth building); only of ``building_id`` when given; None when there
-    is none."""
+    is none. Every write is a compare-and-set on the row's status and attempts, so two
+    workers (or a worker and an activation) never both win."""
     now = utcnow()
+    free = (RadioMapVersion.build_leased_until.is_(None)) | (
+        RadioMapVersion.build_leased_until < now
+    )
     stmt = (
-        select(RadioMapVersion)
+        select(RadioMapVersion.id, RadioMapVersion.building_id, RadioMapVersion.build_attempts)
         .where(RadioMapVersion.build_status == PENDING)
         .where(RadioMapVersion.created_at <= now - timedelta(seconds=settle_s))
-        .where(
-            (RadioMapVersion.build_leased_until.is_(None))
-            | (RadioMapVersion.build_leased_until < now)
-        )
+        .where(free)
         .order_by(RadioMapVersion.created_at)
+        .limit(CLAIM_SCAN)
     )
     if building_id is not None:
         stmt = stmt.where(RadioMapVersion.building_id == building_id)
-    for row in (await s.scalars(stmt)).all():
-        current = await map_repo.latest_radio_map(s, row.building_id)
-        if current is None or current.id != row.id:
-            row.build_status = SUPERSEDED
-            continue
-        if row.build_attempts >= MAX_ATTEMPTS:
-            row.build_status = FAILED
-            continue
-        # compare-and-set on the lease: of two workers reading the same row, one wins
-        taken = await s.execute(
+    for version_id, owner, attempts in (await s.execute(stmt)).all():
+        pending = (
             update(RadioMapVersion)
-            .where(RadioMapVersion.id == row.id)
-            .where(RadioMapVersion.build_attempts == row.build_attempts)
-            .values(
-                build_leased_until=now + timedelta(seconds=LEASE_S),
-                build_attempts=row.build_attempts + 1,
-            )
+            .where(RadioMapVersion.id == version_id)
+            .where(RadioMapVersion.build_status == PENDING)
+            .where(RadioMapVersion.build_attempts == attempts)
             .execution_options(synchronize_session=False)
         )
+        if await map_repo.current_radio_map_id(s, owner) != version_id:
+            await s.execute(pending.values(build_status=SUPERSEDED))
+            continue
+        if attempts >= MAX_ATTEMPTS:
+            await s.execute(pending.values(build_status=FAILED))
+            continue
+        taken = await s.execute(
+            pending.where(free).values(
+                build_leased_until=now + timedelta(seconds=LEASE_S),
+                build_attempts=attempts + 1,
+            )
+        )
         if taken.rowcount == 1:  # type: ignore[attr-defined]
-            await s.refresh(row)
-            return row
+            return Claim(version_id, owner, attempts + 1)
     return None
 
 
 async def prune_walks(s: AsyncSession, retention_days: float) -> int:
-    """Delete the survey points folded more than ``retention_days`` ago; how many."""
+    """Delete the points of recorded walks (surveyed on a walk, or uploaded) folded more
+    than ``retention_days`` ago; how many. Points surveyed on their own stay."""
     cutoff = utcnow() - timedelta(days=retention_days)
     gone = await s.execute(
         delete(SurveyPoint)
         .where(SurveyPoint.created_at < cutoff)
+        .where(SurveyPoint.walk.is_not(None) | SurveyPoint.upload_id.is_not(None))
         .execution_options(synchronize_session=False)
     )
     return int(gone.rowcount or 0)  # type: ignore[attr-defined]
@@ -129,12 +145,17 @@ class BuildInputs:
 
 async def _chain(s: AsyncSession, version: RadioMapVersion) -> set[str]:
     """The version and every version it was folded onto."""
+    rows = await s.execute(
+        select(RadioMapVersion.id, RadioMapVersion.parent_id).where(
+            RadioMapVersion.building_id == version.building_id
+        )
+    )
+    parents: dict[str, str | None] = {row[0]: row[1] for row in rows.all()}
     ids = {version.id}
     parent = version.parent_id
     while parent is not None and parent not in ids:
         ids.add(parent)
-        row = await s.get(RadioMapVersion, parent)
-        parent = row.parent_id if row is not None else None
+        parent = parents.get(parent)
     return ids
 
 
@@ -154,22 +175,34 @@ async def build_inputs(s: AsyncSession, version_id: str) -> BuildInputs:
     index = {f.id: i for i, (f, _) in enumerate(floors)}
     chain = await _chain(s, version)
     stmt = (
-        select(SurveyPoint)
+        select(
+            SurveyPoint.radio_map_id,
+            SurveyPoint.floor_id,
+            SurveyPoint.x_m,
+            SurveyPoint.y_m,
+            SurveyPoint.t_ms,
+            SurveyPoint.walk,
+            SurveyPoint.route,
+            SurveyPoint.readings,
+        )
         .where(SurveyPoint.building_id == version.building_id)
-        .where(SurveyPoint.radio_map_id.in_(chain) | SurveyPoint.radio_map_id.is_(None))
         .order_by(SurveyPoint.id)
+        .execution_options(yield_per=POINTS_PER_READ)
     )
     xy, floor, t, walk, route, readings = [], [], [], [], [], []
-    for p in (await s.scalars(stmt)).all():
-        keyed = [(radio_key("wifi", k), float(v)) for k, v in p.readings.get("wifi", [])]
-        keyed += [(radio_key("ble", k), float(v)) for k, v in p.readings.get("ble", [])]
-        if not keyed or p.floor_id not in index:
+    async for map_id, floor_id, x_m, y_m, t_ms, walk_name, route_name, read in await s.stream(stmt):
+        # points of the version's chain (and points stored before versions had chains)
+        if (map_id is not None and map_id not in chain) or floor_id not in index:
             continue
-        xy.append((p.x_m, p.y_m))
-        floor.append(index[p.floor_id])
-        t.append(p.t_ms)
-        walk.append(p.walk)
-        route.append(p.route)
+        keyed = [(radio_key("wifi", k), float(v)) for k, v in read.get("wifi", [])]
+        keyed += [(radio_key("ble", k), float(v)) for k, v in read.get("ble", [])]
+        if not keyed:
+            continue
+        xy.append((x_m, y_m))
+        floor.append(index[floor_id])
+        t.append(t_ms)
+        walk.append(walk_name)
+        route.append(route_name)
         readings.append(keyed)
     scans = SurveyedScans.of(xy, floor, readings, t_ms=t, walk=walk, route=route)
     plans = tuple(
@@ -211,12 +244,13 @@ def build(inputs: BuildInputs) -> Built:
     )
 
 
-async def store(s: AsyncSession, inputs: BuildInputs, built: Built) -> bool:
+async def store(s: AsyncSession, inputs: BuildInputs, built: Built, attempt: int) -> bool:
     """Keep what was built on its version; False (the version stays pending, to be built
-    again) when a plan of the building's floors changed while it was being built, or the
-    version is gone."""
+    again) when a plan of the building's floors changed while it was being built, and
+    False without a word when the version is gone or no longer this attempt's (its lease
+    ran out and another worker took it)."""
     row = await s.get(RadioMapVersion, inputs.version_id)
-    if row is None:  # deleted with its building meanwhile
+    if row is None or row.build_status != PENDING or row.build_attempts != attempt:
         return False
     floors = await site_repo.list_floors(s, inputs.building_id)
     now = {f.id: map_artefacts.plan_digest(f.plan_geojson) for f in floors}
@@ -238,13 +272,14 @@ async def store(s: AsyncSession, inputs: BuildInputs, built: Built) -> bool:
     return True
 
 
-async def record_failure(s: AsyncSession, version_id: str, error: str) -> bool:
-    """Note a failed build; True when the version is out of attempts (``failed``)."""
+async def record_failure(s: AsyncSession, version_id: str, error: str, attempt: int) -> bool:
+    """Note a failed build: tried again after ``RETRY_S`` times the attempts so far; True
+    when the version is out of attempts (``failed``) or no longer this attempt's."""
     row = await s.get(RadioMapVersion, version_id)
-    if row is None:
+    if row is None or row.build_status != PENDING or row.build_attempts != attempt:
         return True
     row.build_error = error[:2000]
-    row.build_leased_until = None
+    row.build_leased_until = utcnow() + timedelta(seconds=RETRY_S * row.build_attempts)
     if row.build_attempts >= MAX_ATTEMPTS:
         row.build_status = FAILED
         return True

@@ -151,10 +151,12 @@ async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None
         )
     merged = merge_radio_maps(parts)
     radio = in_place_order(merged) if merged is not None else None
+    # what the worker built of each version, also while it builds it again (a new plan
+    # changes only the graphs, which are not used on a plan they were not built on)
     built = [
         (row, blob)
         for row in latest
-        if row.build_status == BUILT and (blob := await map_repo.load_artefacts(s, row.id))
+        if row.fix_error is not None and (blob := await map_repo.load_artefacts(s, row.id))
     ]
     learned = await anyio.to_thread.run_sync(
         lambda: _learned(built, radio, refs, stored, single=len(latest) == 1)
@@ -261,9 +263,14 @@ async def with_graphs(maps: SiteMaps) -> SiteMaps:
     them: the worker's (moves learned from the walks, ``services.map_builds``) where it
     has built them, else built here once per map version (``floor_graph``: from the plan,
     else over the reference points; moves uniform)."""
-    if maps.graphs and all(g is not None for i, g in enumerate(maps.graphs) if _has_space(maps, i)):
-        return maps
     found = _GRAPHS.get(maps.version)
+    if (
+        found is None
+        and maps.graphs
+        and all(g is not None for i, g in enumerate(maps.graphs) if _has_space(maps, i))
+    ):
+        found = maps  # the worker built every graph: nothing to add
+        _GRAPHS[maps.version] = found
     if found is None:
         built = await anyio.to_thread.run_sync(
             lambda: site_graphs(maps.plans, [], maps.radio, len(maps.floors))
@@ -274,9 +281,9 @@ async def with_graphs(maps: SiteMaps) -> SiteMaps:
         )
         found = replace(maps, graphs=graphs)
         _GRAPHS[maps.version] = found
-        while len(_GRAPHS) > GRAPH_CACHE_SIZE:
-            _GRAPHS.popitem(last=False)
     _GRAPHS.move_to_end(maps.version)
+    while len(_GRAPHS) > GRAPH_CACHE_SIZE:
+        _GRAPHS.popitem(last=False)
     return found
 
 

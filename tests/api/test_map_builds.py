@@ -8,12 +8,14 @@ from __future__ import annotations
 import asyncio
 import time
 from collections.abc import Sequence
+from datetime import UTC, datetime, timedelta
 from typing import Any
 
 import httpx
 import numpy as np
 import pytest
 from fastapi import FastAPI
+from sqlalchemy import select, update
 
 from server import worker
 from server.positioning import fix_error
@@ -29,8 +31,10 @@ from server.positioning.mapping.map_set import (
     build_map_set,
 )
 from server.positioning.sitemaps import SiteMaps
+from server.services import map_builds
 from server.services.maps import MapCache, site_maps
 from server.services.runtime import Runtime
+from server.storage.models import RadioMapVersion, SurveyPoint
 from tests.api.toy_site import DEPTH_M, LEVELS, WIDTH_M, device_headers, rssi_at
 
 T0 = 1_700_000_000_000
@@ -424,3 +428,94 @@ async def test_each_floor_keeps_the_graph_of_its_own_buildings_walks(
     graph = (await _service_maps(rt, site_id)).graphs[0]
     assert graph is not None
     np.testing.assert_allclose(graph.move_p, learned.move_p)
+
+
+async def _version_row(rt: Runtime, version_id: str) -> RadioMapVersion:
+    async with rt.transaction() as s:
+        row = await s.get(RadioMapVersion, version_id)
+        assert row is not None
+        s.expunge(row)
+        return row
+
+
+async def test_a_build_that_keeps_failing_is_retried_later_then_given_up(
+    client: httpx.AsyncClient, admin: dict[str, str], rt: Runtime
+) -> None:
+    _, building_id = await _empty_site(client, admin)
+    posted = await _survey(client, admin, building_id, _corridor_walks(seed=11))
+    async with rt.transaction() as s:  # the version's map can no longer be read
+        row = await s.get(RadioMapVersion, posted["id"])
+        assert row is not None
+        row.arrays = b"not an array container"
+    for attempt in range(1, map_builds.MAX_ATTEMPTS + 1):
+        assert await worker.build_maps(rt, building_id=building_id) == 0
+        row = await _version_row(rt, posted["id"])
+        assert row.build_attempts == attempt
+        assert row.build_error is not None
+        if attempt < map_builds.MAX_ATTEMPTS:
+            assert row.build_status == "pending"
+            # not taken again at once: it waits for its retry time
+            assert row.build_leased_until is not None
+            assert row.build_leased_until > datetime.now(UTC)
+            assert await worker.build_maps(rt, building_id=building_id) == 0
+            assert (await _version_row(rt, posted["id"])).build_attempts == attempt
+            async with rt.transaction() as s:  # the retry time has come
+                await s.execute(
+                    update(RadioMapVersion)
+                    .where(RadioMapVersion.id == posted["id"])
+                    .values(build_leased_until=None)
+                )
+    assert (await _versions(client, admin, building_id))[1]["build_status"] == "failed"
+
+
+async def test_a_plan_changed_during_a_build_leaves_the_version_to_be_built_again(
+    client: httpx.AsyncClient, admin: dict[str, str], rt: Runtime
+) -> None:
+    site_id, building_id = await _empty_site(client, admin)
+    points = _corridor_walks(seed=12)
+    await _survey(client, admin, building_id, points)
+    async with rt.transaction() as s:
+        claim = await map_builds.claim(s, building_id=building_id)
+    assert claim is not None
+    async with rt.transaction() as s:
+        inputs = await map_builds.build_inputs(s, claim.version_id)
+    built = map_builds.build(inputs)
+    r = await client.get(f"/v1/buildings/{building_id}/floors", headers=admin)
+    ground = next(f["id"] for f in r.json()["items"] if f["level"] == 0)
+    r = await client.put(f"/v1/floors/{ground}/plan", json=_plan(pillar=True), headers=admin)
+    assert r.status_code == 200, r.text
+    async with rt.transaction() as s:
+        assert not await map_builds.store(s, inputs, built, claim.attempt)
+    assert (await _versions(client, admin, building_id))[1]["build_status"] == "pending"
+    await _built(client, admin, rt, building_id, 1)
+    service = await _service_maps(rt, site_id)
+    assert service.graphs[0] is not None  # built on the plan with the pillar
+    lab = build_map_set(_records(service, points, [_plan(pillar=True), None]), parts=WORKER_PARTS)
+    _assert_same_maps(service, lab)
+
+
+async def test_walks_past_their_retention_are_pruned_and_lone_points_stay(
+    client: httpx.AsyncClient, admin: dict[str, str], rt: Runtime
+) -> None:
+    _, building_id = await _empty_site(client, admin)
+    walked = _corridor_walks(seed=13, corridors_y=(2.5,))
+    alone = {"x_m": 4.0, "y_m": 4.0, "floor": 0, "wifi": rssi_at(4.0, 4.0, 0)}
+    await _survey(client, admin, building_id, [*walked, alone])
+    async with rt.transaction() as s:  # folded two days ago
+        await s.execute(
+            update(SurveyPoint)
+            .where(SurveyPoint.building_id == building_id)
+            .values(created_at=datetime.now(UTC) - timedelta(days=2))
+        )
+    async with rt.transaction() as s:
+        assert await map_builds.prune_walks(s, retention_days=3.0) >= 0
+        left = (
+            await s.execute(select(SurveyPoint.walk).where(SurveyPoint.building_id == building_id))
+        ).all()
+    assert len(left) == len(walked) + 1  # none older than three days
+    async with rt.transaction() as s:
+        await map_builds.prune_walks(s, retention_days=1.0)
+        left = (
+            await s.execute(select(SurveyPoint.walk).where(SurveyPoint.building_id == building_id))
+        ).all()
+    assert [w for (w,) in left] == [None]  # the lone point stays

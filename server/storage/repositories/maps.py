@@ -119,6 +119,17 @@ async def latest_radio_map(s: AsyncSession, building_id: str) -> RadioMapVersion
     return (await s.scalars(stmt)).one_or_none()
 
 
+async def current_radio_map_id(s: AsyncSession, building_id: str) -> str | None:
+    """The id of the building's current version (``latest_radio_map``) alone."""
+    stmt = (
+        select(RadioMapVersion.id)
+        .where(RadioMapVersion.building_id == building_id)
+        .order_by(RadioMapVersion.activated_at.desc(), RadioMapVersion.version.desc())
+        .limit(1)
+    )
+    return (await s.execute(stmt)).scalar_one_or_none()
+
+
 async def load_artefacts(s: AsyncSession, map_id: str) -> bytes | None:
     """What the worker built of a version beside its map (``storage.map_artefacts``)."""
     stmt = select(RadioMapVersion.artefacts).where(RadioMapVersion.id == map_id)
