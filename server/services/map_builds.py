@@ -58,7 +58,7 @@ class Claim:
 async def claim(
     s: AsyncSession, settle_s: float = 0.0, building_id: str | None = None
 ) -> Claim | None:
-    """Lease the oldest pending version that is its building's current one (versions a
+    """Lease the newest pending version that is its building's current one (versions a
     newer one replaced meanwhile become ``superseded``) and was made at least
     ``settle_s`` ago (a survey sent in several requests makes a version per request:
     only the last is worth building); only of ``building_id`` when given; None when there
@@ -73,7 +73,8 @@ async def claim(
         .where(RadioMapVersion.build_status == PENDING)
         .where(RadioMapVersion.created_at <= now - timedelta(seconds=settle_s))
         .where(free)
-        .order_by(RadioMapVersion.created_at)
+        # newest first: the survey somebody is waiting for, not a backlog of older ones
+        .order_by(RadioMapVersion.created_at.desc())
         .limit(CLAIM_SCAN)
     )
     if building_id is not None:

@@ -25,6 +25,14 @@ def live_url(settings: Settings) -> Iterator[str]:
     yield from _serve(settings)
 
 
+@pytest.fixture(scope="module")
+def worker_live_url(settings: Settings) -> Iterator[str]:
+    """The server with the worker in its process (in the production shape a process of
+    its own): what builds a survey's maps. For a module only, so that its worker does not
+    take other modules' uploads from a shared queue."""
+    yield from _serve(settings.model_copy(update={"in_process_worker": True}))
+
+
 def _serve(settings: Settings) -> Iterator[str]:
     port = _free_port()
     server = uvicorn.Server(

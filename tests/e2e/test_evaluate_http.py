@@ -18,7 +18,7 @@ FLOOR = (
 
 
 @pytest.mark.skipif(not FLOOR.is_dir(), reason="../shared/data is not beside the project")
-def test_same_figures_through_the_api(live_url: str, tmp_path: Path) -> None:
+def test_same_figures_through_the_api(worker_live_url: str, tmp_path: Path) -> None:
     """The service builds the maps the lab builds (its worker's fix-error table gives the
     radii), and its sessions draw the in-process random stream: every figure is equal,
     the particle filter's included."""
@@ -34,7 +34,7 @@ def test_same_figures_through_the_api(live_url: str, tmp_path: Path) -> None:
             "--json",
             str(tmp_path / "http.json"),
             "--via-http",
-            live_url,
+            worker_live_url,
             "--admin-key",
             ADMIN_KEY,
         ],
@@ -78,7 +78,7 @@ def test_crowd_maps_come_close_to_the_survey_maps(tmp_path: Path) -> None:
 
 
 @pytest.mark.skipif(not FLOOR.is_dir(), reason="../shared/data is not beside the project")
-def test_a_parameter_reaches_the_sessions(live_url: str, tmp_path: Path) -> None:
+def test_a_parameter_reaches_the_sessions(worker_live_url: str, tmp_path: Path) -> None:
     """``--param`` with ``--via-http`` opens the sessions with those parameters: the same
     figures as the in-process replay with them, not those of the defaults."""
     runner = CliRunner()
@@ -92,7 +92,7 @@ def test_a_parameter_reaches_the_sessions(live_url: str, tmp_path: Path) -> None
             "--param",
             "k=1",
             "--via-http",
-            live_url,
+            worker_live_url,
             "--admin-key",
             ADMIN_KEY,
         ],
