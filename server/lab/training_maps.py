@@ -23,15 +23,10 @@ from server.datasets.ilc_trace import read_trace
 from server.datasets.walk import Walk
 from server.lab.progress import Progress
 from server.positioning.events import BleEvent, WifiEvent, radio_key
-from server.positioning.fingerprint import RadioMap
 from server.positioning.mapping import map_set
 from server.positioning.mapping.labelled import interpolate_track
 from server.positioning.mapping.map_set import FloorField, SiteRecords, SurveyedScans
 from server.positioning.sitemaps import FloorRef, SiteMaps
-
-# Traces sample the walk every few metres; 1 m cells keep that resolution and merge only
-# scans taken at nearly the same spot (the same cell size as surveys).
-TRACE_CELL_M = map_set.CELL_M
 
 
 def site_floors(site: IlcSite) -> tuple[FloorRef, ...]:
@@ -92,9 +87,6 @@ class LabelledScans:
             walk=self.walk,
             route=self.route,
         )
-
-    def radio_map(self) -> RadioMap | None:
-        return map_set.grid_scans(self.surveyed())
 
 
 def _kind(event: WifiEvent | BleEvent) -> str:

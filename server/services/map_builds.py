@@ -30,7 +30,7 @@ from server.positioning.floor_graph import FloorGraph
 from server.positioning.mapping import map_set
 from server.positioning.mapping.map_set import SiteRecords, SurveyedScans
 from server.positioning.sitemaps import FloorRef
-from server.services.maps import BUILT, FAILED, PENDING, SUPERSEDED, stored_radio_map
+from server.services.maps import BUILT, FAILED, PENDING, SUPERSEDED, owe_build, stored_radio_map
 from server.storage import map_artefacts
 from server.storage.models import RadioMapVersion, SurveyPoint, utcnow
 from server.storage.repositories import maps as map_repo
@@ -262,8 +262,7 @@ async def store(s: AsyncSession, inputs: BuildInputs, built: Built, attempt: int
     }
     row.build_leased_until = None
     if now != used:
-        row.build_status = PENDING
-        row.build_attempts = 0
+        owe_build(row)
         return False
     row.fix_error = built.fix_error
     row.artefacts = built.artefacts

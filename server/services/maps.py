@@ -4,8 +4,6 @@ graphs, ``services.map_builds``) cached in memory by version."""
 
 from __future__ import annotations
 
-import hashlib
-import json
 import time
 from collections import OrderedDict
 from collections.abc import Mapping, Sequence
@@ -23,12 +21,11 @@ from server.positioning.fai import FaiMaps, FaiParams, spreads
 from server.positioning.fingerprint import MISSING_DBM, RadioMap, in_place_order
 from server.positioning.fix_error import FixErrorModel
 from server.positioning.floor_graph import FloorGraph, attach, site_graphs
-from server.positioning.floorplan import FloorPlan
-from server.positioning.floorplan_geojson import plan_from_geojson
 from server.positioning.magnetic import MagneticMap
 from server.positioning.mapping.device_offsets import DeviceOffset
 from server.positioning.mapping.gridding import build_radio_map, fold_radio_maps
 from server.positioning.mapping.magnetic_gridding import MagneticSamples
+from server.positioning.mapping.map_set import parse_plans
 from server.positioning.mapping.matrices import merge_radio_maps, readings_matrix
 from server.positioning.sitemaps import FloorRef, SiteMaps
 from server.services.device_offsets import building_offsets
@@ -103,22 +100,6 @@ class MapCache:
             return maps
 
 
-def _digest(plans: list[dict[str, Any] | None]) -> str:
-    text = json.dumps(plans, sort_keys=True, separators=(",", ":"))
-    return hashlib.sha256(text.encode()).hexdigest()[:16]
-
-
-def _plan(geojson: dict[str, Any] | None) -> FloorPlan | None:
-    """The floor's walkable space and walls; None without a plan or when the stored plan
-    has no usable walkable area (engines then place no wall constraint there)."""
-    if not geojson:
-        return None
-    try:
-        return plan_from_geojson(geojson)
-    except ValueError:
-        return None
-
-
 async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None) -> SiteMaps:
     floors = await site_repo.list_site_floors(s, site_id)
     refs = tuple(FloorRef(b.id, f.id, f.level, b.rotation_rad) for f, b in floors)
@@ -134,12 +115,12 @@ async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None
         [f.floor_id for f in refs]
         + [f"{m.id}:{m.build_status}" for m in latest]
         + [m.id if m else "-" for m in magnetic]
-        + [_digest(stored)]
+        + [plan_digest(stored)]
     )
     if cached is not None and cached.version == version:
         return cached
     # rasterising a mall floor takes a good part of a second: not on the event loop
-    plans = await anyio.to_thread.run_sync(lambda: tuple(_plan(p) for p in stored))
+    plans = await anyio.to_thread.run_sync(parse_plans, stored)
     grids = await anyio.to_thread.run_sync(
         lambda: tuple(map_repo.magnetic_grid(m) if m else None for m in magnetic)
     )
@@ -431,7 +412,12 @@ async def activate_radio_map(s: AsyncSession, building_id: str, version: int) ->
         s, RadioMapVersion, RadioMapVersion.building_id, building_id
     )
     if row.build_status in (SUPERSEDED, FAILED):  # never built: the worker builds it now
-        row.build_status = PENDING
-        row.build_attempts = 0
-        row.build_leased_until = None
+        owe_build(row)
     return row
+
+
+def owe_build(row: RadioMapVersion) -> None:
+    """Make the worker build the version (again), from its first attempt."""
+    row.build_status = PENDING
+    row.build_attempts = 0
+    row.build_leased_until = None

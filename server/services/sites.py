@@ -15,7 +15,7 @@ from sqlalchemy.ext.asyncio import AsyncSession
 
 from server.positioning.floorplan_geojson import PlanError, validate_plan
 from server.services.errors import Conflict, Invalid, NotFound
-from server.services.maps import PENDING
+from server.services.maps import PENDING, owe_build
 from server.services.session_records import active_since
 from server.storage.models import Building, Floor, Site
 from server.storage.repositories import maps as map_repo
@@ -104,9 +104,7 @@ async def put_floor_plan(s: AsyncSession, floor_id: str, plan: dict[str, Any]) -
     # the floor graphs of the building's current radio map were built on the old plan
     current = await map_repo.latest_radio_map(s, building.id)
     if current is not None and current.build_status != PENDING:
-        current.build_status = PENDING
-        current.build_attempts = 0
-        current.build_leased_until = None
+        owe_build(current)
     await s.flush()
     return floor
 

@@ -27,9 +27,9 @@ from server.storage.codec import array_to_str, compress_arrays, decompress_array
 _GRAPH_ARRAYS = ("xy", "kind", "indptr", "indices", "move_p", "stay_p")
 
 
-def plan_digest(geojson: Mapping[str, Any] | None) -> str:
-    """A short digest of a floor plan ("" without one): a graph built on another plan
-    is not used."""
+def plan_digest(geojson: Any) -> str:
+    """A short digest of a floor plan, or of several ("" for none): a graph built on
+    another plan is not used, a map set cached on other plans is loaded again."""
     if not geojson:
         return ""
     text = json.dumps(geojson, sort_keys=True, separators=(",", ":"))
