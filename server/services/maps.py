@@ -17,7 +17,7 @@ from sqlalchemy.ext.asyncio import AsyncSession
 from server.positioning import fix_error
 from server.positioning.anchors import anchors_from_plan
 from server.positioning.events import radio_key
-from server.positioning.fai import FaiMaps, FaiParams, spreads
+from server.positioning.fai import FaiMaps
 from server.positioning.fingerprint import MISSING_DBM, RadioMap, in_place_order
 from server.positioning.fix_error import FixErrorModel
 from server.positioning.floor_graph import FloorGraph, attach, site_graphs
@@ -25,7 +25,7 @@ from server.positioning.magnetic import MagneticMap
 from server.positioning.mapping.device_offsets import DeviceOffset
 from server.positioning.mapping.gridding import build_radio_map, fold_radio_maps
 from server.positioning.mapping.magnetic_gridding import MagneticSamples
-from server.positioning.mapping.map_set import parse_plans
+from server.positioning.mapping.map_set import merged_fai, most_learned, parse_plans
 from server.positioning.mapping.matrices import merge_radio_maps, readings_matrix
 from server.positioning.sitemaps import FloorRef, SiteMaps
 from server.services.device_offsets import building_offsets
@@ -183,40 +183,21 @@ def _learned(
     plan, attached to the site's reference points."""
     if not built or radio is None:
         return _Learned(fix_error.DEFAULT, None, ())
-    tables = [fix_error_from_json(row.fix_error) for row, _ in built if row.fix_error]
-    table = max(tables, key=lambda t: sum(sum(c) for c in t.counts.values()), default=None)
+    table = most_learned([fix_error_from_json(row.fix_error) for row, _ in built if row.fix_error])
     decoded = [decode_artefacts(blob) for _, blob in built]
-    fits: dict[str, tuple[np.ndarray, float, float]] = {}
-    dsf = None
-    for artefacts in decoded:
-        if artefacts.fai is not None:
-            found = artefacts.fai
-            for j, key in enumerate(artefacts.fai_keys):
-                fits[key] = (
-                    found.emitter_xy[j],
-                    float(found.p0_dbm[j]),
-                    float(found.exponent[j]),
-                )
-            if single and artefacts.fai.dsf_m.shape[0] == radio.rp_xy.shape[0]:
-                dsf = artefacts.fai.dsf_m
-    fai: FaiMaps | None = None
-    if fits:
-        nan = (np.full(2, np.nan), np.nan, np.nan)
-        rows = [fits.get(key, nan) for key in radio.emitters]
-        params = FaiParams()
-        fai = FaiMaps(
-            np.array([r[0] for r in rows], dtype=np.float64).reshape(-1, 2),
-            np.array([r[1] for r in rows], dtype=np.float64),
-            np.array([r[2] for r in rows], dtype=np.float64),
-            dsf if dsf is not None else spreads(radio, params.kappa_d, params.min_sd_db),
-        )
+    fai_parts = [(a.fai_keys, a.fai) for a in decoded if a.fai is not None]
+    # a one-building site's map is its version's: the DSF its build made holds
+    dsf = fai_parts[0][1].dsf_m if single and fai_parts else None
+    if dsf is not None and dsf.shape[0] != radio.rp_xy.shape[0]:
+        dsf = None
+    fai = merged_fai(radio, fai_parts, dsf)
     by_floor = {k: v for artefacts in decoded for k, v in artefacts.graphs.items()}
     graphs: list[FloorGraph | None] = []
     for i, ref in enumerate(refs):
         graph, digest = by_floor.get(ref.floor_id, (None, ""))
         current = plan_digest(plans[i]) if i < len(plans) else ""
         graphs.append(attach(graph, radio, i) if graph is not None and digest == current else None)
-    return _Learned(table or fix_error.DEFAULT, fai, tuple(graphs))
+    return _Learned(table, fai, tuple(graphs))
 
 
 def stored_radio_map(stored: map_repo.RadioMapArrays, floor_index: Mapping[str, int]) -> RadioMap:

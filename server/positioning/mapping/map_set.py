@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 
 from server.positioning import fix_error
 from server.positioning.anchors import anchors_from_plan
-from server.positioning.fai import FaiParams
+from server.positioning.fai import FaiMaps, FaiParams, spreads
 from server.positioning.fingerprint import RadioMap, in_place_order
 from server.positioning.floor_graph import site_graphs
 from server.positioning.floorplan import FloorPlan
@@ -211,6 +211,40 @@ def magnetic_map(
     for index, samples in fields.items():
         grids[index] = grid_from_samples(samples.xy_m, samples.magnitude_ut, extent=samples.extent)
     return MagneticMap(tuple(grids), version) if any(g is not None for g in grids) else None
+
+
+def most_learned(tables: Sequence[fix_error.FixErrorModel]) -> fix_error.FixErrorModel:
+    """Of several buildings' fix-error tables, the one learned from the most fixes (the
+    default without any): a site's map set holds one."""
+    return max(
+        tables, key=lambda t: sum(sum(c) for c in t.counts.values()), default=fix_error.DEFAULT
+    )
+
+
+def merged_fai(
+    radio: RadioMap,
+    parts: Sequence[tuple[Sequence[str], FaiMaps]],
+    dsf_m: FloatArray | None = None,
+) -> FaiMaps | None:
+    """A site's FAI maps from its buildings' (each with the column keys its arrays
+    follow): every emitter's fit by its key in ``radio``'s column order (NaN where none
+    was fitted), and the DSF given (a one-building site's, as its build made it on the
+    same map) or computed over ``radio`` (``fai.spreads``); None without any fit."""
+    if not any(len(keys) for keys, _ in parts):
+        return None
+    fits: dict[str, tuple[FloatArray, float, float]] = {}
+    for keys, fai in parts:
+        for j, key in enumerate(keys):
+            fits[key] = (fai.emitter_xy[j], float(fai.p0_dbm[j]), float(fai.exponent[j]))
+    nan = (np.full(2, np.nan), np.nan, np.nan)
+    rows = [fits.get(key, nan) for key in radio.emitters]
+    params = FaiParams()
+    return FaiMaps(
+        np.array([r[0] for r in rows], dtype=np.float64).reshape(-1, 2),
+        np.array([r[1] for r in rows], dtype=np.float64),
+        np.array([r[2] for r in rows], dtype=np.float64),
+        dsf_m if dsf_m is not None else spreads(radio, params.kappa_d, params.min_sd_db),
+    )
 
 
 def build_map_set(

@@ -339,3 +339,55 @@ def test_magnetic_grids_cover_the_floors_with_samples(records: SiteRecords) -> N
     assert maps.magnetic.grids[0] is None
     assert maps.magnetic.grids[1] is not None
     assert build_map_set(records, parts={MAGNETIC}).magnetic is None
+
+
+def test_buildings_fai_fits_are_merged_by_emitter_key(records: SiteRecords) -> None:
+    from dataclasses import replace as with_
+
+    from server.positioning.fai import FaiParams, spreads
+    from server.positioning.mapping.map_set import merged_fai
+
+    maps = build_map_set(records, parts={FAI})
+    assert maps.radio is not None
+    assert maps.fai is not None
+    keys = maps.radio.emitters
+    half = len(keys) // 2
+    # two "buildings", each knowing half the columns, listed in reverse order
+    parts = [
+        (
+            keys[:half][::-1],
+            with_(
+                maps.fai,
+                emitter_xy=maps.fai.emitter_xy[:half][::-1],
+                p0_dbm=maps.fai.p0_dbm[:half][::-1],
+                exponent=maps.fai.exponent[:half][::-1],
+            ),
+        ),
+        (
+            keys[half:],
+            with_(
+                maps.fai,
+                emitter_xy=maps.fai.emitter_xy[half:],
+                p0_dbm=maps.fai.p0_dbm[half:],
+                exponent=maps.fai.exponent[half:],
+            ),
+        ),
+    ]
+    merged = merged_fai(maps.radio, parts)
+    assert merged is not None
+    for name in ("emitter_xy", "p0_dbm", "exponent"):
+        np.testing.assert_array_equal(getattr(merged, name), getattr(maps.fai, name))
+    params = FaiParams()
+    np.testing.assert_array_equal(
+        merged.dsf_m, spreads(maps.radio, params.kappa_d, params.min_sd_db)
+    )
+    assert merged_fai(maps.radio, []) is None
+
+
+def test_the_site_keeps_the_table_learned_from_most_fixes(records: SiteRecords) -> None:
+    from server.positioning.mapping.map_set import most_learned
+
+    learned = build_map_set(records, parts={FIX_ERROR}).fix_error
+    assert most_learned([]) is fix_error.DEFAULT
+    assert most_learned([fix_error.DEFAULT, learned]) is learned
+    assert most_learned([learned, fix_error.DEFAULT]) is learned
