@@ -194,6 +194,8 @@ async def post_survey(building_id: IdPath, body: SurveyIn, s: SqlDep) -> RadioMa
             t_ms=p.t,
             wifi=wifi_pairs(p.wifi),
             ble=ble_pairs(p.ble),
+            wifi_age_ms=[r.age_ms for r in p.wifi],
+            ble_age_ms=[r.age_ms for r in p.ble],
             mag_ut=p.mag_ut,
             walk=p.walk,
             route=p.route,

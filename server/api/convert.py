@@ -48,9 +48,13 @@ def to_event(e: WireEvent) -> Event:
         case StepIn():
             return StepEvent(e.t, e.length_m, e.heading_rad, e.confidence)
         case WifiIn():
-            return WifiEvent(e.t, tuple(RadioReading(r.bssid, r.rssi_dbm) for r in e.readings))
+            return WifiEvent(
+                e.t, tuple(RadioReading(r.bssid, r.rssi_dbm, r.age_ms) for r in e.readings)
+            )
         case BleIn():
-            return BleEvent(e.t, tuple(RadioReading(r.id, r.rssi_dbm) for r in e.readings))
+            return BleEvent(
+                e.t, tuple(RadioReading(r.id, r.rssi_dbm, r.age_ms) for r in e.readings)
+            )
         case MagIn():
             return MagEvent(e.t, e.field_ut, e.magnitude_ut)
         case GnssIn():
@@ -79,6 +83,13 @@ def ble_pairs(readings: Sequence[BleReading]) -> list[tuple[str, float]]:
     return [(r.id, r.rssi_dbm) for r in readings]
 
 
+def _reading(key: str, r: RadioReading) -> dict[str, Any]:
+    out: dict[str, Any] = {key: r.emitter, "rssi_dbm": r.rssi_dbm}
+    if r.age_ms is not None:
+        out["age_ms"] = round(r.age_ms)
+    return out
+
+
 def to_wire(event: Event) -> dict[str, Any]:
     """The batch-API form of a core event (the inverse of ``to_event``)."""
     match event:
@@ -91,10 +102,10 @@ def to_wire(event: Event) -> dict[str, Any]:
                 "confidence": event.confidence,
             }
         case WifiEvent():
-            readings = [{"bssid": r.emitter, "rssi_dbm": r.rssi_dbm} for r in event.readings]
+            readings = [_reading("bssid", r) for r in event.readings]
             return {"type": "wifi", "t": event.t_ms, "readings": readings}
         case BleEvent():
-            readings = [{"id": r.emitter, "rssi_dbm": r.rssi_dbm} for r in event.readings]
+            readings = [_reading("id", r) for r in event.readings]
             return {"type": "ble", "t": event.t_ms, "readings": readings}
         case MagEvent():
             return {

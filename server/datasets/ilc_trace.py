@@ -31,9 +31,10 @@ read up to that point and counts one more bad line. ``parse_trace_text`` reads s
 instead (uploads): the first record it cannot read raises ``TraceFormatError``.
 
 WiFi scans: the rows of one scan share the first-column timestamp (the scan time) and
-become one ``WifiEvent``. Android also returns cached results (rows whose ``last_seen``
-is older than the scan); by default they are kept, and ``wifi_max_age_ms`` drops them
-(see ``WIFI_MAX_AGE_MS`` for the figures and why the default keeps them). A BSSID listed
+become one ``WifiEvent``, each reading with its age (the scan time less the row's
+``last_seen``, ``RadioReading.age_ms``). Android also returns cached results (rows whose
+``last_seen`` is older than the scan); by default they are kept (matching discounts them
+by their age), and ``wifi_max_age_ms`` drops them (see ``WIFI_MAX_AGE_MS``). A BSSID listed
 twice in one scan (one radio announcing several SSIDs) keeps its strongest reading, as
 ``fingerprint.scan_vector`` does.
 """
@@ -161,6 +162,7 @@ class _TraceParser:
         }
         # scan time -> emitter -> strongest rssi
         self.wifi: dict[int, dict[str, float]] = {}
+        self.wifi_age: dict[int, dict[str, int]] = {}  # ms since last seen, as self.wifi
         self.ble: dict[int, dict[str, float]] = {}
         self.radio_t: list[int] = []  # scan times of rows read, stale ones included
         self.bad_lines = 0
@@ -235,7 +237,10 @@ class _TraceParser:
                 if self.wifi_max_age_ms is not None and t - int(f[6]) > self.wifi_max_age_ms:
                     self.stale_wifi += 1
                     return
-                keep_strongest(self.wifi.setdefault(t, {}), f[3].lower(), rssi)
+                scan, bssid = self.wifi.setdefault(t, {}), f[3].lower()
+                if scan.get(bssid, -math.inf) < rssi:  # strongest per BSSID, with its age
+                    scan[bssid] = rssi
+                    self.wifi_age.setdefault(t, {})[bssid] = max(t - int(f[6]), 0)
             elif kind == "TYPE_BEACON":
                 if n != _N_FIELDS_BEACON or not (f[2] and _is_uint(f[3]) and _is_uint(f[4])):
                     raise ValueError(kind)
@@ -300,7 +305,9 @@ class _TraceParser:
             if streams[stream].shape[0] == 0 and rows:
                 streams[stream] = self._rows(rows, 4)
                 uncalibrated.add(stream)
-        wifi = tuple(WifiEvent(t, readings(self.wifi[t])) for t in sorted(self.wifi))
+        wifi = tuple(
+            WifiEvent(t, readings(self.wifi[t], self.wifi_age[t])) for t in sorted(self.wifi)
+        )
         ble = tuple(window_ble([BleEvent(t, readings(self.ble[t])) for t in sorted(self.ble)]))
         t_all = [waypoints[:, 0], *(a[:, 0] for a in streams.values())]
         t_all.append(np.asarray(self.radio_t, dtype=np.float64))

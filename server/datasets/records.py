@@ -60,6 +60,9 @@ def keep_strongest(scan: dict[str, float], emitter: str, rssi: float) -> None:
         scan[emitter] = rssi
 
 
-def readings(scan: dict[str, float]) -> tuple[RadioReading, ...]:
-    """A gathered scan as readings."""
-    return tuple(RadioReading(emitter, rssi) for emitter, rssi in scan.items())
+def readings(
+    scan: dict[str, float], age_ms: Mapping[str, float] | None = None
+) -> tuple[RadioReading, ...]:
+    """A gathered scan as readings, with each reading's age where ``age_ms`` has it."""
+    ages = age_ms or {}
+    return tuple(RadioReading(emitter, rssi, ages.get(emitter)) for emitter, rssi in scan.items())

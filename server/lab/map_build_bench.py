@@ -118,4 +118,6 @@ def _point(body: dict[str, Any]) -> SurveyPointData:
         mag_ut=None,
         walk=body.get("walk"),
         route=body.get("route"),
+        wifi_age_ms=[r.get("age_ms") for r in body.get("wifi", [])],
+        ble_age_ms=[r.get("age_ms") for r in body.get("ble", [])],
     )

@@ -86,6 +86,7 @@ class LabelledScans:
             t_ms=[e.t_ms for e in self.events],
             walk=self.walk,
             route=self.route,
+            ages_ms=[[r.age_ms for r in e.readings] for e in self.events],
         )
 
 

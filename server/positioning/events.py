@@ -31,10 +31,13 @@ class StepEvent:
 
 @dataclass(frozen=True, slots=True)
 class RadioReading:
-    """One emitter heard in a scan: ``emitter`` is the WiFi BSSID or the BLE beacon id."""
+    """One emitter heard in a scan: ``emitter`` is the WiFi BSSID or the BLE beacon id;
+    ``age_ms`` how long before the scan's time it was last heard (a cached reading is
+    seconds old; None: fresh, or not known)."""
 
     emitter: str
     rssi_dbm: float
+    age_ms: float | None = None
 
 
 @dataclass(frozen=True, slots=True)

@@ -13,6 +13,7 @@ from server.positioning.fix_error import FixErrorModel
 from server.positioning.floor_graph import FloorGraph
 from server.positioning.floorplan import FloorPlan
 from server.positioning.magnetic import MagneticMap
+from server.positioning.scan_matching import ScanMap
 
 
 @dataclass(frozen=True, slots=True)
@@ -60,3 +61,6 @@ class SiteMaps:
     # per floor index: the reference-point graph (floor_graph; map_markov); missing or
     # None: none built
     graphs: tuple[FloorGraph | None, ...] = ()
+    # the surveyed scans themselves, matched scan by scan (scan_matching); None: not
+    # built, scans are matched against the radio map's cells
+    scans: ScanMap | None = None

@@ -40,7 +40,7 @@ async def building_offsets(s: AsyncSession, building_id: str) -> dict[str, Devic
         cells_xy.append((x, y))
         cells_floor.append(floors[floor_id])
         for kind in ("wifi", "ble"):
-            for key, value in readings.get(kind) or ():
+            for key, value, *_ in readings.get(kind) or ():
                 cell_of.append(len(cells_xy) - 1)
                 emitter.append(emitters.setdefault(radio_key(kind, key), len(emitters)))
                 rssi.append(float(value))

@@ -190,22 +190,24 @@ async def build_inputs(s: AsyncSession, version_id: str) -> BuildInputs:
         .order_by(SurveyPoint.id)
         .execution_options(yield_per=POINTS_PER_READ)
     )
-    xy, floor, t, walk, route, readings = [], [], [], [], [], []
+    xy, floor, t, walk, route, readings, ages = [], [], [], [], [], [], []
     async for map_id, floor_id, x_m, y_m, t_ms, walk_name, route_name, read in await s.stream(stmt):
         # points of the version's chain (and points stored before versions had chains)
         if (map_id is not None and map_id not in chain) or floor_id not in index:
             continue
-        keyed = [(radio_key("wifi", k), float(v)) for k, v in read.get("wifi", [])]
-        keyed += [(radio_key("ble", k), float(v)) for k, v in read.get("ble", [])]
-        if not keyed:
+        rows = [("wifi", r) for r in read.get("wifi", [])]
+        rows += [("ble", r) for r in read.get("ble", [])]
+        if not rows:
             continue
+        keyed = [(radio_key(kind, r[0]), float(r[1])) for kind, r in rows]
+        ages.append([float(r[2]) if len(r) > 2 else None for _, r in rows])
         xy.append((x_m, y_m))
         floor.append(index[floor_id])
         t.append(t_ms)
         walk.append(walk_name)
         route.append(route_name)
         readings.append(keyed)
-    scans = SurveyedScans.of(xy, floor, readings, t_ms=t, walk=walk, route=route)
+    scans = SurveyedScans.of(xy, floor, readings, t_ms=t, walk=walk, route=route, ages_ms=ages)
     plans = tuple(
         f.plan_geojson if mine else None for (f, _), mine in zip(floors, own, strict=True)
     )
@@ -239,7 +241,7 @@ def build(inputs: BuildInputs) -> Built:
         if graph is not None and inputs.own[i]:
             graphs[inputs.floor_ids[i]] = (graph, inputs.plan_digests[i])
     emitters = inputs.radio.emitters if inputs.radio is not None else ()
-    blob = map_artefacts.encode_artefacts(emitters, maps.fai, graphs)
+    blob = map_artefacts.encode_artefacts(emitters, maps.fai, graphs, maps.scans, inputs.floor_ids)
     return Built(
         map_artefacts.fix_error_to_json(maps.fix_error), blob, time.perf_counter() - started
     )

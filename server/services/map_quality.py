@@ -313,7 +313,7 @@ def _emitters(
     rss: list[float] = []
     for i, p in enumerate(points):
         for kind in KINDS:
-            for key, value in p.readings.get(kind) or ():
+            for key, value, *_ in p.readings.get(kind) or ():
                 point_of.append(i)
                 key_of.append((kind, str(key).lower()))
                 rss.append(float(value))

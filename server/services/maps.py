@@ -27,6 +27,7 @@ from server.positioning.mapping.gridding import build_radio_map, fold_radio_maps
 from server.positioning.mapping.magnetic_gridding import MagneticSamples
 from server.positioning.mapping.map_set import merged_fai, most_learned, parse_plans
 from server.positioning.mapping.matrices import merge_radio_maps, readings_matrix
+from server.positioning.scan_matching import ScanMap, merge_scan_maps
 from server.positioning.sitemaps import FloorRef, SiteMaps
 from server.services.device_offsets import building_offsets
 from server.services.errors import Invalid, NotFound
@@ -61,6 +62,21 @@ class SurveyPointData:
     mag_ut: tuple[float, float, float] | None
     walk: str | None = None  # the recorded walk the point was taken on
     route: str | None = None  # walks along one route share it
+    # each reading's age in ms, parallel to ``wifi`` / ``ble`` (empty or None: fresh)
+    wifi_age_ms: Sequence[float | None] = ()
+    ble_age_ms: Sequence[float | None] = ()
+
+
+def stored_readings(
+    pairs: Sequence[tuple[str, float]], ages_ms: Sequence[float | None]
+) -> list[list[Any]]:
+    """Readings as a survey point keeps them: ``[id, rssi_dbm]``, or ``[id, rssi_dbm,
+    age_ms]`` where the reading's age is known."""
+    out: list[list[Any]] = []
+    for i, (key, value) in enumerate(pairs):
+        age = ages_ms[i] if i < len(ages_ms) else None
+        out.append([key.lower(), value] if age is None else [key.lower(), value, age])
+    return out
 
 
 class MapCache:
@@ -158,6 +174,7 @@ async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None
         fix_error=learned.fix_error,
         fai=learned.fai,
         graphs=learned.graphs,
+        scans=learned.scans,
     )
 
 
@@ -166,6 +183,7 @@ class _Learned:
     fix_error: FixErrorModel
     fai: FaiMaps | None
     graphs: tuple[FloorGraph | None, ...]
+    scans: ScanMap | None = None
 
 
 def _learned(
@@ -197,7 +215,11 @@ def _learned(
         graph, digest = by_floor.get(ref.floor_id, (None, ""))
         current = plan_digest(plans[i]) if i < len(plans) else ""
         graphs.append(attach(graph, radio, i) if graph is not None and digest == current else None)
-    return _Learned(table, fai, tuple(graphs))
+    # the reference scans of every building, where each was built (else the cells match)
+    index = {ref.floor_id: i for i, ref in enumerate(refs)}
+    scans = [a.scans_on(index) for a in decoded]
+    joined = merge_scan_maps([m for m in scans if m is not None]) if all(scans) else None
+    return _Learned(table, fai, tuple(graphs), joined)
 
 
 def stored_radio_map(stored: map_repo.RadioMapArrays, floor_index: Mapping[str, int]) -> RadioMap:
@@ -304,8 +326,8 @@ async def add_survey(
                 "route": p.route,
                 "radio_map_id": radio.id,
                 "readings": {
-                    "wifi": [[k.lower(), v] for k, v in p.wifi],
-                    "ble": [[k.lower(), v] for k, v in p.ble],
+                    "wifi": stored_readings(p.wifi, p.wifi_age_ms),
+                    "ble": stored_readings(p.ble, p.ble_age_ms),
                     "mag_ut": list(p.mag_ut) if p.mag_ut else None,
                 },
             }

@@ -20,6 +20,7 @@ whole walk's magnetometer so.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -154,13 +155,18 @@ def join_traces(traces: Sequence[Walk], *, path_id: str = "", floor: str = "") -
 def _scans(prefix: str, scans: Sequence[WifiEvent | BleEvent]) -> dict[str, np.ndarray]:
     emitters = sorted({r.emitter for e in scans for r in e.readings})
     index = {k: i for i, k in enumerate(emitters)}
-    readings = [(i, index[r.emitter], r.rssi_dbm) for i, e in enumerate(scans) for r in e.readings]
-    table = np.array(readings, dtype=np.float64).reshape(-1, 3)
+    readings = [
+        (i, index[r.emitter], r.rssi_dbm, math.nan if r.age_ms is None else r.age_ms)
+        for i, e in enumerate(scans)
+        for r in e.readings
+    ]
+    table = np.array(readings, dtype=np.float64).reshape(-1, 4)
     return {
         f"{prefix}_t": np.array([e.t_ms for e in scans], dtype=np.int64),
         f"{prefix}_scan": table[:, 0].astype(np.int32),
         f"{prefix}_emitter": table[:, 1].astype(np.int32),
         f"{prefix}_rssi": table[:, 2].astype(np.float32),
+        f"{prefix}_age": table[:, 3],  # ms, NaN: not known
         f"{prefix}_names": str_to_array("\n".join(emitters)),
     }
 
@@ -169,13 +175,16 @@ def _unscans(a: dict[str, np.ndarray], prefix: str) -> list[list[RadioReading]]:
     text = array_to_str(a[f"{prefix}_names"])
     names = text.split("\n") if text else []
     scans: list[list[RadioReading]] = [[] for _ in range(len(a[f"{prefix}_t"]))]
-    for scan, emitter, rssi in zip(
+    n = len(a[f"{prefix}_scan"])
+    ages = a.get(f"{prefix}_age", np.full(n, np.nan))  # traces stored before ages
+    for scan, emitter, rssi, age in zip(
         a[f"{prefix}_scan"].tolist(),
         a[f"{prefix}_emitter"].tolist(),
         a[f"{prefix}_rssi"].tolist(),
+        ages.tolist(),
         strict=True,
     ):
-        scans[scan].append(RadioReading(names[emitter], rssi))
+        scans[scan].append(RadioReading(names[emitter], rssi, None if math.isnan(age) else age))
     return scans
 
 

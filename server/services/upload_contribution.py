@@ -121,14 +121,26 @@ def contribution(
     for event, (x, y), ok in zip(events, xy[: len(events)].tolist(), placed, strict=False):
         if ok:
             # papers/003_* IV-D: readings weaker than -90 dBm are left out of the maps
-            pairs = [(r.emitter, r.rssi_dbm) for r in event.readings if r.rssi_dbm >= WEAK_DBM]
-            weak += len(event.readings) - len(pairs)
-            if not pairs:
+            kept = [r for r in event.readings if r.rssi_dbm >= WEAK_DBM]
+            weak += len(event.readings) - len(kept)
+            if not kept:
                 weak_scans += 1
                 continue
-            wifi = pairs if isinstance(event, WifiEvent) else []
+            pairs = [(r.emitter, r.rssi_dbm) for r in kept]
+            ages = [r.age_ms for r in kept]
+            is_wifi = isinstance(event, WifiEvent)
             points.append(
-                SurveyPointData(x, y, level, event.t_ms, wifi, [] if wifi else pairs, None)
+                SurveyPointData(
+                    x,
+                    y,
+                    level,
+                    event.t_ms,
+                    pairs if is_wifi else [],
+                    [] if is_wifi else pairs,
+                    None,
+                    wifi_age_ms=ages if is_wifi else (),
+                    ble_age_ms=() if is_wifi else ages,
+                )
             )
     report["scans"] = len(points)
     if weak:

@@ -5,7 +5,8 @@ floor graphs into one compressed array container (``encode_artefacts``, the code
 ``storage.codec``): FAI emitter fits by emitter key and the reference points' DSF in the
 version's place order; per floor id its graph's arrays (``graph/<floor id>/<name>``) and
 the digest of the plan it was built on, so a process can tell a graph built on an older
-plan.
+plan; the map of reference scans (``scans/<name>``) with each scan's floor by floor id,
+so that it reads right whatever floors the site gains later.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from __future__ import annotations
 import hashlib
 import json
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from types import MappingProxyType
 from typing import Any
 
@@ -22,9 +23,11 @@ import numpy as np
 from server.positioning.fai import FaiMaps
 from server.positioning.fix_error import FixErrorModel
 from server.positioning.floor_graph import FloorGraph
+from server.positioning.scan_matching import ScanMap
 from server.storage.codec import array_to_str, compress_arrays, decompress_arrays, str_to_array
 
 _GRAPH_ARRAYS = ("xy", "kind", "indptr", "indices", "move_p", "stay_p")
+_SCAN_ARRAYS = ("xy_m", "indptr", "rows", "rssi_dbm", "fresh", "rarity", "totals")
 
 
 def plan_digest(geojson: Any) -> str:
@@ -63,15 +66,36 @@ class Artefacts:
     fai_keys: tuple[str, ...]
     fai: FaiMaps | None
     graphs: Mapping[str, tuple[FloorGraph, str]]
+    scans: ScanMap | None = None  # floors by index into ``scan_floor_ids``
+    scan_floor_ids: tuple[str, ...] = ()
+
+    def scans_on(self, floor_index: Mapping[str, int]) -> ScanMap | None:
+        """The reference scans with their floors as indices of the site's floors now;
+        None when not built or when a floor they were taken on is gone."""
+        if self.scans is None or not all(f in floor_index for f in self.scan_floor_ids):
+            return None
+        now = np.array([floor_index[f] for f in self.scan_floor_ids], dtype=np.int64)
+        return replace(self.scans, floor=now[self.scans.floor] if now.size else self.scans.floor)
 
 
 def encode_artefacts(
     emitters: Sequence[str],
     fai: FaiMaps | None,
     graphs: Mapping[str, tuple[FloorGraph, str]],
+    scans: ScanMap | None = None,
+    floor_ids: Sequence[str] = (),
 ) -> bytes:
-    """``emitters`` are the column keys the FAI arrays follow."""
+    """``emitters`` are the column keys the FAI arrays follow; ``floor_ids`` the floor of
+    each floor index of ``scans``."""
     arrays: dict[str, np.ndarray] = {}
+    if scans is not None:
+        for name in _SCAN_ARRAYS:
+            arrays["scans/" + name] = np.ascontiguousarray(getattr(scans, name))
+        used = np.unique(scans.floor)
+        arrays["scans/floor"] = np.searchsorted(used, scans.floor).astype(np.int32)
+        arrays["scans/floor_ids"] = str_to_array("\n".join(floor_ids[i] for i in used.tolist()))
+        arrays["scans/emitters"] = str_to_array("\n".join(scans.emitters))
+        arrays["scans/decay_per_s"] = np.array([scans.decay_per_s])
     if fai is not None:
         arrays["fai/emitters"] = str_to_array("\n".join(emitters))
         arrays["fai/emitter_xy"] = np.asarray(fai.emitter_xy, dtype=np.float64)
@@ -110,4 +134,15 @@ def decode_artefacts(blob: bytes) -> Artefacts:
             **{name: arrays[prefix + name] for name in _GRAPH_ARRAYS},
         )
         graphs[floor_id] = (graph, array_to_str(arrays[prefix + "plan"]))
-    return Artefacts(keys, fai, graphs)
+    if "scans/emitters" not in arrays:
+        return Artefacts(keys, fai, graphs)
+    names = array_to_str(arrays["scans/emitters"])
+    floor_names = array_to_str(arrays["scans/floor_ids"])
+    scans = ScanMap(
+        floor=arrays["scans/floor"].astype(np.int64),
+        emitters=tuple(names.split("\n")) if names else (),
+        decay_per_s=float(arrays["scans/decay_per_s"][0]),
+        **{name: arrays["scans/" + name] for name in _SCAN_ARRAYS},
+    )
+    scan_floors = tuple(floor_names.split("\n")) if floor_names else ()
+    return Artefacts(keys, fai, graphs, scans, scan_floors)

@@ -63,6 +63,8 @@ def _walk(
             {"bssid": r["bssid"], "rssi_dbm": float(r["rssi_dbm"] + rng.normal(0, SHADOWING_DB))}
             for r in rssi_at(x, y, level)
         ]
+        for reading in wifi[::3]:  # a phone's scan lists cached readings, seconds old
+            reading["age_ms"] = int(rng.integers(0, 8000))
         point: Point = {"x_m": x, "y_m": y, "floor": level, "t": t0 + 1000 * i, "wifi": wifi}
         point["walk"] = name
         if route is not None:
@@ -178,6 +180,7 @@ def _records(
         [floor_of[p["floor"]] for p in points],
         [[(radio_key("wifi", w["bssid"]), w["rssi_dbm"]) for w in p["wifi"]] for p in points],
         t_ms=[p["t"] for p in points],
+        ages_ms=[[w.get("age_ms") for w in p["wifi"]] for p in points],
         walk=[p.get("walk") for p in points],
         route=[p.get("route") for p in points],
     )
@@ -222,6 +225,15 @@ def _assert_same_maps(service: SiteMaps, lab: SiteMaps) -> None:
             np.testing.assert_array_equal(getattr(mine, name), getattr(theirs, name))
         np.testing.assert_allclose(mine.move_p, theirs.move_p, rtol=1e-12)
         np.testing.assert_allclose(mine.stay_p, theirs.stay_p, rtol=1e-12)
+    # the reference scans, with their readings' ages
+    assert service.scans is not None
+    assert lab.scans is not None
+    assert service.scans.emitters == lab.scans.emitters
+    assert float(lab.scans.fresh.min()) < 1.0  # some readings were stale
+    for name in ("xy_m", "floor", "indptr", "rows", "rssi_dbm", "fresh", "rarity", "totals"):
+        np.testing.assert_allclose(
+            getattr(service.scans, name), getattr(lab.scans, name), rtol=1e-6, err_msg=name
+        )
 
 
 @pytest.fixture

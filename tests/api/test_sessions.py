@@ -175,6 +175,14 @@ async def test_other_sessions_token_is_forbidden(client: httpx.AsyncClient, site
             "events.1.readings.0.rssi_dbm",
         ),
         ({"type": "wifi", "readings": []}, "events.1.t"),
+        (
+            {"type": "wifi", "t": T0, "readings": [{"bssid": "aa", "rssi_dbm": -60, "age_ms": -1}]},
+            "events.1.readings.0.age_ms",
+        ),
+        (
+            {"type": "ble", "t": T0, "readings": [{"id": "b", "rssi_dbm": -60, "age_ms": 10**9}]},
+            "events.1.readings.0.age_ms",
+        ),
         ({"type": "mag", "t": T0}, "events.1"),
         ({"type": "step", "t": 2**63, "length_m": 0.7, "heading_rad": 0.0}, "events.1.t"),
         (

@@ -72,6 +72,14 @@ def test_wifi_rows_are_grouped_by_scan_time(
         strongest = {f[3]: max(float(g[4]) for g in fresh if g[3] == f[3]) for f in fresh}
         assert {(r.emitter, r.rssi_dbm) for r in event.readings} == set(strongest.items())
         assert len({r.emitter for r in event.readings}) == len(event.readings)
+    # each reading carries its age: the scan time less the row's last-seen time (of the
+    # strongest row of its BSSID)
+    for event in raw_trace.wifi:
+        here = [f for f in rows if int(f[0]) == event.t_ms]
+        for r in event.readings:
+            best = max((f for f in here if f[3] == r.emitter), key=lambda f: float(f[4]))
+            assert r.age_ms == event.t_ms - int(best[6])
+    assert any(r.age_ms and r.age_ms > 2000 for e in raw_trace.wifi for r in e.readings)
     n_fresh = sum(len(e.readings) for e in filtered.wifi)
     assert n_fresh + filtered.report.stale_wifi_readings <= len(rows)  # a BSSID twice: merged
     # by default cached rows are kept

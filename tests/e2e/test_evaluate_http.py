@@ -85,12 +85,12 @@ def test_a_parameter_reaches_the_sessions(worker_live_url: str, tmp_path: Path) 
     base = ["evaluate", "ilc", str(FLOOR), "--engine", "wknn", "--json"]
     runs = {
         "default": [*base, str(tmp_path / "default.json")],
-        "local": [*base, str(tmp_path / "local.json"), "--param", "k=1"],
+        "local": [*base, str(tmp_path / "local.json"), "--param", "scan_k=1"],
         "http": [
             *base,
             str(tmp_path / "http.json"),
             "--param",
-            "k=1",
+            "scan_k=1",
             "--via-http",
             worker_live_url,
             "--admin-key",
@@ -104,6 +104,6 @@ def test_a_parameter_reaches_the_sessions(worker_live_url: str, tmp_path: Path) 
         out[name] = json.loads((tmp_path / f"{name}.json").read_text())
     assert out["http"]["mean_m"] == pytest.approx(out["local"]["mean_m"], rel=1e-6)
     assert out["http"]["mean_m"] != pytest.approx(out["default"]["mean_m"], rel=1e-3)
-    refused = runner.invoke(app, [*base, str(tmp_path / "x.json"), "--param", "k=0"])
+    refused = runner.invoke(app, [*base, str(tmp_path / "x.json"), "--param", "scan_k=0"])
     assert refused.exit_code != 0
-    assert "k: must be at least 1" in refused.output
+    assert "scan_k: must be at least 1" in refused.output

@@ -19,14 +19,32 @@ MAX_IMU_SPAN_MS = 60_000  # no sample later than t + this
 MAX_IMU_RATE_HZ = 500  # mean rate of one sensor over its samples in one event
 
 
+MAX_READING_AGE_MS = 600_000  # a reading ten minutes old says nothing of where the phone is
+
+ReadingAge = Annotated[
+    int | None,
+    Field(
+        ge=0,
+        le=MAX_READING_AGE_MS,
+        description="how long before the scan's `t` the emitter was last heard, in ms: "
+        "scans list cached results seconds old beside fresh ones, and matching discounts "
+        "them. Android: `t` minus `ScanResult.timestamp` (µs since boot, /1000) taken on "
+        "`SystemClock.elapsedRealtime()`; iOS (beacons): 0 for ranged beacons. Omitted: "
+        "fresh",
+    ),
+]
+
+
 class WifiReading(StrictIn):
     bssid: EmitterId
     rssi_dbm: Annotated[float, Field(ge=-130, le=0, allow_inf_nan=False)]
+    age_ms: ReadingAge = None
 
 
 class BleReading(StrictIn):
     id: EmitterId
     rssi_dbm: Annotated[float, Field(ge=-130, le=0, allow_inf_nan=False)]
+    age_ms: ReadingAge = None
 
 
 class StepIn(StrictIn):

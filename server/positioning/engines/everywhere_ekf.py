@@ -61,7 +61,7 @@ from server.positioning.accuracy import AccuracyParams
 from server.positioning.engines import pdr_fusion as pf
 from server.positioning.engines import radio_fusion as rf
 from server.positioning.events import BleEvent, Fix, radio_key
-from server.positioning.fingerprint import RadioMap, WknnFix, wknn
+from server.positioning.fingerprint import WknnFix
 from server.positioning.kalman import update, wrap_angle
 from server.positioning.params import AtLeastOne, NonNegative, Positive
 from server.positioning.sitemaps import Anchor, SiteMaps
@@ -182,14 +182,14 @@ def _on_step(
 
 
 def aiding_penalty(
-    radio: RadioMap, fp: FloatArray, walked_m: float, params: EverywhereParams
+    rp: FloatArray, fp: FloatArray, walked_m: float, params: EverywhereParams
 ) -> FloatArray:
-    """``ξ_Δd + ξ_ΔH`` per reference point (``papers/003_*`` eq 13-14), weighted to dB.
+    """``ξ_Δd + ξ_ΔH`` per reference (at ``rp``, ``papers/003_*`` eq 13-14), weighted to
+    dB.
 
     ``fp`` holds the fingerprint positions at t-2 and t-1; ``walked_m`` the PDR distance
     since t-1.
     """
-    rp = radio.rp_xy.astype(np.float64)
     to_rp = rp - fp[1]
     xi_d = np.abs(np.hypot(to_rp[:, 0], to_rp[:, 1]) - walked_m)  # eq 13
     walking = fp[1] - fp[0]
@@ -223,10 +223,8 @@ def _on_scan(
     used = m
     aided = state.straight and state.walked_m > 0.0 and not np.isnan(state.fp).any()
     if aided:
-        penalty = aiding_penalty(maps.radio, state.fp, state.walked_m, params)
-        on_floor = maps.radio.rp_floor == m.whole.floor
-        aided_fix = wknn(maps.radio, m.scan, k=params.k, candidates=on_floor, penalty_db=penalty)
-        used = rf.refined(m, aided_fix)
+        penalty = aiding_penalty(rf.reference_xy(maps), state.fp, state.walked_m, params)
+        used = rf.constrained(maps, m, params, penalty_db=penalty)
         diagnostics["aided"] = 1.0
     state, accepted = pf.update_position(state, used, start.rejects, params.gate_chi2, diagnostics)
     if not accepted:

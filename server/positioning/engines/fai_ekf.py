@@ -75,8 +75,8 @@ def fai_variance(
     """``eta^2`` of the scan's fix (module docstring) and the indicators as diagnostics."""
     p = params.fai
     eta, reported = p.ct_m, {}
-    if p.strategy != "ct" and maps.fai is not None:
-        found = m.whole
+    found = rf.on_cells(maps, m, params) if p.strategy != "ct" else None
+    if found is not None and maps.fai is not None:
         ind = fai.indicators(
             maps.fai, m.scan, (found.x_m, found.y_m), found.neighbours, found.weights, p
         )

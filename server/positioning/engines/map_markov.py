@@ -337,7 +337,7 @@ def on_scan(
         return replace(state, last_t_ms=event.t_ms), None
     found = m.whole
     state = replace(state, floor_logp=m.floor_logp, floor_t_ms=m.t_ms)
-    diag = {"fix_var_m2": m.var_m2, "n_matched": float(m.scan.n_matched)}
+    diag = {"fix_var_m2": m.var_m2, "n_matched": float(m.n_matched)}
     if not state.initialized or found.floor != state.floor:
         if state.initialized:
             diag["floor_change"] = 1.0
@@ -376,11 +376,15 @@ def on_scan(
             rp_prior = prior.p[at]  # every RP of Ω sits on a vertex of the prior
             w = mc.correct(rp_prior, dist, params.sigma_db)  # papers/004_* eq 14
             diag["omega_rps"] = float(rps.size)
-            diag["omega_gap_db"] = float(dist.min() - found.distances_db.min())
-            if dist.min() - found.distances_db.min() <= params.gate_db:
+            cells = rf.on_cells(maps, m, params)
+            best = float(cells.distances_db.min()) if cells is not None else float(dist.min())
+            diag["omega_gap_db"] = float(dist.min()) - best
+            if dist.min() - best <= params.gate_db:
                 top = np.argsort(-w, kind="stable")[: params.k]
                 wt = w[top] / w[top].sum()
                 wifi = wt @ radio.rp_xy[rps[top]].astype(np.float64)  # S'
+                if maps.scans is not None:  # S' from the map's scans within Ω
+                    wifi = _in_omega(maps, m, graph, prior.vertex, params, wifi)
                 vertex, inverse = np.unique(graph.rp_vertex[rps], return_inverse=True)
                 p = np.bincount(inverse, weights=w)
                 keep = np.argsort(-p, kind="stable")[: params.max_states]
@@ -418,6 +422,25 @@ def on_scan(
         rejects=0,
     )
     return new, _fix(new, event.t_ms, kind, diag)
+
+
+def _in_omega(
+    maps: SiteMaps,
+    m: rf.Matched,
+    graph: FloorGraph,
+    omega: NDArray[np.int64],
+    params: MapMarkovParams,
+    cells_xy: FloatArray,
+) -> FloatArray:
+    """S' as the scan's match among the map's reference scans whose nearest vertex is in
+    Ω (the cells' S' when none is)."""
+    assert maps.scans is not None
+    on_floor = np.flatnonzero(maps.scans.floor == m.whole.floor)
+    vertex = graph.tree.query(maps.scans.xy_m[on_floor])[1]
+    near = np.zeros(len(maps.scans), dtype=bool)
+    near[on_floor[np.isin(vertex, omega)]] = True
+    used = rf.constrained(maps, m, params, near=near)
+    return cells_xy if used is m else np.array([used.whole.x_m, used.whole.y_m])
 
 
 def run(

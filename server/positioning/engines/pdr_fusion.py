@@ -299,7 +299,7 @@ def begin_scan(maps: SiteMaps, event: Scan, state: F, params: KalmanParams) -> S
     m = match(maps, event, params, state.floor_logp, state.floor_t_ms)
     if m is None:
         return None
-    diagnostics = {"n_matched": float(m.scan.n_matched), "fix_var_m2": m.var_m2}
+    diagnostics = {"n_matched": float(m.n_matched), "fix_var_m2": m.var_m2}
     if state.initialized and m.whole.floor != state.floor:
         diagnostics["floor_change"] = 1.0
     restart, rejects = True, 0

@@ -279,7 +279,7 @@ def _on_scan(
     kind, found = m.kind, m.whole
     state = replace(state, floor_logp=m.floor_logp, floor_t_ms=m.t_ms)
     diag = {
-        "n_matched": float(m.scan.n_matched),
+        "n_matched": float(m.n_matched),
         "fix_var_m2": m.var_m2,
         "floor_prob": found.floor_prob,
     }

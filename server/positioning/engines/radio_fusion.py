@@ -2,12 +2,16 @@
 
 Per scan (``match``):
 
-1. the scan is matched against the whole map (WKNN, ``papers/002_*`` eq 1-3) if it heard
-   at least ``min_matched`` map emitters (one or two beacons tie with hundreds of
-   reference points); its floor is chosen by the floor filter (``floor_filter``: the
-   filter's prediction times the scan's likelihood of each floor), not by the scan's
-   vote alone: on ILC site2 the per-scan vote had an 85 % floor hit rate and every
-   engine inherited it;
+1. the scan is matched against the map's own surveyed scans (``scan_matching``: the
+   shared-emitter distance with reading ages and rare-emitter weights) if it heard at
+   least ``min_matched`` map emitters (one or two beacons tie with hundreds of
+   references); a map built without its scans is matched on its cells instead (WKNN,
+   ``papers/002_*`` eq 1-3). The floor is chosen by the floor filter (``floor_filter``:
+   the filter's prediction times the scan's likelihood of each floor), not by the scan
+   alone: on ILC site2 the per-scan vote had an 85 % floor hit rate and every engine
+   inherited it. Engines that search near their estimate (a moving partition, a
+   motion-aided selection) match the scan again among the references they keep
+   (``constrained``);
 2. the fix's variance is what the map's training data say a fix of this kind with this
    many matched emitters is worth (``SiteMaps.fix_error``, learned by
    ``mapping.fix_calibration``), times ``fix_var_scale``, at least ``min_fix_var_m2``.
@@ -25,12 +29,13 @@ import numpy as np
 from annotated_types import Ge, Le
 from numpy.typing import NDArray
 
-from server.positioning import floor_filter
+from server.positioning import floor_filter, scan_matching
 from server.positioning.accuracy import EngineParams
 from server.positioning.events import Fix, WifiEvent
 from server.positioning.fingerprint import ScanVector, WknnFix, scan_vector, wknn
 from server.positioning.kalman import Update, update, wrap_angle
 from server.positioning.params import AtLeastOne, NonNegative, Positive
+from server.positioning.scan_matching import MatchParams
 from server.positioning.sitemaps import SiteMaps
 from server.positioning.step_tracker import Scan
 
@@ -60,6 +65,26 @@ class RadioParams(EngineParams):
     # fix along a walk meets errors shared by neighbouring scans (the same wrong
     # reference points), so it uses the variance times this factor
     fix_var_scale: Positive = 1.0
+    # matching against the map's own scans (scan_matching), where the map has them
+    scan_k: Annotated[int, Ge(1), Le(100)] = MatchParams.k
+    match_power: Positive = MatchParams.power
+    shared_penalty_db: NonNegative = MatchParams.penalty_db
+    scan_same_floor: bool = MatchParams.same_floor
+    scan_floor_k: Annotated[int, Ge(1), Le(100)] = MatchParams.floor_k
+    scan_floor_sd_db: Positive = MatchParams.floor_sd_db
+    scan_floor_max_emitters: AtLeastOne = MatchParams.floor_max_emitters
+
+    def matching(self) -> MatchParams:
+        """What ``scan_matching`` reads of these parameters."""
+        return MatchParams(
+            k=self.scan_k,
+            power=self.match_power,
+            penalty_db=self.shared_penalty_db,
+            same_floor=self.scan_same_floor,
+            floor_k=self.scan_floor_k,
+            floor_sd_db=self.scan_floor_sd_db,
+            floor_max_emitters=self.scan_floor_max_emitters,
+        )
 
 
 @dataclass(frozen=True)
@@ -72,6 +97,12 @@ class Matched:
     scan: ScanVector
     whole: WknnFix
     var_m2: float
+    query: scan_matching.Query | None = None  # the scan over the map's scans, if it has them
+
+    @property
+    def n_matched(self) -> int:
+        """Emitters of the scan the map matched it on."""
+        return self.whole.n_matched
 
     @property
     def floor_logp(self) -> FloatArray:
@@ -98,22 +129,91 @@ def match(
         return None
     kind = scan_kind(event)
     scan = scan_vector(maps.radio, event.readings, kind)
-    whole = wknn(
-        maps.radio,
-        scan,
-        k=params.k,
-        floor_log_prior=floor_filter.prior(
-            floor_logp, floor_t_ms, event.t_ms, params.floor_change_per_s
-        ),
-        floor_sd_db=params.floor_sd_db,
-        floor_max_emitters=params.floor_max_emitters,
-        min_matched=params.min_matched,
-    )
+    prior = floor_filter.prior(floor_logp, floor_t_ms, event.t_ms, params.floor_change_per_s)
+    whole: WknnFix | None
+    q = None
+    if maps.scans is not None:
+        q = scan_matching.query(maps.scans, event.readings, kind)
+        if q.n_matched < params.min_matched:
+            return None
+        whole = scan_matching.locate(
+            maps.scans, q, params.matching(), prior, n_floors=len(maps.floors)
+        )
+    else:
+        whole = wknn(
+            maps.radio,
+            scan,
+            k=params.k,
+            floor_log_prior=prior,
+            floor_sd_db=params.floor_sd_db,
+            floor_max_emitters=params.floor_max_emitters,
+            min_matched=params.min_matched,
+        )
     if whole is None:
         return None
-    learned = maps.fix_error.variance(kind, scan.n_matched)
+    learned = maps.fix_error.variance(kind, whole.n_matched)
     var = max(learned * params.fix_var_scale, params.min_fix_var_m2)
-    return Matched(event.t_ms, kind, scan, whole, var)
+    return Matched(event.t_ms, kind, scan, whole, var, q)
+
+
+def reference_xy(maps: SiteMaps) -> FloatArray:
+    """Where the map's references were taken: its scans where it has them, else its
+    cells' reference points (what ``constrained`` masks and penalises)."""
+    if maps.scans is not None:
+        return maps.scans.xy_m
+    assert maps.radio is not None
+    return maps.radio.rp_xy.astype(np.float64)
+
+
+def constrained(
+    maps: SiteMaps,
+    m: Matched,
+    params: RadioParams,
+    near: NDArray[np.bool_] | None = None,
+    penalty_db: FloatArray | None = None,
+) -> Matched:
+    """The scan matched again among the references of its floor that ``near`` keeps (a
+    mask over ``reference_xy``), with ``penalty_db`` added to their distances: a moving
+    partition, a motion-aided selection. The match as it was when none is left."""
+    if maps.scans is not None and m.query is not None:
+        on_floor = maps.scans.floor == m.whole.floor
+        keep = on_floor if near is None else on_floor & near
+        found = scan_matching.locate(
+            maps.scans,
+            m.query,
+            replace(params.matching(), same_floor=True),
+            candidates=keep,
+            penalty_db=penalty_db,
+            n_floors=len(maps.floors),
+        )
+    else:
+        assert maps.radio is not None
+        on_floor = maps.radio.rp_floor == m.whole.floor
+        found = wknn(
+            maps.radio,
+            m.scan,
+            k=params.k,
+            candidates=on_floor if near is None else on_floor & near,
+            penalty_db=penalty_db,
+        )
+    return refined(m, found)
+
+
+def on_cells(maps: SiteMaps, m: Matched, params: RadioParams) -> WknnFix | None:
+    """WKNN of the scan over the radio map's cells of the matched floor: for what reads
+    the cells' reference points (the FAI indicators, the map graphs' vertices)."""
+    if maps.radio is None:
+        return None
+    if maps.scans is None:
+        return m.whole
+    found = wknn(
+        maps.radio,
+        m.scan,
+        k=params.k,
+        candidates=maps.radio.rp_floor == m.whole.floor,
+        min_matched=1,
+    )
+    return None if found is None else replace(found, floor=m.whole.floor)
 
 
 def refined(m: Matched, found: WknnFix | None) -> Matched:

@@ -261,7 +261,7 @@ def on_scan(
     found = m.whole
     var_m2, reported = variance(m, maps, params)
     state = replace(state, floor_logp=m.floor_logp, floor_t_ms=m.t_ms)
-    diagnostics = {"fix_var_m2": var_m2, "n_matched": float(m.scan.n_matched), **reported}
+    diagnostics = {"fix_var_m2": var_m2, "n_matched": float(m.n_matched), **reported}
 
     if not state.initialized or found.floor != state.floor:
         if state.initialized:

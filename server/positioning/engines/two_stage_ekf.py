@@ -58,7 +58,6 @@ from server.positioning.accuracy import AccuracyParams
 from server.positioning.engines import pdr_fusion as pf
 from server.positioning.engines import radio_fusion as rf
 from server.positioning.events import Fix
-from server.positioning.fingerprint import wknn
 from server.positioning.kalman import update, wrap_angle
 from server.positioning.params import NonNegative, Positive
 from server.positioning.sitemaps import SiteMaps
@@ -146,11 +145,9 @@ def _on_step(
     return new, pf.state_fix(new, step.t_ms, "step", {"step_length_m": float(u.x[2])})
 
 
-def _partition(maps: SiteMaps, x: FloatArray, radius_m: float) -> NDArray[np.bool_]:
-    """The moving partition: reference points within ``radius_m`` of the estimate (of
-    any floor: only the horizontal position is used)."""
-    assert maps.radio is not None
-    rp = maps.radio.rp_xy.astype(np.float64)
+def _partition(rp: FloatArray, x: FloatArray, radius_m: float) -> NDArray[np.bool_]:
+    """The moving partition: references within ``radius_m`` of the estimate (of any
+    floor: only the horizontal position is used)."""
     near: NDArray[np.bool_] = np.hypot(rp[:, 0] - x[0], rp[:, 1] - x[1]) <= radius_m
     return near
 
@@ -188,11 +185,9 @@ def _on_scan(
         new = _remember(state, m.t_ms, m.whole.x_m, m.whole.y_m)
         return new, pf.state_fix(new, m.t_ms, m.kind, diagnostics)
 
-    near = _partition(maps, state.x, params.partition_radius_m)
-    near &= maps.radio.rp_floor == m.whole.floor
-    in_partition = wknn(maps.radio, m.scan, k=params.k, candidates=near)
-    diagnostics["partition"] = 1.0 if in_partition is not None else 0.0
-    used = rf.refined(m, in_partition)
+    near = _partition(rf.reference_xy(maps), state.x, params.partition_radius_m)
+    used = rf.constrained(maps, m, params, near=near)
+    diagnostics["partition"] = 1.0 if used is not m else 0.0
     state, accepted = pf.update_position(state, used, start.rejects, params.gate_chi2, diagnostics)
     if not accepted:
         return state, None

@@ -85,7 +85,7 @@ def _locate(
         cov=(m.var_m2, 0.0, 0.0, m.var_m2),
         source=m.kind,
         diagnostics={
-            "n_matched": float(m.scan.n_matched),
+            "n_matched": float(m.n_matched),
             "wknn_var_m2": found.var_m2,
             "floor_prob": found.floor_prob,
         },

@@ -45,6 +45,7 @@ from server.positioning.mapping.fix_calibration import learn_fix_error
 from server.positioning.mapping.gridding import build_radio_map
 from server.positioning.mapping.magnetic_gridding import grid_from_samples
 from server.positioning.mapping.matrices import readings_matrix
+from server.positioning.scan_matching import ScanMap, build_scan_map
 from server.positioning.sitemaps import FloorRef, SiteMaps
 
 FloatArray = NDArray[np.float64]
@@ -91,6 +92,8 @@ class SurveyedScans:
         Fold group of each scan: walks along one route share one (order of first
         appearance); -1 where the scan's walk (or the scan itself) is its own group.
     readings : tuple of n sequences of (column key, rssi_dbm)
+    ages_ms : tuple of n sequences of float or None
+        Each reading's age (parallel to ``readings``); empty: every reading fresh.
     """
 
     xy_m: FloatArray
@@ -99,6 +102,7 @@ class SurveyedScans:
     walk: IntArray
     route: IntArray
     readings: tuple[KeyedScan, ...]
+    ages_ms: tuple[Sequence[float | None], ...] = ()
 
     @classmethod
     def of(
@@ -110,6 +114,7 @@ class SurveyedScans:
         t_ms: Sequence[int | None] | None = None,
         walk: Sequence[Hashable | None] | None = None,
         route: Sequence[Hashable | None] | None = None,
+        ages_ms: Sequence[Sequence[float | None]] | None = None,
     ) -> SurveyedScans:
         """Scans labelled by anything hashable (walk and route names, ids); the labels
         are numbered in order of first appearance, so equal records in equal order give
@@ -124,6 +129,7 @@ class SurveyedScans:
             _first_seen(list(walk) if walk is not None else none),
             _first_seen(list(route) if route is not None else none),
             tuple(tuple(r) for r in readings),
+            tuple(tuple(a) for a in ages_ms) if ages_ms is not None else (),
         )
 
     def __len__(self) -> int:
@@ -193,13 +199,28 @@ def grid_scans(scans: SurveyedScans, cell_m: float = CELL_M) -> RadioMap | None:
     return in_place_order(build_radio_map(scans.xy_m, scans.floor, rssi, emitters, cell_m=cell_m))
 
 
+def scan_map(scans: SurveyedScans) -> ScanMap | None:
+    """The surveyed scans as the matcher reads them (``scan_matching``); None without."""
+    if not len(scans):
+        return None
+    return build_scan_map(
+        scans.xy_m, scans.floor, scans.readings, ages_ms=scans.ages_ms or None, walk=scans.walk
+    )
+
+
 def learned_fix_error(scans: SurveyedScans, seed: int = 0) -> fix_error.FixErrorModel:
     """The fix-error table by route-wise cross-validation (module docstring, step 2);
     the default without scans."""
     if not len(scans):
         return fix_error.DEFAULT
     return learn_fix_error(
-        scans.xy_m, scans.floor, scans.groups(), scans.readings, np.random.default_rng(seed)
+        scans.xy_m,
+        scans.floor,
+        scans.groups(),
+        scans.readings,
+        np.random.default_rng(seed),
+        ages_ms=scans.ages_ms or None,
+        walk=scans.walk,
     )
 
 
@@ -280,7 +301,14 @@ def build_map_set(
     radio = radio if radio is not None else grid_scans(records.scans)
     plans = plans if plans is not None else parse_plans(records.plans)
     anchors = tuple(a for i, p in enumerate(records.plans) for a in anchors_from_plan(p, i))
-    maps = SiteMaps(records.floors, radio, version=version, anchors=anchors, plans=plans)
+    maps = SiteMaps(
+        records.floors,
+        radio,
+        version=version,
+        anchors=anchors,
+        plans=plans,
+        scans=scan_map(records.scans),
+    )
     if FIX_ERROR in parts:
         maps = replace(maps, fix_error=learned_fix_error(records.scans, seed))
     if FAI in parts and radio is not None:

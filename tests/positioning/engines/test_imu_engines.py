@@ -192,7 +192,7 @@ def test_two_stage_learns_the_heading_from_wifi_without_a_compass() -> None:
 def test_aiding_penalty_is_eq_13_plus_eq_14() -> None:
     radio = corridor_map()
     fp = np.array([[0.0, 3.0], [5.0, 3.0]])  # walking east
-    penalty = ev.aiding_penalty(radio, fp, 3.0, ev.EverywhereParams())
+    penalty = ev.aiding_penalty(radio.rp_xy.astype(float), fp, 3.0, ev.EverywhereParams())
     xy = radio.rp_xy.astype(float)
     ahead = int(np.flatnonzero((xy[:, 0] == 8) & (xy[:, 1] == 3))[0])
     behind = int(np.flatnonzero((xy[:, 0] == 2) & (xy[:, 1] == 3))[0])
