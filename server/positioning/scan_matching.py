@@ -336,6 +336,7 @@ def locate(
     n_floors: int | None = None,
     candidates: NDArray[np.bool_] | None = None,
     penalty_db: FloatArray | None = None,
+    floor_group: IntArray | None = None,
 ) -> WknnFix | None:
     """Position and floor of a query scan (module docstring); None when no reference scan
     shares an emitter with it.
@@ -344,7 +345,9 @@ def locate(
     scores; ``floor_logp`` of the answer is the normalised result. ``candidates`` (a
     mask over the reference scans) keeps only some of them, ``penalty_db`` (per
     reference scan) is added to their distances: the floor is then still scored on every
-    reference scan, the position only on those kept. ``neighbours`` are
+    reference scan, the position only on those kept. ``floor_group`` (per floor index,
+    e.g. its building) keeps the position's neighbours on floors of the chosen floor's
+    group when they may come from any floor: buildings have frames of their own. ``neighbours`` are
     reference scan indices, ``distances_db`` their ``d_i``, ``var_m2`` the weighted
     spread of the neighbours about the fix.
     """
@@ -371,7 +374,13 @@ def locate(
     on = smap.floor[cand]
     matched = np.isin(np.arange(n), on)
     floor = int(np.argmax(np.where(matched, logp, -np.inf)))
-    here = np.flatnonzero(on == floor) if params.same_floor else np.arange(cand.size)
+    if params.same_floor:
+        here = np.flatnonzero(on == floor)
+    elif floor_group is not None and floor < floor_group.shape[0]:
+        group = np.asarray(floor_group)
+        here = np.flatnonzero(group[np.clip(on, 0, group.shape[0] - 1)] == group[floor])
+    else:
+        here = np.arange(cand.size)
     sel = here[_k_nearest(d[here], params.k)]
     inv = np.maximum(d[sel], 1e-3) ** -params.power
     weights = inv / inv.sum()

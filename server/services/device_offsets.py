@@ -14,12 +14,13 @@ engine sees them (``on_common_level``).
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 
 import anyio
 import numpy as np
 from sqlalchemy.ext.asyncio import AsyncSession
 
-from server.positioning.events import BleEvent, Event, RadioReading, WifiEvent, radio_key
+from server.positioning.events import BleEvent, Event, WifiEvent, radio_key
 from server.positioning.mapping.device_offsets import DeviceOffset, cell_ids, estimate_offsets
 from server.storage.repositories import surveys as survey_repo
 
@@ -62,7 +63,7 @@ def on_common_level(events: Sequence[Event], offset_db: float | None) -> list[Ev
     out: list[Event] = []
     for e in events:
         if isinstance(e, WifiEvent | BleEvent):
-            readings = tuple(RadioReading(r.emitter, r.rssi_dbm - offset_db) for r in e.readings)
+            readings = tuple(replace(r, rssi_dbm=r.rssi_dbm - offset_db) for r in e.readings)
             e = type(e)(e.t_ms, readings)
         out.append(e)
     return out

@@ -195,18 +195,19 @@ async def build_inputs(s: AsyncSession, version_id: str) -> BuildInputs:
         # points of the version's chain (and points stored before versions had chains)
         if (map_id is not None and map_id not in chain) or floor_id not in index:
             continue
-        rows = [("wifi", r) for r in read.get("wifi", [])]
-        rows += [("ble", r) for r in read.get("ble", [])]
-        if not rows:
-            continue
-        keyed = [(radio_key(kind, r[0]), float(r[1])) for kind, r in rows]
-        ages.append([float(r[2]) if len(r) > 2 else None for _, r in rows])
-        xy.append((x_m, y_m))
-        floor.append(index[floor_id])
-        t.append(t_ms)
-        walk.append(walk_name)
-        route.append(route_name)
-        readings.append(keyed)
+        # a point's WiFi and BLE readings are two scans, as a phone's are: a WiFi scan
+        # is matched against WiFi scans, and a beacon it cannot hear is no difference
+        for kind in ("wifi", "ble"):
+            rows = read.get(kind) or []
+            if not rows:
+                continue
+            readings.append([(radio_key(kind, r[0]), float(r[1])) for r in rows])
+            ages.append([float(r[2]) if len(r) > 2 else None for r in rows])
+            xy.append((x_m, y_m))
+            floor.append(index[floor_id])
+            t.append(t_ms)
+            walk.append(walk_name)
+            route.append(route_name)
     scans = SurveyedScans.of(xy, floor, readings, t_ms=t, walk=walk, route=route, ages_ms=ages)
     plans = tuple(
         f.plan_geojson if mine else None for (f, _), mine in zip(floors, own, strict=True)

@@ -156,7 +156,9 @@ async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None
         if row.fix_error is not None and (blob := await map_repo.load_artefacts(s, row.id))
     ]
     learned = await anyio.to_thread.run_sync(
-        lambda: _learned(built, radio, refs, stored, single=len(latest) == 1)
+        lambda: _learned(
+            built, radio, refs, stored, single=len(latest) == 1, complete=len(built) == len(latest)
+        )
     )
     offsets: dict[str, DeviceOffset] = {}
     for building_id in building_ids:  # per model, from the building with most evidence
@@ -193,12 +195,14 @@ def _learned(
     plans: Sequence[dict[str, Any] | None],
     *,
     single: bool,
+    complete: bool = True,
 ) -> _Learned:
     """What the worker built of the site's current versions, as the site's map set
     holds it: the fix-error table of the version learned from the most fixes, the FAI
     emitter fits by emitter key (the DSF as stored for a one-building site, computed
     here otherwise), and each floor's graph where it was built on the floor's current
-    plan, attached to the site's reference points."""
+    plan, attached to the site's reference points; the reference scans of every building
+    when every building's current version has them (``complete``: every one was built)."""
     if not built or radio is None:
         return _Learned(fix_error.DEFAULT, None, ())
     table = most_learned([fix_error_from_json(row.fix_error) for row, _ in built if row.fix_error])
@@ -215,10 +219,12 @@ def _learned(
         graph, digest = by_floor.get(ref.floor_id, (None, ""))
         current = plan_digest(plans[i]) if i < len(plans) else ""
         graphs.append(attach(graph, radio, i) if graph is not None and digest == current else None)
-    # the reference scans of every building, where each was built (else the cells match)
+    # the reference scans of every building once each building's version has them
+    # (``complete``); until then scans match on the cells, as every building can
     index = {ref.floor_id: i for i, ref in enumerate(refs)}
     scans = [a.scans_on(index) for a in decoded]
-    joined = merge_scan_maps([m for m in scans if m is not None]) if all(scans) else None
+    every = complete and all(m is not None for m in scans)
+    joined = merge_scan_maps([m for m in scans if m is not None]) if every else None
     return _Learned(table, fai, tuple(graphs), joined)
 
 

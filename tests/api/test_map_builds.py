@@ -531,3 +531,27 @@ async def test_walks_past_their_retention_are_pruned_and_lone_points_stay(
             await s.execute(select(SurveyPoint.walk).where(SurveyPoint.building_id == building_id))
         ).all()
     assert [w for (w,) in left] == [None]  # the lone point stays
+
+
+async def test_a_point_with_wifi_and_beacons_is_two_reference_scans(
+    client: httpx.AsyncClient, admin: dict[str, str], rt: Runtime
+) -> None:
+    site_id, building_id = await _empty_site(client, admin)
+    points = _corridor_walks(seed=6)
+    for i, p in enumerate(points):  # a beacon heard at every point, louder at the west end
+        p["ble"] = [{"id": "b-1", "rssi_dbm": -60.0 - p["x_m"], "age_ms": i % 3 * 1000}]
+    await _survey(client, admin, building_id, points)
+    await _built(client, admin, rt, building_id, 1)
+    service = await _service_maps(rt, site_id)
+    scans = service.scans
+    assert scans is not None
+    assert len(scans) == 2 * len(points)
+    # no reference scan mixes WiFi with beacons
+    kinds = np.array([key.split(":", 1)[0] for key in scans.emitters])
+    per_entry = np.repeat(kinds, np.diff(scans.indptr))
+    for row in range(len(scans)):
+        assert len(set(per_entry[scans.rows == row].tolist())) == 1
+    ble = scans.emitters.index("ble:b-1")
+    assert scans.indptr[ble + 1] - scans.indptr[ble] == len(points)
+    fresh = scans.fresh[scans.indptr[ble] : scans.indptr[ble + 1]]
+    assert sorted({round(float(f), 4) for f in fresh}) == [0.88, 1.0]  # 0, 1 and 2 s old

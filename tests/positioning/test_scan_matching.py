@@ -188,3 +188,21 @@ def test_the_fix_lies_within_its_neighbours_and_weights_sum_to_one(
     assert near[:, 1].min() - 1e-9 <= found.y_m <= near[:, 1].max() + 1e-9
     assert np.all(np.diff(found.distances_db) >= 0)
     assert np.exp(found.floor_logp).sum() == pytest.approx(1.0)
+
+
+def test_neighbours_stay_in_the_chosen_floors_building() -> None:
+    """Floor 0 (building A) and floor 1 (building B, another frame) both hold scans near
+    the query in signal; with the floors' buildings given, the position is A's alone."""
+    xy = np.array([[0.0, 0.0], [2.0, 0.0], [500.0, 500.0], [502.0, 500.0]])
+    scans = [_keyed(QUERY), _keyed([v - 1 for v in QUERY]), _keyed(QUERY), _keyed(QUERY)]
+    smap = sm.build_scan_map(xy, np.array([0, 0, 1, 1]), scans, min_readings=1)
+    q = sm.query(smap, _query(QUERY), "wifi")
+    mixed = sm.locate(smap, q, sm.MatchParams(k=4))
+    assert mixed is not None
+    assert mixed.x_m > 100.0  # averaged over both buildings' frames
+    prior = np.log(np.array([0.99, 0.01]))
+    found = sm.locate(smap, q, sm.MatchParams(k=4), prior, floor_group=np.array([0, 1]))
+    assert found is not None
+    assert found.floor == 0
+    assert set(found.neighbours.tolist()) == {0, 1}
+    assert found.x_m <= 2.0

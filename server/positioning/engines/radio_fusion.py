@@ -59,8 +59,7 @@ class RadioParams(EngineParams):
     floor_sd_db: Positive = 8.0  # RSS error per emitter in the floor likelihood (fingerprint)
     floor_max_emitters: AtLeastOne = 10  # matched emitters counted as independent votes, at most
     # floor filter: floor changes per second. 0.001 against 0.01: the IPIN validation
-    # floor hit 77 -> 85 %, site2's unchanged; a walk spliced onto one of the next floor
-    # (site2) switches at the median after 13 s either way, at the P90 after 20 s (15 s)
+    # floor hit 77 -> 85 %, site2's unchanged (bench/accuracy.md)
     floor_change_per_s: NonNegative = 0.001
     # floor under the learned fix variance (fix_error): a fix is never trusted to 2 m
     min_fix_var_m2: Positive = 4.0
@@ -139,8 +138,14 @@ def match(
         q = scan_matching.query(maps.scans, event.readings, kind)
         if q.n_matched < params.min_matched:
             return None
+        buildings = [f.building_id for f in maps.floors]
         whole = scan_matching.locate(
-            maps.scans, q, params.matching(), prior, n_floors=len(maps.floors)
+            maps.scans,
+            q,
+            params.matching(),
+            prior,
+            n_floors=len(maps.floors),
+            floor_group=np.unique(buildings, return_inverse=True)[1] if buildings else None,
         )
     else:
         whole = wknn(
@@ -178,7 +183,9 @@ def constrained(
     """The scan matched again among the references of its floor that ``near`` keeps (a
     mask over ``reference_xy``), with ``penalty_db`` added to their distances: a moving
     partition, a motion-aided selection. The match as it was when none is left."""
-    if maps.scans is not None and m.query is not None:
+    if maps.scans is not None:
+        if m.query is None:  # not matched on these scans: nothing to match again
+            return m
         on_floor = maps.scans.floor == m.whole.floor
         keep = on_floor if near is None else on_floor & near
         found = scan_matching.locate(
