@@ -300,7 +300,8 @@ def floor_scores(smap: ScanMap, q: Query, params: MatchParams, n_floors: int) ->
 
     Per floor, the mean squared RSS difference ``m_f`` of the scan to its
     ``floor_k`` nearest reference scans, per query emitter, an emitter the reference did
-    not hear counting as ``MISSING_DBM``; the log-likelihood is ``-n m_f / (2 sd^2)``
+    not hear counting as ``MISSING_DBM`` (and a floor's scans that heard none of the
+    phone's emitters making up its ``floor_k`` where fewer heard any); the log-likelihood is ``-n m_f / (2 sd^2)``
     with ``n`` the query's emitters capped at ``floor_max_emitters`` (readings of nearby
     emitters share their errors). Unlike the distance that places the scan, this one
     holds the "missing" fill: that a reference did not hear the phone's strongest access
@@ -318,10 +319,15 @@ def floor_scores(smap: ScanMap, q: Query, params: MatchParams, n_floors: int) ->
     per_emitter = max(q.n_matched, 1)
     msd = np.full(n_floors, float(fill.sum()) / per_emitter)  # no reference hears any
     on = smap.floor[cand]
+    on_map = np.bincount(smap.floor, minlength=n_floors)
     for f in np.unique(on).tolist():
         if 0 <= f < n_floors:
             here = squared[on == f]
-            msd[f] = float(np.mean(here[_k_nearest(here, params.floor_k)])) / per_emitter
+            nearest = here[_k_nearest(here, params.floor_k)]
+            # a floor whose other scans heard none of the phone's emitters: as far as that
+            missing = min(params.floor_k, int(on_map[f])) - nearest.size
+            total = float(nearest.sum()) + max(missing, 0) * float(fill.sum())
+            msd[f] = total / (nearest.size + max(missing, 0)) / per_emitter
     mapped = np.bincount(smap.floor, minlength=n_floors)[:n_floors] > 0
     m = min(q.n_matched, params.floor_max_emitters)
     score = np.where(mapped, -m * msd / (2.0 * params.floor_sd_db**2), -np.inf)

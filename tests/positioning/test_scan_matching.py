@@ -206,3 +206,16 @@ def test_neighbours_stay_in_the_chosen_floors_building() -> None:
     assert found.floor == 0
     assert set(found.neighbours.tolist()) == {0, 1}
     assert found.x_m <= 2.0
+
+
+def test_a_floor_is_as_far_as_its_nearest_scans_including_those_hearing_nothing() -> None:
+    """Floor 1 has five scans: one heard exactly what the phone hears, four none of it.
+    Floor 0's five scans heard all ten emitters, 25 dB off. The floor's four nearest
+    scans on floor 1 are mostly deaf to the phone: floor 0 is likelier."""
+    xy = np.zeros((10, 2))
+    floor0 = [_keyed([v - 25 for v in QUERY]) for _ in range(5)]
+    floor1 = [_keyed(QUERY)] + [_keyed([-60.0], ["other"]) for _ in range(4)]
+    smap = sm.build_scan_map(xy, np.array([0] * 5 + [1] * 5), floor0 + floor1, min_readings=1)
+    score = sm.floor_scores(smap, sm.query(smap, _query(QUERY), "wifi"), sm.MatchParams(), 2)
+    assert score[0] == 0.0
+    assert score[1] < -1.0
