@@ -50,7 +50,7 @@ from numpy.typing import NDArray
 from scipy.special import logsumexp
 
 from server.positioning.events import RadioReading, radio_key
-from server.positioning.fingerprint import MISSING_DBM, RadioMap, WknnFix
+from server.positioning.fingerprint import MISSING_DBM, WknnFix
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -217,18 +217,6 @@ def build_scan_map(
     )
 
 
-def from_radio_map(radio: RadioMap) -> ScanMap:
-    """A map of reference scans whose scans are the radio map's cells (their mean RSS):
-    for maps built without their scans."""
-    rp, em = np.nonzero(radio.count > 0)
-    readings: list[list[KeyedReading]] = [[] for _ in range(radio.rp_xy.shape[0])]
-    for i, j in zip(rp.tolist(), em.tolist(), strict=True):
-        readings[i].append((radio.emitters[j], float(radio.mean_dbm[i, j])))
-    return build_scan_map(
-        radio.rp_xy.astype(np.float64), radio.rp_floor.astype(np.int64), readings, min_readings=1
-    )
-
-
 @dataclass(frozen=True)
 class Query:
     """A scan laid over a scan map: its columns, RSS and age weights."""
@@ -301,11 +289,12 @@ def floor_scores(smap: ScanMap, q: Query, params: MatchParams, n_floors: int) ->
     Per floor, the mean squared RSS difference ``m_f`` of the scan to its
     ``floor_k`` nearest reference scans, per query emitter, an emitter the reference did
     not hear counting as ``MISSING_DBM`` (and a floor's scans that heard none of the
-    phone's emitters making up its ``floor_k`` where fewer heard any); the log-likelihood is ``-n m_f / (2 sd^2)``
-    with ``n`` the query's emitters capped at ``floor_max_emitters`` (readings of nearby
-    emitters share their errors). Unlike the distance that places the scan, this one
-    holds the "missing" fill: that a reference did not hear the phone's strongest access
-    point at all is what tells two floors apart where they hear the same ones.
+    phone's emitters making up its ``floor_k`` where fewer heard any); the
+    log-likelihood is ``-n m_f / (2 sd^2)`` with ``n`` the query's emitters capped at
+    ``floor_max_emitters`` (readings of nearby emitters share their errors). Unlike the
+    distance that places the scan, this one holds the "missing" fill: that a reference
+    did not hear the phone's strongest access point at all is what tells two floors
+    apart where they hear the same ones.
     """
     starts, ends = smap.indptr[q.cols], smap.indptr[q.cols + 1]
     entry, which = _entries(starts, ends)

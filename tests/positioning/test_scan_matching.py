@@ -219,3 +219,30 @@ def test_a_floor_is_as_far_as_its_nearest_scans_including_those_hearing_nothing(
     score = sm.floor_scores(smap, sm.query(smap, _query(QUERY), "wifi"), sm.MatchParams(), 2)
     assert score[0] == 0.0
     assert score[1] < -1.0
+
+
+def test_maps_merged_are_the_map_of_all_their_scans() -> None:
+    rng = np.random.default_rng(5)
+    n = 40
+    xy = rng.uniform(0, 30, (n, 2))
+    floors = rng.integers(0, 3, n)
+    names = [f"e{i}" for i in range(14)]
+    scans = [
+        [(f"wifi:{e}", float(v)) for e, v in zip(names, rng.uniform(-90, -40, 14), strict=True)
+         if rng.random() < 0.5]
+        for _ in range(n)
+    ]  # fmt: skip
+    ages = [[float(a) for a in rng.uniform(0, 6000, len(s))] for s in scans]
+    half = n // 2
+    parts = [
+        sm.build_scan_map(xy[sl], floors[sl], scans[sl], ages_ms=ages[sl], min_readings=1)
+        for sl in (slice(0, half), slice(half, n))
+    ]
+    merged = sm.merge_scan_maps(parts)
+    whole = sm.build_scan_map(xy, floors, scans, ages_ms=ages, min_readings=1)
+    assert merged is not None
+    assert merged.emitters == whole.emitters
+    for name in ("xy_m", "floor", "indptr", "rows", "rssi_dbm", "fresh", "rarity", "totals"):
+        np.testing.assert_allclose(getattr(merged, name), getattr(whole, name), err_msg=name)
+    assert sm.merge_scan_maps(parts[:1]) is parts[0]
+    assert sm.merge_scan_maps([]) is None
