@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from server.positioning import markov_chain as mc
@@ -19,6 +19,7 @@ def corridor(n: int) -> FloorGraph:
     return grid_graph(xy, np.ones(a.shape[0], dtype=bool), np.full(n, DECISION, np.int8), 1.0)
 
 
+@settings(deadline=None)  # 2000 moves an example: its time is the machine's load
 @given(st.integers(min_value=2, max_value=12))
 def test_stationary_distribution_of_the_uniform_chain(n: int) -> None:
     """Every move of a vertex equally likely (deg + 1 of them): the chain is reversible
