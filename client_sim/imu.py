@@ -1,10 +1,12 @@
-"""Synthetic raw phone IMU of a walk: accelerometer, gyroscope, magnetometer and rotation
-vector of a phone held in front of a pedestrian, with the truth they come from.
+"""Synthetic raw phone IMU of a walk: accelerometer, gyroscope, magnetometer, rotation
+vector and barometer of a phone held in front of a pedestrian, with the truth they come
+from.
 
 Frames and units are the wire's: phone axes are Android's (x to the right edge, y to the
 top edge, z out of the screen), the world is east-north-up, a heading is in radians
 clockwise from north, the accelerometer gives specific force in m/s² with gravity
-included, the gyroscope rad/s right-handed about the phone axes, the magnetometer µT.
+included, the gyroscope rad/s right-handed about the phone axes, the magnetometer µT and
+the barometer hPa.
 
 Motion. The pedestrian follows a *course* ``h(t)`` (a function, or knots joined by
 smoothsteps so that the turn rate is continuous) and walks during given intervals, each
@@ -38,6 +40,18 @@ where ``fwd`` and ``right`` follow the course, the tremor is one sinusoid per wo
 a random frequency in 8-12 Hz (physiological hand tremor), and the noises are white and
 Gaussian. Positions integrate ``step_length_m * cadence_hz`` along the course while walking.
 
+Height. The phone's height ``z(t)`` above where it starts is given apart from the course,
+as knots joined by straight lines (0 throughout by default): a staircase is a walking
+interval while ``z`` climbs, a lift ride a standing one. Only the barometer sees it; it
+reads the standard atmosphere plus the phone's own offset, a linear weather drift and
+white noise::
+
+    pressure = p0 (1 - 2.25577e-5 z) ** 5.25588 + bias + w t / 3600 + noise
+
+with ``p0`` the pressure at height 0 at the start (``ground_hpa``), ``z`` in m, ``t`` in s
+and the weather drift ``w`` in hPa/h. Near sea level it falls by about 0.12 hPa per metre
+climbed.
+
 Pure: the same arguments and generator state give the same trace. Each sensor is sampled
 at its own rate from its own offset, at whole milliseconds (``t0_ms + offset + round(1000 k
 / rate)``), as phones send them.
@@ -69,6 +83,8 @@ Disturbance = Callable[[FloatArray, FloatArray], FloatArray]
 """Local magnetic field ``(t_s (n,), xy_m (n, 2)) -> (n, 3)`` µT in east-north-up."""
 
 _DIFF_S = 1e-4  # half-width of the central difference giving the body rates
+_LAPSE_PER_M = 2.25577e-5  # standard atmosphere: temperature lapse over sea-level temperature
+_BARO_EXPONENT = 5.25588  # g M / (R L)
 
 
 @dataclass(frozen=True)
@@ -111,9 +127,15 @@ class Sensors:
     gyro_bias_rads: tuple[float, float, float] = (0.0, 0.0, 0.0)  # phone axes
     magnetic_noise_ut: float = 0.3  # per axis
     field_ut: tuple[float, float, float] = (0.0, 20.0, -40.0)  # ENU: north and down
+    pressure_hz: float = 25.0
+    pressure_offset_ms: int = 0
+    pressure_noise_hpa: float = 0.02  # white, per sample
+    pressure_bias_hpa: float = 0.0  # this phone's offset: phones side by side differ ~0.5 hPa
+    ground_hpa: float = 1013.25  # p0: at height 0 when the walk starts
+    weather_hpa_per_h: float = 0.0  # linear drift over the walk; weather moves up to ~1 hPa/h
 
     def __post_init__(self) -> None:
-        for name in ("accel", "gyro", "magnetic", "rotation"):
+        for name in ("accel", "gyro", "magnetic", "rotation", "pressure"):
             rate = getattr(self, f"{name}_hz")
             if not 0 < rate <= 1000:
                 raise ValueError(f"{name}_hz must be in (0, 1000], got {rate}")
@@ -131,12 +153,16 @@ class ImuTrace:
         ``[t_ms, x, y, z]`` in phone axes, times whole milliseconds, strictly increasing.
     rotation : ndarray, shape (n_rotation, 5)
         ``[t_ms, x, y, z, w]`` phone-to-ENU unit quaternion, ``w >= 0``.
+    pressure : ndarray, shape (n_pressure, 2)
+        ``[t_ms, hPa]`` barometer.
     t_ms : ndarray, shape (n,), int64
         Times of the truth: the gyro sample times.
     heading : ndarray, shape (n,)
         Heading of the phone's top edge projected on the horizontal, rad, in (-pi, pi].
     xy : ndarray, shape (n, 2)
         Position east and north of the start, m.
+    height_m : ndarray, shape (n,)
+        Height above the start, m.
     step_t_ms, peak_t_ms : ndarray, shape (k,), int64
         Valley (true step time) and peak of each step's bounce cycle.
     t0_ms : int
@@ -153,6 +179,8 @@ class ImuTrace:
     step_t_ms: IntArray
     peak_t_ms: IntArray
     t0_ms: int
+    pressure: FloatArray
+    height_m: FloatArray
 
     @property
     def n_steps(self) -> int:
@@ -168,6 +196,7 @@ class Block:
     gyro: FloatArray
     magnetic: FloatArray
     rotation: FloatArray
+    pressure: FloatArray
 
     def event(self) -> dict[str, Any]:
         """The block as a wire ``imu`` event (rows ``[t, ...]`` with integer times)."""
@@ -182,16 +211,23 @@ class Block:
             "gyro": rows(self.gyro),
             "magnetic": rows(self.magnetic),
             "rotation": rows(self.rotation),
+            "pressure": rows(self.pressure),
         }
+
+
+def _knots(values: ArrayLike, name: str) -> tuple[FloatArray, FloatArray]:
+    """Times and values of knots ``(k, 2)``, checked."""
+    knots = np.asarray(values, dtype=np.float64).reshape(-1, 2)
+    t_k, v_k = knots[:, 0], knots[:, 1]
+    if t_k.size == 0 or np.any(np.diff(t_k) <= 0):
+        raise ValueError(f"{name} knots need at least one row and increasing times")
+    return t_k, v_k
 
 
 def _course(heading: HeadingProfile) -> Callable[[FloatArray], FloatArray]:
     if callable(heading):
         return heading
-    knots = np.asarray(heading, dtype=np.float64).reshape(-1, 2)
-    t_k, h_k = knots[:, 0], knots[:, 1]
-    if t_k.size == 0 or np.any(np.diff(t_k) <= 0):
-        raise ValueError("heading knots need at least one row and increasing times")
+    t_k, h_k = _knots(heading, "heading")
     if t_k.size == 1:
         return lambda t: np.full(np.shape(t), h_k[0])
 
@@ -262,6 +298,7 @@ def synthesize_walk(
     sensors: Sensors | None = None,
     disturbance: Disturbance | None = None,
     t0_ms: int = T0_MS,
+    height: ArrayLike | None = None,
 ) -> ImuTrace:
     """Raw IMU samples of a phone carried along ``heading`` for ``duration_s``.
 
@@ -282,6 +319,9 @@ def synthesize_walk(
         A local field added to the earth field (``Disturbance``).
     t0_ms : int
         Phone clock at the start, ms since the epoch.
+    height : array_like, shape (k, 2), optional
+        Knots ``[t_s, height_m]`` with increasing times: the height above the start,
+        straight between knots and constant outside them; 0 throughout by default.
 
     Returns
     -------
@@ -293,6 +333,9 @@ def synthesize_walk(
         raise ValueError(f"duration_s must be positive, got {duration_s}")
     course = _course(heading)
     walk = _walking(walking, duration_s, gait.cadence_hz)
+    t_z, z_k = _knots(height if height is not None else [(0.0, 0.0)], "height")
+    if not np.all(np.isfinite(z_k) & (z_k < 1.0 / _LAPSE_PER_M)):
+        raise ValueError("height_m must be finite and below 44 km")
 
     def attitude(t: FloatArray) -> Rotation:
         phi = walk.phase(t)
@@ -352,6 +395,12 @@ def synthesize_walk(
     rotation_ms, t = times("rotation")
     quat = attitude(t).as_quat(canonical=True)
 
+    # drawn last: the other sensors keep the noise they had before there was a barometer
+    pressure_ms, t = times("pressure")
+    air = sensors.ground_hpa * (1.0 - _LAPSE_PER_M * np.interp(t, t_z, z_k)) ** _BARO_EXPONENT
+    pressure = air + sensors.pressure_bias_hpa + sensors.weather_hpa_per_h * t / 3600.0
+    pressure += rng.normal(0.0, sensors.pressure_noise_hpa, pressure.shape)
+
     def stamped(t_ms: IntArray, values: FloatArray) -> FloatArray:
         return np.column_stack([t_ms.astype(np.float64), values])
 
@@ -369,6 +418,8 @@ def synthesize_walk(
         step_t_ms=clock(walk.cycle_times(0.75)),
         peak_t_ms=clock(walk.cycle_times(0.25)),
         t0_ms=t0_ms,
+        pressure=stamped(pressure_ms, pressure),
+        height_m=np.interp((gyro_ms - t0_ms) / 1000.0, t_z, z_k),
     )
 
 
@@ -378,7 +429,7 @@ def blocks(trace: ImuTrace, block_ms: float = 1000.0) -> list[Block]:
     sample are left out."""
     if not block_ms > 0:
         raise ValueError(f"block_ms must be positive, got {block_ms}")
-    sensors = (trace.accel, trace.gyro, trace.magnetic, trace.rotation)
+    sensors = (trace.accel, trace.gyro, trace.magnetic, trace.rotation, trace.pressure)
     last = max((float(s[-1, 0]) for s in sensors if s.shape[0]), default=float(trace.t0_ms))
     n = math.floor((last - trace.t0_ms) / block_ms) + 1
     edges = trace.t0_ms + np.ceil(np.arange(n + 1) * block_ms)

@@ -95,9 +95,10 @@ class Walk:
         events.sort(key=lambda e: e.t_ms)
         return events
 
-    def imu_events(self, block_ms: int = IMU_BLOCK_MS) -> list[ImuEvent]:
-        """The motion samples cut into blocks of ``block_ms`` phone time, as a phone that
-        sends raw samples would post them.
+    def imu_events(self, block_ms: int = IMU_BLOCK_MS, motion: bool = True) -> list[ImuEvent]:
+        """The motion and barometer samples cut into blocks of ``block_ms`` phone time, as
+        a phone that sends raw samples would post them; without ``motion``, the barometer's
+        only (what a phone posts to an engine that reads its steps but its barometer too).
 
         Block ``k`` holds the samples of every stream with ``t0 + k * block_ms <= t <
         t0 + (k + 1) * block_ms``, ``t0`` being the first sample of any stream, and its
@@ -117,11 +118,19 @@ class Walk:
         """
         if block_ms <= 0:
             raise ValueError(f"block_ms must be positive, not {block_ms}")
-        accel, gyro, magnetic, rotation = (
+        accel, gyro, magnetic, rotation, pressure = (
             _increasing(a)
-            for a in (self.accel, self.gyro, self.magnetic, _with_scalar_part(self.rotation))
+            for a in (
+                self.accel,
+                self.gyro,
+                self.magnetic,
+                _with_scalar_part(self.rotation),
+                self.pressure,
+            )
         )
-        streams = (accel, gyro, magnetic, rotation)
+        if not motion:
+            accel, gyro, magnetic, rotation = (a[:0] for a in (accel, gyro, magnetic, rotation))
+        streams = (accel, gyro, magnetic, rotation, pressure)
         firsts = [a[0, 0] for a in streams if a.shape[0]]
         if not firsts:
             return []
@@ -134,20 +143,23 @@ class Walk:
             for a, b in zip(streams, block_of, strict=True)
         ]
         return [
-            ImuEvent(t0 + k * block_ms, accel=ac, gyro=gy, magnetic=ma, rotation=ro)
-            for k, ac, gy, ma, ro in zip(blocks.tolist(), *pieces, strict=True)
+            ImuEvent(t0 + k * block_ms, accel=ac, gyro=gy, magnetic=ma, rotation=ro, pressure=pr)
+            for k, ac, gy, ma, ro, pr in zip(blocks.tolist(), *pieces, strict=True)
         ]
 
-    def events(self, imu: bool = False, block_ms: int = IMU_BLOCK_MS) -> list[Event]:
-        """Radio events and, with ``imu``, the blocks of ``imu_events(block_ms)``, sorted
-        by time (stable: on a tie WiFi, then BLE, then the block).
+    def events(
+        self, imu: bool = False, block_ms: int = IMU_BLOCK_MS, pressure: bool = False
+    ) -> list[Event]:
+        """Radio events and, with ``imu``, the blocks of ``imu_events(block_ms)`` (with
+        ``pressure`` alone, blocks of barometer samples only), sorted by time (stable: on a
+        tie WiFi, then BLE, then the block).
 
         A block is placed at its start: a scan taken while its samples were logged comes
         after the whole block, as in a batch a phone posts.
         """
         events: list[Event] = [*self.radio_events()]
-        if imu:
-            events += self.imu_events(block_ms)
+        if imu or pressure:
+            events += self.imu_events(block_ms, motion=imu)
         events.sort(key=lambda e: e.t_ms)
         return events
 

@@ -108,7 +108,13 @@ def fold_records(venue: IpinVenue, logs: Sequence[IpinLog], *, magnetic: bool) -
             scans.add_trace(part, floor_index, group=log.trial, walk=log.trace.path_id)
             if magnetic:
                 field.add_trace(part, floor_index)
-    return TrainingSurvey(scans, field if magnetic else None, (None,) * len(venue.floors))
+    pressure = tuple(
+        (log.trace.pressure, log.trace.waypoint_t_ms, log.trace.waypoint_floor)
+        for log in logs
+        if log.trace.pressure.shape[0] and log.trace.waypoint_floor.size
+    )
+    plans = (None,) * len(venue.floors)
+    return TrainingSurvey(scans, field if magnetic else None, plans, pressure_walks=pressure)
 
 
 def fold_maps(
@@ -120,7 +126,13 @@ def fold_maps(
 ) -> SiteMaps:
     """The venue's map set from a fold's records (``map_set.build_map_set``)."""
     fields = training.field.floor_fields(venue.site) if training.field is not None else {}
-    records = SiteRecords(site_floors(venue.site), training.scans.surveyed(), (), fields)
+    records = SiteRecords(
+        site_floors(venue.site),
+        training.scans.surveyed(),
+        (),
+        fields,
+        pressure_walks=training.pressure_walks,
+    )
     return build_map_set(records, parts=parts, version=version)
 
 

@@ -60,7 +60,7 @@ def mag_events(trace: Walk, span_ms: int = PHONE_MAG_MS) -> list[MagEvent]:
 
 # what the phone of a session posts where it is not what its engine reads: an ``auto``
 # session's phone posts what the project's client posts, its scans and its detected steps
-PHONE_POSTS = {"auto": frozenset({"step", "wifi", "ble"})}
+PHONE_POSTS = {"auto": frozenset({"step", "wifi", "ble", "pressure"})}
 
 
 def trace_events(trace: Walk, engine: str) -> list[Event]:
@@ -71,7 +71,7 @@ def trace_events(trace: Walk, engine: str) -> list[Event]:
     but not raw samples the magnitudes of ``mag_events``. What an engine would ignore is
     left out, so replay stays fast."""
     uses = PHONE_POSTS.get(engine, get_engine(engine).uses)
-    events = trace.events(imu="imu" in uses, block_ms=BATCH_MS)
+    events = trace.events(imu="imu" in uses, block_ms=BATCH_MS, pressure="pressure" in uses)
     if "mag" in uses and "imu" not in uses:
         events += mag_events(trace)
     if "step" in uses and "imu" not in uses:

@@ -22,6 +22,7 @@ from server.datasets.ilc import IlcSite
 from server.datasets.ilc_trace import read_trace
 from server.datasets.walk import Walk
 from server.lab.progress import Progress
+from server.positioning.barometer import PressureWalk
 from server.positioning.events import BleEvent, WifiEvent, radio_key
 from server.positioning.mapping import map_set
 from server.positioning.mapping.labelled import interpolate_track
@@ -134,6 +135,7 @@ class TrainingSurvey:
     field: LabelledField | None = None
     plans: tuple[dict[str, Any] | None, ...] = ()
     traces: tuple[tuple[int, Path], ...] = ()  # (floor index, file) of each training trace
+    pressure_walks: tuple[PressureWalk, ...] = ()  # walks with the barometer (map_set)
 
 
 def parts_for(engines: Collection[str]) -> frozenset[str]:

@@ -64,3 +64,24 @@ def prior(logp: FloatArray, last_t_ms: int, t_ms: int, rate_per_s: float) -> Flo
     if logp.shape[0] == 0:
         return None
     return predict(logp, (t_ms - last_t_ms) / 1000.0, rate_per_s)
+
+
+def shift(
+    logp: FloatArray, floors: int, levels: NDArray[np.int64], groups: NDArray[np.int64]
+) -> FloatArray:
+    """The distribution after going ``floors`` floors up (negative: down), as the
+    barometer saw it: the probability of floor index ``f`` moves to the floor of the same
+    building (``groups``) whose level is ``levels[f] + floors``; floors with no such floor
+    lose theirs. Unchanged when nothing is known or no floor has one to move to.
+    """
+    if logp.shape[0] == 0 or floors == 0:
+        return logp
+    out = np.full(logp.shape[0], -np.inf)
+    index = {(int(g), int(v)): i for i, (g, v) in enumerate(zip(groups, levels, strict=True))}
+    for f in range(logp.shape[0]):
+        target = index.get((int(groups[f]), int(levels[f]) + floors))
+        if target is not None:
+            out[target] = np.logaddexp(out[target], logp[f])
+    if not np.isfinite(out).any():
+        return logp
+    return np.maximum(out - float(logsumexp(out)), np.log(1e-300))

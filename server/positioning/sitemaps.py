@@ -64,3 +64,6 @@ class SiteMaps:
     # the surveyed scans themselves, matched scan by scan (scan_matching); None: not
     # built, scans are matched against the radio map's cells
     scans: ScanMap | None = None
+    # hPa between adjacent floors (barometer.floor_spacing, from the map's walks that
+    # changed floor); None: barometer.DEFAULT_SPACING_HPA
+    floor_spacing_hpa: float | None = None

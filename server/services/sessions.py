@@ -478,6 +478,12 @@ def not_read(uses: frozenset[str], events: Sequence[Event]) -> tuple[str, ...]:
     """The kinds of ``events`` an engine that reads ``uses`` ignores, sorted (for
     ``auto``: what none of the engines it may pick reads)."""
     kinds = {EVENT_KINDS.get(type(e), type(e).__name__) for e in events}
+    if "pressure" in uses:  # the barometer rows of raw sample blocks are read
+        kinds -= (
+            {"imu"}
+            if all(e.pressure.shape[0] for e in events if isinstance(e, ImuEvent))
+            else set()
+        )
     return tuple(sorted(kinds - uses))
 
 

@@ -10,10 +10,13 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from client_sim.imu import T0_MS, G, Gait, ImuTrace, Sensors, blocks, synthesize_walk
+from server.api.schemas.events import ImuIn
 
 FloatArray = NDArray[np.float64]
 
-QUIET = Sensors(accel_noise_ms2=0.0, gyro_noise_rads=0.0, magnetic_noise_ut=0.0)
+QUIET = Sensors(
+    accel_noise_ms2=0.0, gyro_noise_rads=0.0, magnetic_noise_ut=0.0, pressure_noise_hpa=0.0
+)
 TILTED = Gait(
     tilt_x_rad=math.radians(25.0),
     tilt_y_rad=math.radians(-5.0),
@@ -22,6 +25,7 @@ TILTED = Gait(
     sway_y_rad=math.radians(2.0),
 )
 L_TURN = [(0.0, 0.2), (10.0, 0.2), (12.0, 0.2 - math.pi / 2)]  # a left turn at 10-12 s
+UP_A_FLOOR = [(0.0, 0.0), (8.0, 0.0), (12.0, 3.5)]  # 3.5 m up at 8-12 s
 
 
 def trace_of(
@@ -30,9 +34,16 @@ def trace_of(
     sensors: Sensors = QUIET,
     walking: list[tuple[float, float]] | None = None,
     duration_s: float = 20.0,
+    height: list[tuple[float, float]] | None = None,
 ) -> ImuTrace:
     return synthesize_walk(
-        L_TURN, duration_s, np.random.default_rng(seed), walking=walking, gait=gait, sensors=sensors
+        L_TURN,
+        duration_s,
+        np.random.default_rng(seed),
+        walking=walking,
+        gait=gait,
+        sensors=sensors,
+        height=height,
     )
 
 
@@ -41,23 +52,34 @@ def quaternion(samples: FloatArray) -> Rotation:
 
 
 def test_sample_clocks() -> None:
-    sensors = Sensors(gyro_hz=100.0, accel_offset_ms=3, magnetic_hz=30.0, magnetic_offset_ms=7)
+    sensors = Sensors(
+        gyro_hz=100.0,
+        accel_offset_ms=3,
+        magnetic_hz=30.0,
+        magnetic_offset_ms=7,
+        pressure_hz=20.0,
+        pressure_offset_ms=11,
+    )
     trace = synthesize_walk(L_TURN, 20.0, np.random.default_rng(0), sensors=sensors, t0_ms=5000)
     assert trace.accel.shape == (1000, 4)
     assert trace.gyro.shape == (2000, 4)
     assert trace.magnetic.shape == (600, 4)
     assert trace.rotation.shape == (1000, 5)
-    for samples, offset_ms in ((trace.accel, 3), (trace.gyro, 0), (trace.magnetic, 7)):
+    assert trace.pressure.shape == (400, 2)
+    clocks = ((trace.accel, 3), (trace.gyro, 0), (trace.magnetic, 7), (trace.pressure, 11))
+    for samples, offset_ms in clocks:
         t = samples[:, 0]
         assert t[0] == 5000 + offset_ms
         assert t[-1] < 5000 + 20_000
         np.testing.assert_array_equal(t, np.round(t))  # whole milliseconds
         assert np.all(np.diff(t) > 0)
     np.testing.assert_array_equal(np.unique(np.diff(trace.magnetic[:, 0])), [33.0, 34.0])
+    np.testing.assert_array_equal(np.diff(trace.pressure[:, 0]), 50.0)
     np.testing.assert_array_equal(trace.t_ms, trace.gyro[:, 0])
     assert trace.t_ms.dtype == np.int64
     assert trace.heading.shape == (2000,)
     assert trace.xy.shape == (2000, 2)
+    assert trace.height_m.shape == (2000,)
 
 
 def test_the_same_generator_state_gives_the_same_trace() -> None:
@@ -65,7 +87,8 @@ def test_the_same_generator_state_gives_the_same_trace() -> None:
     gait = Gait(tremor_ms2=0.3)
     a, b = (trace_of(seed=4, gait=gait, sensors=sensors) for _ in range(2))
     c = trace_of(seed=5, gait=gait, sensors=sensors)
-    for name in ("accel", "gyro", "magnetic", "rotation", "heading", "xy", "step_t_ms"):
+    names = ("accel", "gyro", "magnetic", "rotation", "pressure", "heading", "xy", "step_t_ms")
+    for name in (*names, "height_m"):
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
     assert not np.array_equal(a.accel, c.accel)
     np.testing.assert_array_equal(a.rotation, c.rotation)  # the truth is not random
@@ -200,14 +223,52 @@ def test_heading_callable() -> None:
     np.testing.assert_allclose(trace.gyro[:, 3], -0.1, atol=1e-6)  # flat: about z, clockwise
 
 
+@pytest.mark.parametrize(
+    "walking",
+    [None, [(0.0, 8.0), (12.0, 20.0)]],
+    ids=["stairs", "lift"],
+)
+def test_pressure_falls_by_0_12_hpa_a_metre_climbed(walking: list[tuple[float, float]]) -> None:
+    trace = trace_of(sensors=Sensors(), walking=walking, height=UP_A_FLOOR)
+    t_s = (trace.pressure[:, 0] - T0_MS) / 1000.0
+    before, after = trace.pressure[t_s < 8.0, 1], trace.pressure[t_s >= 12.0, 1]
+    assert 0.41 < before.mean() - after.mean() < 0.43  # 3.5 m x 0.12 hPa/m
+    assert before.mean() == pytest.approx(1013.25, abs=0.01)
+    assert before.std() == pytest.approx(0.02, rel=0.2)
+    truth_s = (trace.t_ms - T0_MS) / 1000.0
+    np.testing.assert_allclose(trace.height_m, np.interp(truth_s, [8.0, 12.0], [0.0, 3.5]))
+    # the height is for the barometer alone: the rest reads as on the level
+    flat = trace_of(sensors=Sensors(), walking=walking)
+    for name in ("accel", "gyro", "magnetic", "rotation", "xy", "step_t_ms"):
+        np.testing.assert_array_equal(getattr(trace, name), getattr(flat, name), err_msg=name)
+    np.testing.assert_array_equal(flat.height_m, 0.0)
+    assert flat.pressure[:, 1].mean() == pytest.approx(1013.25, abs=0.01)
+
+
+def test_bias_and_weather_shift_the_pressure() -> None:
+    still = trace_of(sensors=Sensors(), height=UP_A_FLOOR)
+    t_h = (still.pressure[:, 0] - T0_MS) / 3_600_000.0
+    biased = trace_of(sensors=Sensors(pressure_bias_hpa=0.5), height=UP_A_FLOOR)
+    np.testing.assert_allclose(biased.pressure[:, 1] - still.pressure[:, 1], 0.5, atol=1e-9)
+    drifting = trace_of(sensors=Sensors(weather_hpa_per_h=-0.9), height=UP_A_FLOOR)
+    np.testing.assert_allclose(
+        drifting.pressure[:, 1] - still.pressure[:, 1], -0.9 * t_h, rtol=0.0, atol=1e-9
+    )
+    for trace in (biased, drifting):
+        np.testing.assert_array_equal(trace.pressure[:, 0], still.pressure[:, 0])
+
+
 def test_blocks_hold_every_sample_once() -> None:
-    trace = trace_of(sensors=Sensors(accel_offset_ms=3, magnetic_hz=30.0, gyro_hz=100.0))
+    trace = trace_of(
+        sensors=Sensors(accel_offset_ms=3, magnetic_hz=30.0, gyro_hz=100.0, pressure_offset_ms=13),
+        height=UP_A_FLOOR,
+    )
     for block_ms in (1000.0, 2500.0, 333.3):
         cut = blocks(trace, block_ms)
         starts = [b.t_ms for b in cut]
         assert starts[0] == T0_MS
         assert np.all(np.diff(starts) > 0)
-        for name in ("accel", "gyro", "magnetic", "rotation"):
+        for name in ("accel", "gyro", "magnetic", "rotation", "pressure"):
             parts = [getattr(b, name) for b in cut]
             np.testing.assert_array_equal(np.vstack(parts), getattr(trace, name))
             for b, part in zip(cut, parts, strict=True):
@@ -218,8 +279,13 @@ def test_blocks_hold_every_sample_once() -> None:
     assert event["t"] == T0_MS + 3000
     assert len(event["accel"]) == 50
     assert event["accel"][0][0] == T0_MS + 3003
-    assert all(type(row[0]) is int for name in ("accel", "gyro", "magnetic") for row in event[name])
+    sampled = ("accel", "gyro", "magnetic", "pressure")
+    assert all(type(row[0]) is int for name in sampled for row in event[name])
     assert len(event["rotation"][0]) == 5
+    assert len(event["pressure"]) == 25
+    assert event["pressure"][0] == [T0_MS + 3013, trace.pressure[75, 1]]
+    for block in blocks(trace):
+        ImuIn.model_validate(block.event())  # the wire takes every block
 
 
 @pytest.mark.parametrize(
@@ -230,6 +296,8 @@ def test_blocks_hold_every_sample_once() -> None:
         ({"walking": [(0.0, 5.0), (4.0, 6.0)]}, "overlap"),
         ({"duration_s": 0.0}, "duration_s"),
         ({"heading": [(1.0, 0.0), (1.0, 1.0)]}, "knots"),
+        ({"height": [(2.0, 0.0), (1.0, 3.0)]}, "height knots"),
+        ({"height": [(0.0, math.nan)]}, "height_m"),
     ],
 )
 def test_arguments_are_checked(kwargs: dict[str, object], message: str) -> None:
@@ -247,5 +315,9 @@ def test_parameters_are_checked() -> None:
         Sensors(gyro_hz=2000.0)
     with pytest.raises(ValueError, match="magnetic_offset_ms"):
         Sensors(magnetic_offset_ms=-1)
+    with pytest.raises(ValueError, match="pressure_hz"):
+        Sensors(pressure_hz=0.0)
+    with pytest.raises(ValueError, match="pressure_offset_ms"):
+        Sensors(pressure_offset_ms=-1)
     with pytest.raises(ValueError, match="block_ms"):
         blocks(trace_of(duration_s=1.0), 0.0)

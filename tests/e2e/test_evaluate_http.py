@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import pytest
@@ -12,11 +13,20 @@ from server.cli import app
 from server.positioning.fix_error import DEFAULT_ERROR_68_M
 from tests.conftest import ADMIN_KEY
 
+# each comparison runs once in `make test`: those through the api in the production shape
+# (PostgreSQL + Redis), the crowd maps (built in process) on the embedded defaults
+PRODUCTION = bool(os.environ.get("INDOORPOS_REDIS_URL"))
+production_pass = pytest.mark.skipif(
+    not PRODUCTION, reason="runs in the pass on PostgreSQL + Redis (INDOORPOS_REDIS_URL)"
+)
+embedded_pass = pytest.mark.skipif(PRODUCTION, reason="runs in the pass on the embedded defaults")
+
 FLOOR = (
     Path(__file__).resolve().parents[2].parent / "shared" / "data" / "ilc20-sample" / "site2" / "F4"
 )
 
 
+@production_pass
 @pytest.mark.skipif(not FLOOR.is_dir(), reason="../shared/data is not beside the project")
 def test_same_figures_through_the_api(worker_live_url: str, tmp_path: Path) -> None:
     """The service builds the maps the lab builds (its worker's fix-error table gives the
@@ -57,6 +67,7 @@ def test_same_figures_through_the_api(worker_live_url: str, tmp_path: Path) -> N
         assert ours == theirs, engine  # every estimate, σ and 68 / 95 % radius
 
 
+@embedded_pass
 @pytest.mark.skipif(not FLOOR.is_dir(), reason="../shared/data is not beside the project")
 def test_crowd_maps_come_close_to_the_survey_maps(tmp_path: Path) -> None:
     """The training walks go through the upload API keeping only their first and last
@@ -77,6 +88,7 @@ def test_crowd_maps_come_close_to_the_survey_maps(tmp_path: Path) -> None:
     assert b["mean_m"] < 1.6 * a["mean_m"]
 
 
+@production_pass
 @pytest.mark.skipif(not FLOOR.is_dir(), reason="../shared/data is not beside the project")
 def test_a_parameter_reaches_the_sessions(worker_live_url: str, tmp_path: Path) -> None:
     """``--param`` with ``--via-http`` opens the sessions with those parameters: the same

@@ -17,7 +17,10 @@ PARAMS_DOC = (
 
 class EngineRead(Strict):
     name: str
-    uses: list[str] = Field(description="event kinds the engine reads; others are ignored")
+    uses: list[str] = Field(
+        description="event kinds the engine reads (pressure: the barometer rows of imu events); "
+        "others are ignored"
+    )
     params: dict[str, Any] = Field(description="the engine's default parameters")
 
 

@@ -47,6 +47,7 @@ from numpy.typing import NDArray
 
 from server.positioning import fai, magnetic_matching
 from server.positioning.accuracy import AccuracyParams
+from server.positioning.barometer import FloorChange
 from server.positioning.engines import dispatch, step_ekf
 from server.positioning.engines import radio_fusion as rf
 from server.positioning.engines.base import EngineSpec
@@ -265,13 +266,20 @@ def run(
     ) -> Callable[[FaiEkfState, WifiEvent | BleEvent], tuple[FaiEkfState, Fix | None]]:
         return lambda st, e: _on_scan(st, e, kind, maps, params)
 
+    def moved(st: FaiEkfState, change: FloorChange) -> tuple[FaiEkfState, Fix | None]:
+        logp, floor = rf.floor_moved(maps, st.floor_logp, st.floor, change)
+        return replace(st, floor_logp=logp, floor=floor), None
+
     routes = [
         dispatch.on(StepEvent, lambda st, e: _on_step(st, e, maps, params)),
         dispatch.on(WifiEvent, scan("wifi")),
         dispatch.on(BleEvent, scan("ble")),
         dispatch.on(MagEvent, _on_mag),
+        dispatch.on(FloorChange, moved),
     ]
-    return dispatch.walk(state, dispatch.in_time_order(events), routes)
+    baro, changes = rf.floor_changes(state.baro, events, maps, params)
+    timed = dispatch.in_time_order([*events, *changes])
+    return dispatch.walk(replace(state, baro=baro), timed, routes)
 
 
 SPEC = EngineSpec(
@@ -280,5 +288,5 @@ SPEC = EngineSpec(
     state_type=FaiEkfState,
     initial_state=initial_state,
     run=run,
-    uses=frozenset({"step", "wifi", "ble", "mag"}),
+    uses=frozenset({"step", "wifi", "ble", "mag", "pressure"}),
 )

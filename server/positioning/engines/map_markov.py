@@ -61,6 +61,7 @@ from numpy.typing import NDArray
 
 from server.positioning import markov_chain as mc
 from server.positioning.accuracy import AccuracyParams
+from server.positioning.barometer import BaroState, FloorChange, initial_barometer
 from server.positioning.engines import dispatch
 from server.positioning.engines import radio_fusion as rf
 from server.positioning.engines.base import EngineSpec
@@ -141,6 +142,7 @@ class MapMarkovState:
     graph_key: int = 0  # FloorGraph.fingerprint of the graph the belief's ids are on
     floor_logp: FloatArray = field(default_factory=lambda: rf.EMPTY)
     floor_t_ms: int = 0
+    baro: BaroState = field(default_factory=initial_barometer)  # floor changes by pressure
 
 
 def initial_state(params: MapMarkovParams) -> MapMarkovState:
@@ -332,7 +334,7 @@ def on_scan(
     maps: SiteMaps,
     params: MapMarkovParams,
 ) -> tuple[MapMarkovState, Fix | None]:
-    m = rf.match(maps, event, params, state.floor_logp, state.floor_t_ms)
+    m = rf.match(maps, event, params, state.floor_logp, state.floor_t_ms, state.baro)
     if m is None:
         return replace(state, last_t_ms=event.t_ms), None
     found = m.whole
@@ -463,12 +465,20 @@ def run(
     def step(st: MapMarkovState, e: StepEvent) -> tuple[MapMarkovState, Fix | None]:
         return on_step(st, e, maps, params)
 
+    def moved(st: MapMarkovState, change: FloorChange) -> tuple[MapMarkovState, Fix | None]:
+        # the estimate itself moves with the next scan: the belief lives on one floor's graph
+        logp, _ = rf.floor_moved(maps, st.floor_logp, st.floor, change)
+        return replace(st, floor_logp=logp), None
+
     routes = [
         dispatch.on(StepEvent, step),
         dispatch.on(WifiEvent, wifi),
         dispatch.on(BleEvent, ble),
+        dispatch.on(FloorChange, moved),
     ]
-    return dispatch.walk(state, dispatch.in_time_order(events), routes)
+    baro, changes = rf.floor_changes(state.baro, events, maps, params)
+    timed = dispatch.in_time_order([*events, *changes])
+    return dispatch.walk(replace(state, baro=baro), timed, routes)
 
 
 SPEC = EngineSpec(
@@ -477,5 +487,5 @@ SPEC = EngineSpec(
     state_type=MapMarkovState,
     initial_state=initial_state,
     run=run,
-    uses=frozenset({"step", "wifi", "ble"}),
+    uses=frozenset({"step", "wifi", "ble", "pressure"}),
 )

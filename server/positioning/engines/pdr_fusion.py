@@ -28,12 +28,15 @@ from typing import Generic, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
+from server.positioning.barometer import BaroState, FloorChange, initial_barometer
 from server.positioning.engines import dispatch
 from server.positioning.engines.base import EngineSpec
 from server.positioning.engines.radio_fusion import (
     EMPTY,
     Matched,
     RadioParams,
+    floor_changes,
+    floor_moved,
     in_building_frame,
     match,
     position_update,
@@ -87,6 +90,7 @@ class FilterState:
     # the floor filter after its last scan (empty: none yet)
     floor_logp: FloatArray = field(default_factory=lambda: EMPTY)
     floor_t_ms: int = 0  # time of that scan
+    baro: BaroState = field(default_factory=initial_barometer)  # floor changes by pressure
 
 
 @dataclass(frozen=True)
@@ -116,12 +120,15 @@ class StepFusion(Generic[F, P]):
         ignored: the engine finds its own steps. Deterministic (``rng`` is unused)."""
         del rng
         tracker, items = timeline(state.tracker, events, params.tracker)
-        return self.apply(replace(state, tracker=tracker), items, maps, params)
+        baro, changes = floor_changes(state.baro, events, maps, params)
+        timed = dispatch.in_time_order([*items, *changes])
+        return self.apply(replace(state, tracker=tracker, baro=baro), timed, maps, params)
 
     def apply(
-        self, state: F, items: Sequence[Step | Scan], maps: SiteMaps, params: P
+        self, state: F, items: Sequence[Step | Scan | FloorChange], maps: SiteMaps, params: P
     ) -> tuple[F, list[Fix]]:
-        """Steps and scans, in the order given, through the filter."""
+        """Steps, scans and barometric floor changes, in the order given, through the
+        filter."""
 
         def step(st: F, item: Step) -> tuple[F, Fix | None]:
             return self.on_step(st, item, maps, params)
@@ -129,8 +136,13 @@ class StepFusion(Generic[F, P]):
         def scan(st: F, item: Scan) -> tuple[F, Fix | None]:
             return self.on_scan(st, item, maps, params)
 
+        def moved(st: F, item: FloorChange) -> tuple[F, Fix | None]:
+            logp, floor = floor_moved(maps, st.floor_logp, st.floor, item)
+            return replace(st, floor_logp=logp, floor=floor), None
+
         routes = [
             dispatch.on(Step, step),
+            dispatch.on(FloorChange, moved),
             dispatch.on(WifiEvent, scan),
             dispatch.on(BleEvent, scan),
         ]
@@ -146,7 +158,7 @@ class StepFusion(Generic[F, P]):
             state_type=state_type,
             initial_state=initial_state,
             run=self.run,
-            uses=frozenset({"imu", "wifi", "ble"}),
+            uses=frozenset({"imu", "wifi", "ble", "pressure"}),
         )
 
 
@@ -296,7 +308,7 @@ def begin_scan(maps: SiteMaps, event: Scan, state: F, params: KalmanParams) -> S
     """Match the scan on the whole map, move the filter to the floor it chose (with the
     floor filter after it) and decide whether to restart there; None when it matches
     nothing."""
-    m = match(maps, event, params, state.floor_logp, state.floor_t_ms)
+    m = match(maps, event, params, state.floor_logp, state.floor_t_ms, state.baro)
     if m is None:
         return None
     diagnostics = {"n_matched": float(m.n_matched), "fix_var_m2": m.var_m2}

@@ -49,6 +49,7 @@ from numpy.typing import NDArray
 from server.positioning import floorplan, magnetic, particle
 from server.positioning import particle_cloud as pc
 from server.positioning.accuracy import AccuracyParams
+from server.positioning.barometer import BaroState, FloorChange, initial_barometer
 from server.positioning.engines import dispatch
 from server.positioning.engines import radio_fusion as rf
 from server.positioning.engines.base import EngineSpec
@@ -112,6 +113,7 @@ class PfMagneticState:
     # the floor filter after its last scan (empty: none yet)
     floor_logp: FloatArray = field(default_factory=lambda: rf.EMPTY)
     floor_t_ms: int = 0  # time of that scan
+    baro: BaroState = field(default_factory=initial_barometer)  # floor changes by pressure
 
 
 def initial_state(params: PfMagneticParams) -> PfMagneticState:
@@ -273,7 +275,7 @@ def _on_scan(
     params: PfMagneticParams,
     rng: np.random.Generator,
 ) -> tuple[PfMagneticState, Fix | None]:
-    m = rf.match(maps, event, params, state.floor_logp, state.floor_t_ms)
+    m = rf.match(maps, event, params, state.floor_logp, state.floor_t_ms, state.baro)
     if m is None:
         return state, None
     kind, found = m.kind, m.whole
@@ -400,9 +402,10 @@ def run(
     """Process a batch: raw IMU blocks become steps; phone steps, mag events and scans
     are taken as they come, all in time order."""
     tracker, items = timeline(state.tracker, events, params.tracker)
+    baro, changes = rf.floor_changes(state.baro, events, maps, params)
     others = [e for e in events if isinstance(e, StepEvent | MagEvent)]
     # at equal times: the field first, then the step it belongs to, then the scan
-    timed: list[Step | Scan | StepEvent | MagEvent] = [*items, *others]
+    timed: list[Step | Scan | StepEvent | MagEvent | FloorChange] = [*items, *others, *changes]
     ordered = dispatch.in_time_order(timed, rank=_rank)
 
     def on_step(st: PfMagneticState, step: Step) -> tuple[PfMagneticState, Fix | None]:
@@ -414,11 +417,26 @@ def run(
         dispatch.on(Step, on_step),
         dispatch.on(WifiEvent, lambda st, e: _on_scan(st, e, maps, params, rng)),
         dispatch.on(BleEvent, lambda st, e: _on_scan(st, e, maps, params, rng)),
+        dispatch.on(FloorChange, lambda st, e: _on_floor_change(st, e, maps)),
     ]
-    return dispatch.walk(replace(state, tracker=tracker), ordered, routes)
+    return dispatch.walk(replace(state, tracker=tracker, baro=baro), ordered, routes)
 
 
-def _rank(item: Step | Scan | StepEvent | MagEvent) -> int:
+def _on_floor_change(
+    state: PfMagneticState, change: FloorChange, maps: SiteMaps
+) -> tuple[PfMagneticState, Fix | None]:
+    """The floor filter shifted by a barometric floor change and the cloud moved onto its
+    most likely floor (particles off that floor's walkable space die)."""
+    if state.cloud is None:
+        return state, None
+    logp, floor = rf.floor_moved(
+        maps, state.floor_logp, particle.estimate(state.cloud).floor, change
+    )
+    moved = _to_floor(state.cloud, floor, maps)
+    return replace(state, floor_logp=logp, cloud=moved if particle.alive(moved) else None), None
+
+
+def _rank(item: Step | Scan | StepEvent | MagEvent | FloorChange) -> int:
     if isinstance(item, MagEvent):
         return 0
     return 1 if isinstance(item, Step | StepEvent) else 2
@@ -435,5 +453,5 @@ SPEC = EngineSpec(
     state_type=PfMagneticState,
     initial_state=initial_state,
     run=run,
-    uses=frozenset({"imu", "step", "mag", "wifi", "ble"}),
+    uses=frozenset({"imu", "step", "mag", "wifi", "ble", "pressure"}),
 )

@@ -60,6 +60,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from server.positioning.accuracy import AccuracyParams
+from server.positioning.barometer import BaroState, FloorChange, initial_barometer
 from server.positioning.engines import dispatch
 from server.positioning.engines import pdr_fusion as pf
 from server.positioning.engines import radio_fusion as rf
@@ -135,6 +136,7 @@ class StepEkfState:
     # the floor filter after its last scan (empty: none yet)
     floor_logp: FloatArray = field(default_factory=lambda: rf.EMPTY)
     floor_t_ms: int = 0  # time of that scan
+    baro: BaroState = field(default_factory=initial_barometer)  # floor changes by pressure
 
 
 def initial_state(params: StepEkfParams) -> StepEkfState:
@@ -255,7 +257,7 @@ def on_scan(
     params: P,
     variance: FixVariance[P],
 ) -> tuple[StepEkfState, Fix | None]:
-    m = rf.match(maps, event, params, state.floor_logp, state.floor_t_ms)
+    m = rf.match(maps, event, params, state.floor_logp, state.floor_t_ms, state.baro)
     if m is None:
         return replace(state, last_t_ms=event.t_ms), None
     found = m.whole
@@ -309,12 +311,19 @@ def runner(
         ) -> Callable[[StepEkfState, WifiEvent | BleEvent], tuple[StepEkfState, Fix | None]]:
             return lambda st, e: on_scan(st, e, kind, maps, params, variance)
 
+        def moved(st: StepEkfState, change: FloorChange) -> tuple[StepEkfState, Fix | None]:
+            logp, floor = rf.floor_moved(maps, st.floor_logp, st.floor, change)
+            return replace(st, floor_logp=logp, floor=floor), None
+
         routes = [
             dispatch.on(StepEvent, lambda st, e: on_step(st, e, params)),
             dispatch.on(WifiEvent, scan("wifi")),
             dispatch.on(BleEvent, scan("ble")),
+            dispatch.on(FloorChange, moved),
         ]
-        return dispatch.walk(state, dispatch.in_time_order(events), routes)
+        baro, changes = rf.floor_changes(state.baro, events, maps, params)
+        timed = dispatch.in_time_order([*events, *changes])
+        return dispatch.walk(replace(state, baro=baro), timed, routes)
 
     return run
 
@@ -328,5 +337,5 @@ SPEC = EngineSpec(
     state_type=StepEkfState,
     initial_state=initial_state,
     run=run,
-    uses=frozenset({"step", "wifi", "ble"}),
+    uses=frozenset({"step", "wifi", "ble", "pressure"}),
 )

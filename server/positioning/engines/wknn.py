@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from server.positioning.accuracy import AccuracyParams
+from server.positioning.barometer import BaroState, FloorChange, initial_barometer
 from server.positioning.engines import dispatch
 from server.positioning.engines import radio_fusion as rf
 from server.positioning.engines.base import EngineSpec
@@ -61,6 +62,7 @@ class WknnState:
     last_t_ms: int = 0
     floor_logp: NDArray[np.float64] = field(default_factory=lambda: rf.EMPTY)  # floor filter
     floor_t_ms: int = 0  # time of that scan
+    baro: BaroState = field(default_factory=initial_barometer)  # floor changes by pressure
 
 
 def initial_state(params: WknnParams) -> WknnState:
@@ -72,7 +74,7 @@ def initial_state(params: WknnParams) -> WknnState:
 def _locate(
     event: WifiEvent | BleEvent, state: WknnState, maps: SiteMaps, params: WknnParams
 ) -> tuple[WknnState, Fix | None]:
-    m = rf.match(maps, event, params, state.floor_logp, state.floor_t_ms)
+    m = rf.match(maps, event, params, state.floor_logp, state.floor_t_ms, state.baro)
     if m is None:
         return replace(state, last_t_ms=event.t_ms), None
     found = m.whole
@@ -133,8 +135,18 @@ def run(
     def locate(st: WknnState, event: WifiEvent | BleEvent) -> tuple[WknnState, Fix | None]:
         return _locate(event, st, maps, params)
 
-    routes = [dispatch.on(WifiEvent, locate), dispatch.on(BleEvent, locate)]
-    return dispatch.walk(state, dispatch.in_time_order(events), routes)
+    def moved(st: WknnState, change: FloorChange) -> tuple[WknnState, Fix | None]:
+        logp, floor = rf.floor_moved(maps, st.floor_logp, st.floor, change)
+        return replace(st, floor_logp=logp, floor=floor), None
+
+    routes = [
+        dispatch.on(WifiEvent, locate),
+        dispatch.on(BleEvent, locate),
+        dispatch.on(FloorChange, moved),
+    ]
+    baro, changes = rf.floor_changes(state.baro, events, maps, params)
+    timed = dispatch.in_time_order([*events, *changes])
+    return dispatch.walk(replace(state, baro=baro), timed, routes)
 
 
 SPEC = EngineSpec(
@@ -143,5 +155,5 @@ SPEC = EngineSpec(
     state_type=WknnState,
     initial_state=initial_state,
     run=run,
-    uses=frozenset({"wifi", "ble"}),
+    uses=frozenset({"wifi", "ble", "pressure"}),
 )

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from server.positioning import fix_error
+from server.positioning import barometer, fix_error
 from server.positioning.anchors import anchors_from_plan
 from server.positioning.fai import FaiMaps, FaiParams, spreads
 from server.positioning.fingerprint import RadioMap, in_place_order
@@ -177,6 +177,8 @@ class SiteRecords:
     scans: SurveyedScans
     plans: tuple[Mapping[str, Any] | None, ...] = ()  # GeoJSON per floor index
     field: Mapping[int, FloorField] = field(default_factory=dict)  # per floor index
+    # walks with the barometer on: ([t_ms, hPa] rows, waypoint times, waypoint levels)
+    pressure_walks: tuple[barometer.PressureWalk, ...] = ()
 
 
 def parse_plans(geojsons: Sequence[Mapping[str, Any] | None]) -> tuple[FloorPlan | None, ...]:
@@ -308,6 +310,7 @@ def build_map_set(
         anchors=anchors,
         plans=plans,
         scans=scan_map(records.scans),
+        floor_spacing_hpa=barometer.floor_spacing(records.pressure_walks),
     )
     if FIX_ERROR in parts:
         maps = replace(maps, fix_error=learned_fix_error(records.scans, seed))

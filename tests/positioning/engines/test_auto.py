@@ -39,11 +39,14 @@ def run(events: Sequence[Event], batch: int = 10) -> tuple[object, list[Fix]]:
 def test_rules() -> None:
     scan = WifiEvent(0, ())
     step = StepEvent(1, 0.7, 0.0)
-    imu = ImuEvent(2)
+    imu = ImuEvent(2, accel=np.array([[2.0, 0.0, 0.0, 9.8]]))
+    barometer = ImuEvent(3, pressure=np.array([[3.0, 1013.0]]))  # beside the phone's steps
     assert choose([], UNDECIDED) == UNDECIDED
     assert choose([scan], UNDECIDED) == WKNN
     assert choose([scan, imu], UNDECIDED) == SAMPLES
     assert choose([scan, imu, step], UNDECIDED) == STEPS
+    assert choose([scan, barometer], UNDECIDED) == WKNN
+    assert choose([barometer, step], WKNN) == STEPS
     assert choose([], WKNN) == WKNN
     assert choose([step], WKNN) == STEPS  # moves up when the phone starts stepping
     assert choose([scan], STEPS) == STEPS

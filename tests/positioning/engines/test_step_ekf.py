@@ -204,7 +204,7 @@ def test_state_round_trips_through_arrays() -> None:
     )
     back = state_codec.from_arrays(StepEkfState, arrays)
     assert_states_equal(back, state)
-    assert dataclasses.astuple(back)[2:-2] == dataclasses.astuple(state)[2:-2]
+    assert dataclasses.astuple(back)[2:-3] == dataclasses.astuple(state)[2:-3]
     np.testing.assert_array_equal(back.floor_logp, state.floor_logp)
     assert back.floor_t_ms == state.floor_t_ms
     # and the restored state carries on exactly like the original
@@ -399,7 +399,7 @@ def test_params_are_validated() -> None:
 def test_registry() -> None:
     assert ENGINES["step_ekf"] is SPEC
     assert get_engine("step_ekf") is SPEC
-    assert SPEC.uses == frozenset({"step", "wifi", "ble"})
+    assert SPEC.uses == frozenset({"step", "wifi", "ble", "pressure"})
     assert SPEC.state_type is StepEkfState
     with pytest.raises(
         KeyError,

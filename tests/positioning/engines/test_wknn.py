@@ -195,7 +195,7 @@ def test_registered_in_engines() -> None:
         state_codec.to_arrays(SPEC.initial_state(WknnParams())).keys()
         == state_codec.to_arrays(WknnState()).keys()
     )
-    assert SPEC.uses == frozenset({"wifi", "ble"})
+    assert SPEC.uses == frozenset({"wifi", "ble", "pressure"})
 
 
 def test_defaults_match_step_ekf() -> None:
