@@ -2,7 +2,8 @@
 
 The suite runs twice (see the README): on the embedded defaults (SQLite file, in-memory
 session store) and on the production shape when ``INDOORPOS_DATABASE_URL`` and
-``INDOORPOS_REDIS_URL`` are set (real PostgreSQL and Redis).
+``INDOORPOS_REDIS_URL`` are set (real PostgreSQL and Redis); the core's tests, which touch
+no store, run in the first only (the Makefile).
 """
 
 from __future__ import annotations
