@@ -100,6 +100,11 @@ class ImuEvent:
     """[t_ms, hPa] barometric pressure."""
 
     @property
+    def has_motion(self) -> bool:
+        """Whether the block holds motion samples (anything but the barometer's)."""
+        return any(a.shape[0] for a in (self.accel, self.gyro, self.magnetic, self.rotation))
+
+    @property
     def t_end_ms(self) -> int:
         """Time of the latest sample of any sensor (``t_ms`` when there is none)."""
         ends = [a[-1, 0] for a in self.sensors().values() if a.shape[0]]

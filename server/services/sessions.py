@@ -467,9 +467,12 @@ async def _attempt(
 
 def _runs_inline(events: Sequence[Event]) -> bool:
     """Whether the engine runs on the event loop rather than in a worker thread: for a
-    small batch without raw samples (a step or two and their scans, about a millisecond per
-    step at N = 3000), the hop to a thread and back costs more than it spares the loop."""
-    if len(events) > INLINE_MAX_EVENTS or any(isinstance(e, ImuEvent) for e in events):
+    small batch without raw motion samples (a step or two and their scans, about a
+    millisecond per step at N = 3000; the barometer's few rows cost little), the hop to a
+    thread and back costs more than it spares the loop."""
+    if len(events) > INLINE_MAX_EVENTS or any(
+        isinstance(e, ImuEvent) and e.has_motion for e in events
+    ):
         return False
     return sum(isinstance(e, StepEvent) for e in events) <= INLINE_MAX_STEPS
 
@@ -477,13 +480,13 @@ def _runs_inline(events: Sequence[Event]) -> bool:
 def not_read(uses: frozenset[str], events: Sequence[Event]) -> tuple[str, ...]:
     """The kinds of ``events`` an engine that reads ``uses`` ignores, sorted (for
     ``auto``: what none of the engines it may pick reads)."""
-    kinds = {EVENT_KINDS.get(type(e), type(e).__name__) for e in events}
-    if "pressure" in uses:  # the barometer rows of raw sample blocks are read
-        kinds -= (
-            {"imu"}
-            if all(e.pressure.shape[0] for e in events if isinstance(e, ImuEvent))
-            else set()
-        )
+    kinds = set()
+    for e in events:
+        if isinstance(e, ImuEvent):  # a block's motion rows and its barometer's apart
+            kinds |= {"imu"} if e.has_motion else set()
+            kinds |= {"pressure"} if e.pressure.shape[0] else set()
+        else:
+            kinds.add(EVENT_KINDS.get(type(e), type(e).__name__))
     return tuple(sorted(kinds - uses))
 
 

@@ -126,6 +126,16 @@ async def test_the_track_holds_the_newest_fixes_up_to_its_bound(
     assert (await client.get(url, headers=admin)).status_code == 404
 
 
+def _imu(t: int, *, accel: bool = False, pressure: bool = False) -> dict[str, Any]:
+    """A block of raw samples: an accelerometer row and a barometer row, as asked."""
+    block: dict[str, Any] = {"type": "imu", "t": t}
+    if accel:
+        block["accel"] = [[t, 0.0, 0.0, 9.81]]
+    if pressure:
+        block["pressure"] = [[t, 1013.2]]
+    return block
+
+
 @pytest.mark.parametrize(
     ("engine", "events", "not_used"),
     [
@@ -141,6 +151,11 @@ async def test_the_track_holds_the_newest_fixes_up_to_its_bound(
             ],
             ["gnss"],
         ),
+        # an engine reading steps reads the barometer of a block, not its motion rows
+        ("step_ekf", [_step(T0), _imu(T0, pressure=True)], []),
+        ("step_ekf", [_step(T0), _imu(T0, accel=True, pressure=True)], ["imu"]),
+        ("wknn", [_scan(T0), _imu(T0, accel=True)], ["imu"]),
+        ("two_stage_ekf", [_imu(T0, accel=True, pressure=True)], []),
     ],
 )
 async def test_the_answer_names_the_event_kinds_the_engine_ignored(

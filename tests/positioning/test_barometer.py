@@ -18,7 +18,7 @@ STOREY_M = 3.6  # 0.43 hPa near sea level
 PHONES = {
     "offset up, weather rising, 25 Hz": Sensors(pressure_bias_hpa=0.4, weather_hpa_per_h=1.0),
     "offset down, weather falling, 5 Hz": Sensors(
-        pressure_hz=5.0, pressure_bias_hpa=-0.3, weather_hpa_per_h=-0.8, pressure_noise_hpa=0.03
+        pressure_hz=5.0, pressure_bias_hpa=-0.3, weather_hpa_per_h=-0.8, pressure_noise_hpa=0.02
     ),
 }
 
@@ -76,6 +76,48 @@ def test_weather_alone_changes_no_floor() -> None:
     assert detect(samples, block=50) == []
 
 
+@pytest.mark.parametrize(
+    ("storey_m", "spacing"),
+    [(2.6, barometer.DEFAULT_SPACING_HPA), (4.5, barometer.DEFAULT_SPACING_HPA), (5.0, 0.6)],
+)
+def test_storeys_taller_or_lower_than_the_spacing_count_one_by_one(
+    storey_m: float, spacing: float
+) -> None:
+    # three flights up with a pause on each floor; the default spacing (a 3.2 m storey)
+    # counts one floor right for storeys of 1.9-4.75 m, taller ones need the site's
+    height = [
+        (20.0 + 30.0 * k + d, (k + f) * storey_m) for k in range(3) for d, f in ((0, 0), (8, 1))
+    ]
+    samples = pressure(height, 120.0, Sensors())
+    changes = detect(samples, spacing=spacing)
+    assert [c.floors for c in changes] == [1, 1, 1]
+
+
+def test_half_way_up_and_back_is_no_floor() -> None:
+    height = [(20.0, 0.0), (25.0, 1.5), (35.0, 1.5), (40.0, 0.0)]
+    samples = pressure(height, 60.0, Sensors(pressure_hz=5.0, pressure_noise_hpa=0.02))
+    assert detect(samples) == []
+
+
+def test_after_a_long_silence_the_weather_is_no_floor_change() -> None:
+    # the phone stops sending for 20 minutes while the weather moves 0.33 hPa (1 hPa/h)
+    samples = pressure(None, 1500.0, Sensors(pressure_hz=5.0, weather_hpa_per_h=1.0))
+    t = (samples[:, 0] - samples[0, 0]) / 1000.0
+    heard = samples[(t < 60.0) | (t > 1260.0)]
+    assert detect(heard) == []
+
+
+def test_live_once_the_anchor_has_held_and_while_samples_come() -> None:
+    samples = pressure(None, 60.0, Sensors())
+    params = BaroParams()
+    state, _ = barometer.advance(barometer.initial_barometer(), samples, 0.43, params)
+    t0 = int(samples[0, 0])
+    assert not barometer.live(barometer.initial_barometer(), t0, params)
+    assert not barometer.live(state, t0 + 20_000, params)  # anchored at about 2 s
+    assert barometer.live(state, t0 + 40_000, params)
+    assert not barometer.live(state, t0 + 75_000, params)  # nothing heard for 15 s
+
+
 def test_a_block_sent_twice_counts_once() -> None:
     samples = pressure([(10.0, 0.0), (16.0, STOREY_M)], 30.0, Sensors())
     state, changes = barometer.initial_barometer(), []
@@ -109,11 +151,14 @@ def test_floor_spacing_from_walks_that_change_floor() -> None:
     assert spacing == pytest.approx(0.43, abs=0.01)
     single = [(walks[0][0], walks[0][1][:2], walks[0][2][:2])]
     assert barometer.floor_spacing(single) is None
+    # one walk whose floor labels are off cannot make the spacing absurd
+    flat = [(walks[0][0], walks[0][1], walks[0][2] * 10)]
+    assert barometer.floor_spacing(flat) == barometer.SPACING_RANGE_HPA[0]
 
 
 @given(
     p=st.lists(st.floats(0.01, 1.0), min_size=3, max_size=3),
-    floors=st.integers(-2, 2),
+    floors=st.integers(-3, 3),
 )
 def test_shift_moves_each_floor_by_its_level(p: list[float], floors: int) -> None:
     logp = np.log(np.array(p) / sum(p))

@@ -7,7 +7,7 @@ points; IPIN 2023 logs, 296 points; mean / P75):
 * the phone sends steps (a step detector of its own) -> ``step_ekf``: the best engine on
   ILC (12.5 / 14.6 m against 12.8-14.4 / 15.4-18.0 m), and within 0.4 % (mean) and 2.5 %
   (P75) of the best one on IPIN (18.2 / 20.6 m against 18.2 / 20.1 m);
-* raw motion samples (accelerometer rows) only -> ``everywhere_ekf``: the best of the
+* raw motion samples only -> ``everywhere_ekf``: the best of the
   engines that find their own steps (ILC 12.8 / 15.4 m, IPIN 18.2 / 20.7 m, against
   ``two_stage_ekf`` 13.5 / 16.0 and 18.6 / 21.6 m);
 * scans only -> ``wknn``: without motion the filters have nothing to add.
@@ -94,7 +94,7 @@ def choose(events: Sequence[Event], current: int) -> int:
         return current
     if any(isinstance(e, StepEvent) for e in events):
         return STEPS
-    if any(isinstance(e, ImuEvent) and e.accel.shape[0] for e in events):
+    if any(isinstance(e, ImuEvent) and e.has_motion for e in events):
         return SAMPLES  # motion samples: blocks of pressure alone come with phone steps
     if current == WKNN or any(isinstance(e, WifiEvent | BleEvent) for e in events):
         return WKNN

@@ -136,6 +136,15 @@ def _cleared(state: FaiEkfState) -> FaiEkfState:
     return replace(state, profile_xy=_no_rows(), profile_ut=np.zeros(0))
 
 
+def _on_floor_change(
+    state: FaiEkfState, change: FloorChange, maps: SiteMaps
+) -> tuple[FaiEkfState, Fix | None]:
+    """A barometric floor change (``radio_fusion.moved_by``); on another floor the
+    magnetic profile starts afresh, as after a scan's floor change."""
+    new, _ = rf.moved_by(maps)(state, change)
+    return (_cleared(new) if new.floor != state.floor else new), None
+
+
 def _on_mag(state: FaiEkfState, event: MagEvent) -> tuple[FaiEkfState, Fix | None]:
     strength = event.strength_ut
     if not math.isfinite(strength):
@@ -266,16 +275,12 @@ def run(
     ) -> Callable[[FaiEkfState, WifiEvent | BleEvent], tuple[FaiEkfState, Fix | None]]:
         return lambda st, e: _on_scan(st, e, kind, maps, params)
 
-    def moved(st: FaiEkfState, change: FloorChange) -> tuple[FaiEkfState, Fix | None]:
-        logp, floor = rf.floor_moved(maps, st.floor_logp, st.floor, change)
-        return replace(st, floor_logp=logp, floor=floor), None
-
     routes = [
         dispatch.on(StepEvent, lambda st, e: _on_step(st, e, maps, params)),
         dispatch.on(WifiEvent, scan("wifi")),
         dispatch.on(BleEvent, scan("ble")),
         dispatch.on(MagEvent, _on_mag),
-        dispatch.on(FloorChange, moved),
+        dispatch.on(FloorChange, lambda st, e: _on_floor_change(st, e, maps)),
     ]
     baro, changes = rf.floor_changes(state.baro, events, maps, params)
     timed = dispatch.in_time_order([*events, *changes])

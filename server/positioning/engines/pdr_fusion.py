@@ -36,9 +36,9 @@ from server.positioning.engines.radio_fusion import (
     Matched,
     RadioParams,
     floor_changes,
-    floor_moved,
     in_building_frame,
     match,
+    moved_by,
     position_update,
     to_fix,
     turn_between,
@@ -136,13 +136,9 @@ class StepFusion(Generic[F, P]):
         def scan(st: F, item: Scan) -> tuple[F, Fix | None]:
             return self.on_scan(st, item, maps, params)
 
-        def moved(st: F, item: FloorChange) -> tuple[F, Fix | None]:
-            logp, floor = floor_moved(maps, st.floor_logp, st.floor, item)
-            return replace(st, floor_logp=logp, floor=floor), None
-
         routes = [
             dispatch.on(Step, step),
-            dispatch.on(FloorChange, moved),
+            dispatch.on(FloorChange, moved_by(maps)),
             dispatch.on(WifiEvent, scan),
             dispatch.on(BleEvent, scan),
         ]

@@ -427,13 +427,16 @@ def _on_floor_change(
 ) -> tuple[PfMagneticState, Fix | None]:
     """The floor filter shifted by a barometric floor change and the cloud moved onto its
     most likely floor (particles off that floor's walkable space die)."""
+    if state.cloud is not None:
+        floor = particle.estimate(state.cloud).floor
+    else:  # the cloud died: the next scan starts it again, on the shifted filter's floor
+        floor = int(np.argmax(state.floor_logp)) if state.floor_logp.size else -1
+    logp, floor = rf.floor_moved(maps, state.floor_logp, floor, change)
+    state = replace(state, floor_logp=logp)
     if state.cloud is None:
         return state, None
-    logp, floor = rf.floor_moved(
-        maps, state.floor_logp, particle.estimate(state.cloud).floor, change
-    )
     moved = _to_floor(state.cloud, floor, maps)
-    return replace(state, floor_logp=logp, cloud=moved if particle.alive(moved) else None), None
+    return replace(state, cloud=moved if particle.alive(moved) else None), None
 
 
 def _rank(item: Step | Scan | StepEvent | MagEvent | FloorChange) -> int:

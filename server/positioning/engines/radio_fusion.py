@@ -28,9 +28,9 @@ What the Kalman filter engines then do with the fix is in ``pdr_fusion``.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Annotated
+from typing import Annotated, Protocol, TypeVar
 
 import numpy as np
 from annotated_types import Ge, Le
@@ -69,18 +69,19 @@ class RadioParams(EngineParams):
     # floor filter: floor changes per second. 0.001 against 0.01: the IPIN validation
     # floor hit 77 -> 85 %, site2's unchanged (bench/accuracy.md)
     floor_change_per_s: NonNegative = 0.001
-    # the same while the barometer is live (heard in the last baro_live_s): it reports
-    # the floor changes itself (floor_changes). 1e-4 against 0.001: IPIN validation
-    # floor hit 84.5 -> 88.5 %, score 15.8 -> 12.3 m; 1e-5 and 0 the same as 1e-4
-    # (bench/accuracy.md)
+    # the same while the barometer is live (barometer.live): it reports the floor
+    # changes itself (floor_changes). 1e-4 against 0.001: IPIN validation floor hit
+    # 84.5 -> 88.5 %, score 15.8 -> 12.3 m; 1e-5 and 0 the same as 1e-4 (bench/accuracy.md)
     floor_change_per_s_baro: NonNegative = 1e-4
-    baro_live_s: Positive = 10.0
     # floor under the learned fix variance (fix_error): a fix is never trusted to 2 m
     min_fix_var_m2: Positive = 4.0
     # the learned variance is that of one fix on its own; a filter that takes fix after
     # fix along a walk meets errors shared by neighbouring scans (the same wrong
     # reference points), so it uses the variance times this factor
     fix_var_scale: Positive = 1.0
+    # EXPERIMENT: the variance times (nearest match distance / fix_var_dist_db) ** power
+    fix_var_dist_db: Positive = 10.0
+    fix_var_dist_power: NonNegative = 0.0
     # matching against the map's own scans (scan_matching), where the map has them
     scan_k: Annotated[int, Ge(1), Le(100)] = MatchParams.k
     match_power: Positive = MatchParams.power
@@ -149,7 +150,7 @@ def match(
     kind = scan_kind(event)
     scan = scan_vector(maps.radio, event.readings, kind)
     rate = params.floor_change_per_s
-    if baro is not None and barometer.live(baro, event.t_ms, params.baro_live_s):
+    if baro is not None and barometer.live(baro, event.t_ms, params.barometer):
         rate = params.floor_change_per_s_baro
     prior = floor_filter.prior(floor_logp, floor_t_ms, event.t_ms, rate)
     whole: WknnFix | None
@@ -180,6 +181,9 @@ def match(
     if whole is None:
         return None
     learned = maps.fix_error.variance(kind, whole.n_matched)
+    if params.fix_var_dist_power > 0 and whole.distances_db.size:
+        ratio = max(float(whole.distances_db[0]), 0.1) / params.fix_var_dist_db
+        learned *= ratio**params.fix_var_dist_power
     var = max(learned * params.fix_var_scale, params.min_fix_var_m2)
     return Matched(event.t_ms, kind, scan, whole, var, q)
 
@@ -197,6 +201,30 @@ def floor_changes(
             baro, found = barometer.advance(baro, imu.pressure, spacing, params.barometer)
             changes += found
     return baro, changes
+
+
+class Floored(Protocol):
+    """An engine state with a floor estimate and the floor filter."""
+
+    @property
+    def floor(self) -> int: ...
+    @property
+    def floor_logp(self) -> FloatArray: ...
+
+
+S = TypeVar("S", bound=Floored)
+
+
+def moved_by(maps: SiteMaps) -> Callable[[S, FloorChange], tuple[S, Fix | None]]:
+    """The handler of a barometric floor change for an engine state whose ``floor`` and
+    ``floor_logp`` say the floor (``floor_moved``); it makes no fix."""
+
+    def moved(state: S, change: FloorChange) -> tuple[S, Fix | None]:
+        logp, floor = floor_moved(maps, state.floor_logp, state.floor, change)
+        new: S = replace(state, floor_logp=logp, floor=floor)  # type: ignore[type-var]
+        return new, None
+
+    return moved
 
 
 def floor_moved(

@@ -311,15 +311,11 @@ def runner(
         ) -> Callable[[StepEkfState, WifiEvent | BleEvent], tuple[StepEkfState, Fix | None]]:
             return lambda st, e: on_scan(st, e, kind, maps, params, variance)
 
-        def moved(st: StepEkfState, change: FloorChange) -> tuple[StepEkfState, Fix | None]:
-            logp, floor = rf.floor_moved(maps, st.floor_logp, st.floor, change)
-            return replace(st, floor_logp=logp, floor=floor), None
-
         routes = [
             dispatch.on(StepEvent, lambda st, e: on_step(st, e, params)),
             dispatch.on(WifiEvent, scan("wifi")),
             dispatch.on(BleEvent, scan("ble")),
-            dispatch.on(FloorChange, moved),
+            dispatch.on(FloorChange, rf.moved_by(maps)),
         ]
         baro, changes = rf.floor_changes(state.baro, events, maps, params)
         timed = dispatch.in_time_order([*events, *changes])

@@ -135,14 +135,10 @@ def run(
     def locate(st: WknnState, event: WifiEvent | BleEvent) -> tuple[WknnState, Fix | None]:
         return _locate(event, st, maps, params)
 
-    def moved(st: WknnState, change: FloorChange) -> tuple[WknnState, Fix | None]:
-        logp, floor = rf.floor_moved(maps, st.floor_logp, st.floor, change)
-        return replace(st, floor_logp=logp, floor=floor), None
-
     routes = [
         dispatch.on(WifiEvent, locate),
         dispatch.on(BleEvent, locate),
-        dispatch.on(FloorChange, moved),
+        dispatch.on(FloorChange, rf.moved_by(maps)),
     ]
     baro, changes = rf.floor_changes(state.baro, events, maps, params)
     timed = dispatch.in_time_order([*events, *changes])
