@@ -19,8 +19,9 @@ from sqlalchemy import select, update
 
 from server import worker
 from server.positioning import fix_error
+from server.positioning.engines import get_engine
 from server.positioning.engines.wknn import WknnParams
-from server.positioning.events import radio_key
+from server.positioning.events import RadioReading, WifiEvent, radio_key
 from server.positioning.fix_error import FixErrorModel
 from server.positioning.mapping.map_set import (
     FAI,
@@ -189,7 +190,8 @@ def _records(
 
 def _radius_68(model: FixErrorModel, n_matched: int) -> float:
     """The 68 % radius of a ``wknn`` fix of a WiFi scan matching ``n_matched`` emitters on
-    a map whose fix error is ``model`` (radio_fusion.match, accuracy.calibrated)."""
+    a map whose fix error is ``model``, at the table's variance (radio_fusion.match
+    multiplies it by the scan's distance to the nearest reference scan)."""
     params = WknnParams()
     var = max(model.variance("wifi", n_matched) * params.fix_var_scale, params.min_fix_var_m2)
     return params.accuracy.radii(float(np.sqrt(var)), model.error_68_m)[0]
@@ -284,7 +286,8 @@ async def test_fixes_are_as_accurate_as_the_learned_table_says(
     await _built(client, admin, rt, building_id, 1)
     # the table the lab learns from the same records
     service = await _service_maps(rt, site_id)
-    learned = build_map_set(_records(service, points), parts={FIX_ERROR}).fix_error
+    lab = build_map_set(_records(service, points), parts={FIX_ERROR})
+    learned = lab.fix_error
     assert learned.error_68_m != fix_error.DEFAULT_ERROR_68_M
 
     device = await device_headers(client, admin, site_id=site_id)
@@ -293,7 +296,7 @@ async def test_fixes_are_as_accurate_as_the_learned_table_says(
     )
     assert r.status_code == 201, r.text
     session = r.json()
-    scans = [
+    scans: list[dict[str, Any]] = [
         {"type": "wifi", "t": T0 + 1000 * i, "readings": rssi_at(x, y, level)}
         for i, (x, y, level) in enumerate([(6.3, 4.2, 0), (14.8, 7.5, 1)])
     ]
@@ -305,12 +308,22 @@ async def test_fixes_are_as_accurate_as_the_learned_table_says(
     assert r.status_code == 200, r.text
     fixes = r.json()["fixes"]
     assert len(fixes) == len(scans)
-    for fix in fixes:
+    # the same scans through the engine in process, on the lab's maps
+    spec = get_engine("wknn")
+    events = [
+        WifiEvent(e["t"], tuple(RadioReading(x["bssid"], x["rssi_dbm"]) for x in e["readings"]))
+        for e in scans
+    ]
+    _, ours = spec.step(
+        spec.start(spec.params()), events, lab, spec.params(), np.random.default_rng(0)
+    )
+    assert len(ours) == len(fixes)
+    for fix, our in zip(fixes, ours, strict=True):
         n_matched = int(fix["diagnostics"]["n_matched"])
-        expected = _radius_68(learned, n_matched)
-        # what the default table would have said is far from it: the test can tell them
-        assert abs(expected - _radius_68(fix_error.DEFAULT, n_matched)) > 5.0
-        assert fix["accuracy_68_m"] == pytest.approx(expected, rel=1e-9)
+        # what the default table would have said is far from the learned one: the test can
+        # tell them apart
+        assert abs(_radius_68(learned, n_matched) - _radius_68(fix_error.DEFAULT, n_matched)) > 5.0
+        assert fix["accuracy_68_m"] == pytest.approx(our.accuracy_68_m, rel=1e-9)
 
 
 async def test_the_service_loads_the_map_set_the_lab_builds_from_the_same_records(
