@@ -15,6 +15,7 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException
+from starlette.routing import Match
 
 from server.api.deps import client_address
 from server.services import limits, telemetry
@@ -109,14 +110,32 @@ async def _on_store_error(_request: Request, exc: Exception) -> JSONResponse:
 HTTP_FIELDS = {400: "body", 404: "path", 405: "method", 413: "body", 415: "content-type"}
 
 
-async def _on_http(_request: Request, exc: Exception) -> JSONResponse:
+async def _on_http(request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, HTTPException)
     field = HTTP_FIELDS.get(exc.status_code, "request")
     msg = str(exc.detail) if exc.detail else "refused"
     if exc.status_code == 400 and "parsing the body" in msg:
         msg = "the body is not valid JSON (bad UTF-8, a syntax error or nesting too deep)"
     body = problem(field, msg[:1].lower() + msg[1:], "HTTPError")
-    return JSONResponse(body, status_code=exc.status_code, headers=exc.headers)
+    headers = dict(exc.headers or {})
+    if exc.status_code == 405:
+        headers["Allow"] = ", ".join(allowed_methods(request))
+    return JSONResponse(body, status_code=exc.status_code, headers=headers or None)
+
+
+METHODS = ("DELETE", "GET", "HEAD", "PATCH", "POST", "PUT")
+
+
+def allowed_methods(request: Request) -> list[str]:
+    """Every method some route takes at the request's path (the router's own 405 names
+    only the first route's, where one path has a route per method): each method asked
+    of the router's routes as the request with that method."""
+    routes = request.app.router.routes
+    return [
+        method
+        for method in METHODS
+        if any(r.matches({**request.scope, "method": method})[0] is Match.FULL for r in routes)
+    ]
 
 
 async def _on_unexpected(_request: Request, _exc: Exception) -> JSONResponse:

@@ -196,6 +196,9 @@ def observe_request(method: str, route: str | None, status: int, seconds: float)
 _STORE_MODULES: tuple[tuple[str, Store], ...] = (
     ("server.storage.session_store", "session"),
     ("server.storage.upload_queue", "queue"),
+    # the rate limits and the shared client live in the session store's Redis
+    ("server.storage.rate_limits", "session"),
+    ("server.storage.redis_client", "session"),
     ("server.storage", "sql"),  # db, repositories
 )
 _SQL_DRIVERS = ("sqlalchemy", "asyncpg", "aiosqlite", "sqlite3")
@@ -206,7 +209,9 @@ def store_of(exc: BaseException) -> Store | None:
     """The store a failure talking to it came from, or None for any other error.
 
     Redis errors (its ConnectionError and TimeoutError included) and ``OSError`` (a
-    refused or reset connection) count when raised under a store's code; of the
+    refused or reset connection) count when raised under a store's code (a Redis error
+    is the ``session`` store's, which also holds the rate limits, unless the upload
+    queue's code raised it); of the
     database's errors only those about the connection (``OperationalError``,
     ``InterfaceError``, an invalidated connection) do: the others (integrity, syntax)
     are answers of a working database.
@@ -221,13 +226,15 @@ def store_of(exc: BaseException) -> Store | None:
     while tb is not None:
         modules.append(tb.tb_frame.f_globals.get("__name__", ""))
         tb = tb.tb_next
+    redis = isinstance(exc, RedisError)
     for module in reversed(modules):
         for prefix, store in _STORE_MODULES:
             if module == prefix or module.startswith(prefix + "."):
-                return store
-    if any(m.split(".", 1)[0] in _SQL_DRIVERS for m in modules):
-        return "sql"
-    return "session" if isinstance(exc, RedisError) else None
+                # a Redis error is never the database's, whatever our frame around it
+                return "session" if redis and store == "sql" else store
+    if redis:
+        return "session"
+    return "sql" if any(m.split(".", 1)[0] in _SQL_DRIVERS for m in modules) else None
 
 
 def count_store_error(exc: BaseException) -> Store | None:

@@ -36,6 +36,22 @@ async def test_unknown_route_and_wrong_method_answer_in_the_api_shape(
 
 
 @pytest.mark.parametrize(
+    ("path", "allowed"),
+    [
+        ("/v1/sessions", {"GET", "POST"}),  # a route per method at one path
+        ("/v1/sessions/" + "0" * 32, {"GET", "DELETE"}),
+        ("/healthz", {"GET"}),
+    ],
+)
+async def test_a_wrong_method_lists_every_method_of_the_path(
+    client: httpx.AsyncClient, path: str, allowed: set[str]
+) -> None:
+    r = await client.patch(path)
+    assert_shape(r, 405, "method")
+    assert {m.strip() for m in r.headers["allow"].split(",")} == allowed
+
+
+@pytest.mark.parametrize(
     "raw",
     [b"\xff\xfe not utf-8", b"[" * 1000 + b"]" * 1000, b'{"site_id": '],
     ids=["bad-utf8", "deep-nesting", "truncated"],

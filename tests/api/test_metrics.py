@@ -24,6 +24,7 @@ from websockets.asyncio.client import connect
 
 from server.services import sessions as session_service
 from server.services import telemetry
+from server.storage.rate_limits import RedisRateLimiter
 from server.storage.session_store import RedisSessionStore
 from server.storage.upload_queue import RedisUploadQueue
 from tests.api.toy_site import ToySite, build_toy_site, rssi_at
@@ -231,10 +232,14 @@ async def test_store_failures_are_told_apart_by_where_they_were_raised() -> None
             await RedisSessionStore(client).get("0" * 32)
         with pytest.raises(RedisConnectionError) as from_queue:
             await RedisUploadQueue(client, visibility_timeout_s=60).publish("0" * 32)
+        with pytest.raises(RedisConnectionError) as from_limits:  # a batch's first call
+            await RedisRateLimiter(client).take("batches:0", 10.0, 10)
     finally:
         await client.aclose()
     assert telemetry.store_of(from_store.value) == "session"
     assert telemetry.store_of(from_queue.value) == "queue"
+    # Redis down is the session store's, not the database's (it was reported as SQL)
+    assert telemetry.store_of(from_limits.value) == "session"
     assert telemetry.store_of(OperationalError("SELECT 1", {}, Exception("gone"))) == "sql"
     assert telemetry.store_of(IntegrityError("INSERT", {}, Exception("dup"))) is None
     assert telemetry.store_of(ValueError("not a store")) is None
