@@ -8,6 +8,7 @@ in-memory session store. Setting
 
 from __future__ import annotations
 
+import ipaddress
 import re
 from functools import lru_cache
 from pathlib import Path
@@ -86,6 +87,12 @@ class Settings(BaseSettings):
         "from another origin, comma-separated; none by default. Credentials are bearer "
         "headers, never cookies",
     )
+    trusted_proxies: Annotated[list[str], NoDecode] = Field(
+        default_factory=list,
+        description="addresses or networks (10.0.0.0/8) of the reverse proxies whose "
+        "X-Forwarded-For names the client (rate limits count by that address), "
+        "comma-separated; none by default: the connection's own address counts",
+    )
     json_max_bytes: int = Field(
         4 * 1024 * 1024,
         ge=1024,
@@ -146,6 +153,26 @@ class Settings(BaseSettings):
                 "(a Redis Cluster: any of its nodes)"
             )
         return v
+
+    @field_validator("trusted_proxies", mode="before")
+    @classmethod
+    def _proxies(cls, v: Any) -> Any:
+        if isinstance(v, str):
+            v = [part.strip() for part in v.split(",") if part.strip()]
+        if isinstance(v, list):
+            for proxy in v:
+                try:
+                    ipaddress.ip_network(proxy, strict=False)
+                except (TypeError, ValueError):
+                    raise ValueError(f"{proxy!r} is not an address or a network") from None
+        return v
+
+    def proxy_options(self) -> dict[str, Any]:
+        """uvicorn's options for X-Forwarded-For: read only from ``trusted_proxies``
+        (uvicorn would otherwise believe any loopback client's)."""
+        if not self.trusted_proxies:
+            return {"proxy_headers": False}
+        return {"proxy_headers": True, "forwarded_allow_ips": list(self.trusted_proxies)}
 
     @field_validator("cors_origins", mode="before")
     @classmethod

@@ -65,8 +65,8 @@ BearerDep = Annotated[str, Depends(get_bearer)]
 
 
 def client_address(connection: HTTPConnection) -> str:
-    """The client's address (uvicorn's ``--proxy-headers`` puts a trusted proxy's
-    ``X-Forwarded-For`` here)."""
+    """The client's address (uvicorn puts the ``X-Forwarded-For`` of a proxy listed in
+    ``Settings.trusted_proxies`` here, and only of those)."""
     return connection.client.host if connection.client else "unknown"
 
 

@@ -47,6 +47,7 @@ def serve(
         log_level=settings.log_level.lower(),
         access_log=access_log,
         ws_max_size=settings.json_max_bytes,  # a live-socket message: a batch at most
+        **settings.proxy_options(),
     )
 
 
