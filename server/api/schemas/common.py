@@ -10,9 +10,18 @@ from pydantic import (
 )
 
 FiniteFloat = Annotated[float, StrictMode(), Field(allow_inf_nan=False)]
-# below 2**53: exact as a float, and far inside int64
+# a phone's clock in this century: a time of 0 (1970) or 2**53 (year 287,000) is a bug in
+# the client, not a time (and stays far inside int64 and exact as a float)
+EARLIEST_MS = 946_684_800_000  # 2000-01-01T00:00:00Z
+LATEST_MS = 4_102_444_800_000  # 2100-01-01T00:00:00Z
 TimestampMs = Annotated[
-    int, StrictMode(), Field(ge=0, le=2**53, description="milliseconds since the epoch")
+    int,
+    StrictMode(),
+    Field(
+        ge=EARLIEST_MS,
+        lt=LATEST_MS,
+        description="milliseconds since the epoch, in 2000-2099",
+    ),
 ]
 # local coordinates: a building frame is never 100 km across
 Coordinate = Annotated[float, StrictMode(), Field(ge=-100_000, le=100_000, allow_inf_nan=False)]
