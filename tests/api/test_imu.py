@@ -113,6 +113,11 @@ def case(name: str, change: Callable[[Event], Event], field: str) -> Any:
         case("negative time", row_set("magnetic", 0, 0, -1), "events.0.magnetic.0.0"),
         case("text time", row_set("pressure", 0, 0, "soon"), "events.0.pressure.0.0"),
         case("huge t", changed(t=2**60), "events.0.t"),
+        case("t of 1970", changed(t=0), "events.0.t"),
+        case("t of the year 287000", changed(t=2**53), "events.0.t"),
+        case(
+            "sample of 2100", row_set("pressure", 0, 0, 4_102_444_800_000), "events.0.pressure.0.0"
+        ),
         # samples within [t, t + 60 s], strictly increasing per sensor
         case("before t", row_set("accel", 0, 0, T0 - 1), "events.0.accel"),
         case("after t + 60 s", times_at("gyro", [T0, T0 + 60_001]), "events.0.gyro"),
