@@ -22,13 +22,14 @@ def test_labelled_scans_become_survey_points_on_their_level() -> None:
     walk = trace_from_events([wifi, ble], [(900, 1.0, 2.0), (1_100, 3.0, 2.0)])
     scans = LabelledScans()
     scans.add_trace(walk, 0)
-    points = service_replay.survey_points(scans, [3])
+    # a walk timed from its own start goes up on a phone's clock
+    points = service_replay.survey_points(scans, [3], offset_ms=service_replay.EPOCH_MS)
     assert points == [
         {
             "x_m": 2.0,
             "y_m": 2.0,
             "floor": 3,
-            "t": 1_000,
+            "t": service_replay.EPOCH_MS + 1_000,
             "wifi": [{"bssid": "aa:bb:cc:dd:ee:01", "rssi_dbm": -60.0}],
             "walk": "trace 1",
         },
@@ -36,7 +37,7 @@ def test_labelled_scans_become_survey_points_on_their_level() -> None:
             "x_m": 2.5,
             "y_m": 2.0,
             "floor": 3,
-            "t": 1_050,
+            "t": service_replay.EPOCH_MS + 1_050,
             "ble": [{"id": "beacon-1", "rssi_dbm": -70.0}],
             "walk": "trace 1",
         },
