@@ -21,6 +21,13 @@ from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 ORIGIN = re.compile(r"^https?://[^\s/?#]+$")
 
 
+def _comma_list(v: Any) -> Any:
+    """A comma-separated string (as an environment variable gives it) as its items."""
+    if isinstance(v, str):
+        return [part.strip() for part in v.split(",") if part.strip()]
+    return v
+
+
 class Settings(BaseSettings):
     model_config = SettingsConfigDict(env_prefix="INDOORPOS_", extra="ignore")
 
@@ -157,8 +164,7 @@ class Settings(BaseSettings):
     @field_validator("trusted_proxies", mode="before")
     @classmethod
     def _proxies(cls, v: Any) -> Any:
-        if isinstance(v, str):
-            v = [part.strip() for part in v.split(",") if part.strip()]
+        v = _comma_list(v)
         if isinstance(v, list):
             for proxy in v:
                 try:
@@ -177,8 +183,7 @@ class Settings(BaseSettings):
     @field_validator("cors_origins", mode="before")
     @classmethod
     def _origins(cls, v: Any) -> Any:
-        if isinstance(v, str):
-            v = [part.strip() for part in v.split(",") if part.strip()]
+        v = _comma_list(v)
         if isinstance(v, list):
             for origin in v:
                 if not isinstance(origin, str) or not (origin == "*" or ORIGIN.match(origin)):
