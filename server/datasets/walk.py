@@ -118,18 +118,12 @@ class Walk:
         """
         if block_ms <= 0:
             raise ValueError(f"block_ms must be positive, not {block_ms}")
-        accel, gyro, magnetic, rotation, pressure = (
-            _increasing(a)
-            for a in (
-                self.accel,
-                self.gyro,
-                self.magnetic,
-                _with_scalar_part(self.rotation),
-                self.pressure,
-            )
-        )
+        motions = [self.accel, self.gyro, self.magnetic, self.rotation]
         if not motion:
-            accel, gyro, magnetic, rotation = (a[:0] for a in (accel, gyro, magnetic, rotation))
+            motions = [a[:0] for a in motions]
+        accel, gyro, magnetic, rotation, pressure = (
+            _increasing(a) for a in (*motions[:3], _with_scalar_part(motions[3]), self.pressure)
+        )
         streams = (accel, gyro, magnetic, rotation, pressure)
         firsts = [a[0, 0] for a in streams if a.shape[0]]
         if not firsts:

@@ -315,9 +315,9 @@ def floor_scores(smap: ScanMap, q: Query, params: MatchParams, n_floors: int) ->
             nearest = here[_k_nearest(here, params.floor_k)]
             # a floor whose other scans heard none of the phone's emitters: as far as that
             missing = min(params.floor_k, int(on_map[f])) - nearest.size
-            total = float(nearest.sum()) + max(missing, 0) * float(fill.sum())
-            msd[f] = total / (nearest.size + max(missing, 0)) / per_emitter
-    mapped = np.bincount(smap.floor, minlength=n_floors)[:n_floors] > 0
+            total = float(nearest.sum()) + missing * float(fill.sum())
+            msd[f] = total / (nearest.size + missing) / per_emitter
+    mapped = on_map[:n_floors] > 0
     m = min(q.n_matched, params.floor_max_emitters)
     score = np.where(mapped, -m * msd / (2.0 * params.floor_sd_db**2), -np.inf)
     return score - float(score.max())

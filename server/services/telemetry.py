@@ -226,13 +226,11 @@ def store_of(exc: BaseException) -> Store | None:
     while tb is not None:
         modules.append(tb.tb_frame.f_globals.get("__name__", ""))
         tb = tb.tb_next
-    redis = isinstance(exc, RedisError)
     for module in reversed(modules):
         for prefix, store in _STORE_MODULES:
             if module == prefix or module.startswith(prefix + "."):
-                # a Redis error is never the database's, whatever our frame around it
-                return "session" if redis and store == "sql" else store
-    if redis:
+                return store
+    if isinstance(exc, RedisError):
         return "session"
     return "sql" if any(m.split(".", 1)[0] in _SQL_DRIVERS for m in modules) else None
 

@@ -282,9 +282,7 @@ def run(
         dispatch.on(MagEvent, _on_mag),
         dispatch.on(FloorChange, lambda st, e: _on_floor_change(st, e, maps)),
     ]
-    baro, changes = rf.floor_changes(state.baro, events, maps, params)
-    timed = dispatch.in_time_order([*events, *changes])
-    return dispatch.walk(replace(state, baro=baro), timed, routes)
+    return rf.walk_with_floor_changes(state, events, maps, params, routes)
 
 
 SPEC = EngineSpec(

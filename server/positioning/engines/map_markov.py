@@ -384,9 +384,6 @@ def on_scan(
             rp_prior = prior.p[at]  # every RP of Ω sits on a vertex of the prior
             w = mc.correct(rp_prior, dist, params.sigma_db)  # papers/004_* eq 14
             diag["omega_rps"] = float(rps.size)
-            cells = rf.on_cells(maps, m, params)
-            best = float(cells.distances_db.min()) if cells is not None else float(dist.min())
-            diag["omega_gap_db"] = float(dist.min()) - best
             if maps.scans is not None:  # S' and the gate from the map's scans within Ω
                 omega = _in_omega(maps, m, graph, prior.vertex, params)
                 gap = math.inf
@@ -396,13 +393,17 @@ def on_scan(
                 used = gap <= params.scan_gate_db
             else:
                 omega = None
+                cells = rf.on_cells(maps, m, params)
+                best = float(cells.distances_db.min()) if cells is not None else float(dist.min())
+                diag["omega_gap_db"] = float(dist.min()) - best
                 used = dist.min() - best <= params.gate_db
             if used:
-                top = np.argsort(-w, kind="stable")[: params.k]
-                wt = w[top] / w[top].sum()
-                wifi = wt @ radio.rp_xy[rps[top]].astype(np.float64)  # S'
                 if omega is not None:
-                    wifi = np.array([omega.whole.x_m, omega.whole.y_m])
+                    wifi = np.array([omega.whole.x_m, omega.whole.y_m])  # S'
+                else:
+                    top = np.argsort(-w, kind="stable")[: params.k]
+                    wt = w[top] / w[top].sum()
+                    wifi = wt @ radio.rp_xy[rps[top]].astype(np.float64)  # S'
                 vertex, inverse = np.unique(graph.rp_vertex[rps], return_inverse=True)
                 p = np.bincount(inverse, weights=w)
                 keep = np.argsort(-p, kind="stable")[: params.max_states]
@@ -491,9 +492,7 @@ def run(
         dispatch.on(BleEvent, ble),
         dispatch.on(FloorChange, moved),
     ]
-    baro, changes = rf.floor_changes(state.baro, events, maps, params)
-    timed = dispatch.in_time_order([*events, *changes])
-    return dispatch.walk(replace(state, baro=baro), timed, routes)
+    return rf.walk_with_floor_changes(state, events, maps, params, routes)
 
 
 SPEC = EngineSpec(

@@ -29,6 +29,7 @@ What the Kalman filter engines then do with the fix is in ``pdr_fusion``.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
@@ -41,15 +42,17 @@ from numpy.typing import NDArray
 from server.positioning import barometer, floor_filter, scan_matching
 from server.positioning.accuracy import EngineParams
 from server.positioning.barometer import BaroParams, BaroState, FloorChange
+from server.positioning.engines import dispatch
 from server.positioning.events import Event, Fix, ImuEvent, WifiEvent
 from server.positioning.fingerprint import ScanVector, WknnFix, scan_vector, wknn
 from server.positioning.kalman import Update, update, wrap_angle
 from server.positioning.params import AtLeastOne, NonNegative, Positive
 from server.positioning.scan_matching import MatchParams
-from server.positioning.sitemaps import SiteMaps
+from server.positioning.sitemaps import FloorRef, SiteMaps
 from server.positioning.step_tracker import Scan
 
 FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
 
 H_POSITION = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]])
 
@@ -165,14 +168,13 @@ def match(
         q = scan_matching.query(maps.scans, event.readings, kind)
         if q.n_matched < params.min_matched:
             return None
-        buildings = [f.building_id for f in maps.floors]
         whole = scan_matching.locate(
             maps.scans,
             q,
             params.matching(),
             prior,
             n_floors=len(maps.floors),
-            floor_group=np.unique(buildings, return_inverse=True)[1] if buildings else None,
+            floor_group=floor_groups(maps.floors)[1] if maps.floors else None,
         )
     else:
         whole = wknn(
@@ -209,6 +211,30 @@ def floor_changes(
     return baro, changes
 
 
+class Barometric(Protocol):
+    """An engine state with a barometer."""
+
+    @property
+    def baro(self) -> BaroState: ...
+
+
+B = TypeVar("B", bound=Barometric)
+
+
+def walk_with_floor_changes(
+    state: B,
+    events: Sequence[Event],
+    maps: SiteMaps,
+    params: RadioParams,
+    routes: Sequence[dispatch.Route[B]],
+) -> tuple[B, list[Fix]]:
+    """The batch's events and the floor changes its barometer rows settle on
+    (``floor_changes``), in time order, through an engine's routes."""
+    baro, changes = floor_changes(state.baro, events, maps, params)
+    start: B = replace(state, baro=baro)  # type: ignore[type-var]
+    return dispatch.walk(start, dispatch.in_time_order([*events, *changes]), routes)
+
+
 class Floored(Protocol):
     """An engine state with a floor estimate and the floor filter."""
 
@@ -241,10 +267,18 @@ def floor_moved(
     known, or the filter knows nothing yet)."""
     if floor_logp.shape[0] == 0 or floor < 0:
         return floor_logp, floor
-    levels = np.array([f.level for f in maps.floors], dtype=np.int64)
-    buildings = np.unique([f.building_id for f in maps.floors], return_inverse=True)[1]
-    moved = floor_filter.shift(floor_logp, change.floors, levels, buildings.astype(np.int64))
+    levels, buildings = floor_groups(maps.floors)
+    moved = floor_filter.shift(floor_logp, change.floors, levels, buildings)
     return moved, int(np.argmax(moved))
+
+
+@functools.lru_cache(maxsize=64)
+def floor_groups(floors: tuple[FloorRef, ...]) -> tuple[IntArray, IntArray]:
+    """Each floor's level and its building's index (in sorted building id order), once
+    per site's floors rather than per scan."""
+    levels = np.array([f.level for f in floors], dtype=np.int64)
+    buildings = np.unique([f.building_id for f in floors], return_inverse=True)[1]
+    return levels, buildings.astype(np.int64).reshape(-1)
 
 
 def reference_xy(maps: SiteMaps) -> FloatArray:

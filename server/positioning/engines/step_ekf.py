@@ -317,9 +317,7 @@ def runner(
             dispatch.on(BleEvent, scan("ble")),
             dispatch.on(FloorChange, rf.moved_by(maps)),
         ]
-        baro, changes = rf.floor_changes(state.baro, events, maps, params)
-        timed = dispatch.in_time_order([*events, *changes])
-        return dispatch.walk(replace(state, baro=baro), timed, routes)
+        return rf.walk_with_floor_changes(state, events, maps, params, routes)
 
     return run
 

@@ -140,9 +140,7 @@ def run(
         dispatch.on(BleEvent, locate),
         dispatch.on(FloorChange, rf.moved_by(maps)),
     ]
-    baro, changes = rf.floor_changes(state.baro, events, maps, params)
-    timed = dispatch.in_time_order([*events, *changes])
-    return dispatch.walk(replace(state, baro=baro), timed, routes)
+    return rf.walk_with_floor_changes(state, events, maps, params, routes)
 
 
 SPEC = EngineSpec(
