@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import ipaddress
 import re
+from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -21,11 +22,30 @@ from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 ORIGIN = re.compile(r"^https?://[^\s/?#]+$")
 
 
-def _comma_list(v: Any) -> Any:
-    """A comma-separated string (as an environment variable gives it) as its items."""
+def _comma_list(v: Any, check: Callable[[Any], str | None]) -> Any:
+    """A comma-separated string (as an environment variable gives it) as its items, each
+    passed to ``check``, which says what is wrong with it (None: nothing)."""
     if isinstance(v, str):
-        return [part.strip() for part in v.split(",") if part.strip()]
+        v = [part.strip() for part in v.split(",") if part.strip()]
+    for item in v if isinstance(v, list) else ():
+        wrong = check(item)
+        if wrong is not None:
+            raise ValueError(f"{item!r} is not {wrong}")
     return v
+
+
+def _not_network(item: Any) -> str | None:
+    try:
+        ipaddress.ip_network(item, strict=False)
+    except (TypeError, ValueError):
+        return "an address or a network"
+    return None
+
+
+def _not_origin(item: Any) -> str | None:
+    if isinstance(item, str) and (item == "*" or ORIGIN.match(item)):
+        return None
+    return "an origin: scheme://host[:port] without a path or a trailing slash (or * for any)"
 
 
 class Settings(BaseSettings):
@@ -164,14 +184,7 @@ class Settings(BaseSettings):
     @field_validator("trusted_proxies", mode="before")
     @classmethod
     def _proxies(cls, v: Any) -> Any:
-        v = _comma_list(v)
-        if isinstance(v, list):
-            for proxy in v:
-                try:
-                    ipaddress.ip_network(proxy, strict=False)
-                except (TypeError, ValueError):
-                    raise ValueError(f"{proxy!r} is not an address or a network") from None
-        return v
+        return _comma_list(v, _not_network)
 
     def proxy_options(self) -> dict[str, Any]:
         """uvicorn's options for X-Forwarded-For: read only from ``trusted_proxies``
@@ -183,16 +196,8 @@ class Settings(BaseSettings):
     @field_validator("cors_origins", mode="before")
     @classmethod
     def _origins(cls, v: Any) -> Any:
-        v = _comma_list(v)
-        if isinstance(v, list):
-            for origin in v:
-                if not isinstance(origin, str) or not (origin == "*" or ORIGIN.match(origin)):
-                    raise ValueError(
-                        f"{origin!r} is not an origin: scheme://host[:port] without a path "
-                        "or a trailing slash (or * for any)"
-                    )
-            return [o.lower() if o != "*" else o for o in v]
-        return v
+        v = _comma_list(v, _not_origin)
+        return [o.lower() if o != "*" else o for o in v] if isinstance(v, list) else v
 
     @field_validator("log_level")
     @classmethod
