@@ -16,6 +16,7 @@ from starlette.middleware.cors import CORSMiddleware
 from server import worker
 from server.api import (
     admin,
+    body_deadline,
     body_limit,
     console,
     engines,
@@ -56,6 +57,7 @@ ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
         403: "the key or token may not do this (or the session does not exist)",
         404: "no such thing, or no such route",
         405: "the route does not take this method",
+        408: "the headers or the body came too slowly (header_timeout_s, body_timeout_s)",
         409: "conflicts with the current state; read it back and retry",
         413: "the body is over the route's limit",
         422: "a field is invalid; the message names it",
@@ -128,6 +130,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         body_limit.BodyLimit,
         json_max_bytes=settings.json_max_bytes,
         bulk_max_bytes=settings.upload_max_bytes,
+    )
+    app.add_middleware(
+        body_deadline.BodyDeadline,
+        timeout_s=settings.body_timeout_s,
+        min_rate_bytes_s=settings.body_min_rate_bytes_s,
     )
     app.add_middleware(metrics.RequestTimer)
     if settings.cors_origins:  # outermost: a preflight is answered before anything else

@@ -63,6 +63,13 @@ class Settings(BaseSettings):
     seq_wait_s: float = Field(
         2.0, ge=0, le=30, description="how long a batch waits for its predecessor seq"
     )
+    max_event_skew_s: float = Field(
+        86_400.0,
+        gt=0,
+        description="how far (either way) a batch's event times may lie from the newest "
+        "event time the session has accepted, and how far apart one batch's events may "
+        "lie; times are the phone's clock, checked against the session's own",
+    )
     session_track_len: int = Field(
         200,
         ge=0,
@@ -129,6 +136,27 @@ class Settings(BaseSettings):
     )
     upload_max_bytes: int = Field(
         64 * 1024 * 1024, ge=1024, description="largest upload, after decompression"
+    )
+    header_timeout_s: float = Field(
+        10.0,
+        gt=0,
+        description="a request's headers arrive whole within this time of its first byte (the "
+        "first request's: of the connection's opening), or the connection is answered 408 "
+        "and closed; the idle time between requests is uvicorn's keep-alive timeout",
+    )
+    body_timeout_s: float = Field(
+        20.0,
+        gt=0,
+        description="a request's body may take this long after its headers, plus one second "
+        "per body_min_rate_bytes_s bytes received; past that, 408 and the connection closes",
+    )
+    body_min_rate_bytes_s: int = Field(
+        500,
+        ge=0,
+        description="the rate a body must keep up after its body_timeout_s of grace (as "
+        "Apache's mod_reqtimeout MinRate: each this many bytes received buy one more second): "
+        "a 64 MiB upload over a slow phone link passes, a byte a second does not; 0: the "
+        "whole body within body_timeout_s",
     )
     walk_retention_days: float | None = Field(
         None,

@@ -20,6 +20,7 @@ from server.api.deps import (
     ViewerDep,
     page_query,
 )
+from server.api.gated_route import GatedRoute
 from server.api.schemas.maps import (
     DeviceOffsetList,
     DeviceOffsetRead,
@@ -47,7 +48,7 @@ from server.services import device_offsets, magnetic_maps, maps, sites
 
 VersionPath = Annotated[int, Path(ge=1, le=2**31 - 1, description="map version number")]
 
-router = APIRouter(prefix="/v1", tags=["admin"])
+router = APIRouter(prefix="/v1", tags=["admin"], route_class=GatedRoute)
 SitePage = Annotated[PageQuery, page_query("sites", CREATED)]
 BuildingPage = Annotated[PageQuery, page_query("buildings", CREATED)]
 FloorPage = Annotated[PageQuery, page_query("floors", LEVEL)]

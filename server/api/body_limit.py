@@ -6,7 +6,9 @@ read; a chunked or lying body is counted as it arrives and refused at the first 
 that crosses the limit (the app sees the client disconnect and its answer is dropped).
 Device routes (sessions, batches, locate) get ``json_max_bytes``; the bulk routes an
 admin feeds (uploads, radio and magnetic surveys, floor plans) get ``upload_max_bytes``
-when the request carries credentials at all (they are checked after the body is read).
+once the key has been found good for the route (``server.api.gated_route`` checks it
+before the body is read, and marks the request ``admitted``): a body past the device
+limit on a bulk route is therefore judged when the route starts reading it.
 The live socket's messages are bounded by the server's ``ws_max_size`` (``serve`` sets it
 to ``json_max_bytes``).
 """
@@ -15,10 +17,9 @@ from __future__ import annotations
 
 import re
 
-import orjson
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from server.api.errors import problem
+from server.api.errors import send_closing_problem
 
 BULK_PATHS = re.compile(
     r"^/v1/(uploads$|buildings/[^/]+/survey$|floors/[^/]+/(magnetic-survey|plan)$)"
@@ -31,29 +32,37 @@ class BodyLimit:
         self.json_max_bytes = json_max_bytes
         self.bulk_max_bytes = bulk_max_bytes
 
-    def limit_for(self, path: str, has_credentials: bool) -> int:
-        # the bulk size only with credentials: the framework reads a body before it checks
-        # the key, and no one without one gets to make it parse 64 MiB
-        bulk = has_credentials and BULK_PATHS.match(path)
+    def limit_for(self, scope: Scope) -> int:
+        # the bulk size only for a key the route let in: no one without one gets to make
+        # the server read 64 MiB
+        bulk = BULK_PATHS.match(scope["path"]) and "admitted" in scope.get("state", {})
         return self.bulk_max_bytes if bulk else self.json_max_bytes
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
-        headers = dict(scope["headers"])
-        limit = self.limit_for(scope["path"], b"authorization" in headers)
-        declared = headers.get(b"content-length", b"")
-        if declared.isdigit() and int(declared) > limit:
-            await _refuse(send, limit)
+        declared = dict(scope["headers"]).get(b"content-length", b"")
+        # a bulk route may allow more once its key is checked: judged at the first read
+        most = self.bulk_max_bytes if BULK_PATHS.match(scope["path"]) else self.json_max_bytes
+        if declared.isdigit() and int(declared) > most:
+            await _refuse(send, most)
             return
+        scope.setdefault("state", {})  # one dict for the route's request.state and us
+        limit: int | None = None
         seen = 0
         refused = False
 
         async def counted_receive() -> Message:
-            nonlocal seen, refused
+            nonlocal seen, refused, limit
             if refused:
                 return {"type": "http.disconnect"}
+            if limit is None:
+                limit = self.limit_for(scope)
+                if declared.isdigit() and int(declared) > limit:
+                    refused = True
+                    await _refuse(send, limit)
+                    return {"type": "http.disconnect"}
             message = await receive()
             if message["type"] == "http.request":
                 seen += len(message.get("body", b""))
@@ -71,16 +80,4 @@ class BodyLimit:
 
 
 async def _refuse(send: Send, limit: int) -> None:
-    body = orjson.dumps(problem("body", f"the body is over {limit} bytes", "TooLarge"))
-    await send(
-        {
-            "type": "http.response.start",
-            "status": 413,
-            "headers": [
-                (b"content-type", b"application/json"),
-                (b"content-length", str(len(body)).encode()),
-                (b"connection", b"close"),
-            ],
-        }
-    )
-    await send({"type": "http.response.body", "body": body})
+    await send_closing_problem(send, 413, "body", f"the body is over {limit} bytes", "TooLarge")

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterator
+import re
+from collections.abc import AsyncIterator, Awaitable, Callable
 from dataclasses import dataclass
 from typing import Annotated, Any
 
@@ -13,7 +14,7 @@ from starlette.requests import HTTPConnection
 
 from server.api.schemas.pages import DEFAULT_LIMIT, MAX_CURSOR_CHARS, MAX_LIMIT, decode_cursor
 from server.services import auth, limits, sites
-from server.services.errors import Forbidden, Invalid, Unauthorized
+from server.services.errors import Forbidden, Invalid, Unauthorized, not_found
 from server.services.runtime import Runtime
 
 _bearer = HTTPBearer(auto_error=False, description="an API key or a session token")
@@ -35,7 +36,8 @@ async def get_ws_runtime(websocket: WebSocket) -> Runtime:
 
 RuntimeDep = Annotated[Runtime, Depends(get_runtime)]
 # ids in paths are the 32-hex-character ids this service hands out
-IdPath = Annotated[str, Path(pattern=r"^[0-9a-f]{32}$")]
+ID = re.compile(r"[0-9a-f]{32}")
+IdPath = Annotated[str, Path(pattern=f"^{ID.pattern}$")]
 
 
 async def get_sql(rt: RuntimeDep) -> AsyncIterator[AsyncSession]:
@@ -48,6 +50,15 @@ async def get_sql(rt: RuntimeDep) -> AsyncIterator[AsyncSession]:
 SqlDep = Annotated[AsyncSession, Depends(get_sql, scope="function")]
 
 
+# Credentials before the body: FastAPI reads and validates a route's body before it runs
+# the route's dependencies, so a route with a body runs the credential dependencies below
+# first (``server.api.gated_route``): each says, in BEFORE_BODY, how it checks itself from
+# the request alone, and keeps what it found in ``request.state`` so that the run the
+# framework makes later costs nothing.
+BeforeBody = Callable[[Request], Awaitable[Any]]
+BEFORE_BODY: dict[Callable[..., Any], BeforeBody] = {}
+
+
 async def get_bearer(
     request: Request,
     rt: RuntimeDep,
@@ -55,12 +66,21 @@ async def get_bearer(
 ) -> str:
     """The bearer token, once the address is not barred for failing too often (what
     fails is counted by ``server.api.errors``)."""
+    known: str | None = getattr(request.state, "bearer", None)
+    if known is not None:
+        return known
     await limits.refuse_failing_address(rt, client_address(request))
     if credentials is None or not credentials.credentials:
         raise Unauthorized("missing bearer token", field="authorization")
+    request.state.bearer = credentials.credentials
     return credentials.credentials
 
 
+async def _bearer_before_body(request: Request) -> str:
+    return await get_bearer(request, request.app.state.runtime, await _bearer(request))
+
+
+BEFORE_BODY[get_bearer] = _bearer_before_body
 BearerDep = Annotated[str, Depends(get_bearer)]
 
 
@@ -77,37 +97,60 @@ async def get_address(request: Request) -> str:
 AddressDep = Annotated[str, Depends(get_address)]
 
 
-async def get_principal(rt: RuntimeDep, token: BearerDep) -> auth.Principal:
+async def get_principal(request: Request, rt: RuntimeDep, token: BearerDep) -> auth.Principal:
+    known: auth.Principal | None = getattr(request.state, "principal", None)
+    if known is not None:
+        return known
     async with rt.read() as s:
         principal = await auth.authenticate(s, rt.settings, token)
     if principal is None:
         raise Unauthorized("not a valid API key", field="authorization")
+    request.state.principal = principal
     return principal
 
 
 PrincipalDep = Annotated[auth.Principal, Depends(get_principal)]
 
+# what a route's path names a thing of a site by, and how it is called in a 404
+_PATH_THINGS = (("floor_id", "floor"), ("building_id", "building"), ("site_id", "site"))
 
-async def _site_of_path(rt: Runtime, params: dict[str, str]) -> str | None:
-    """The site a route's path names (by its site, building or floor id); None when it
-    names none or the thing does not exist (the route answers 404 then)."""
-    if "site_id" in params:
-        return params["site_id"]
-    async with rt.read() as s:
-        return await sites.site_of(s, params.get("building_id"), params.get("floor_id"))
+
+async def _check_site(rt: Runtime, principal: auth.Principal, params: dict[str, str]) -> None:
+    """For a key of one site, refuse a site, building or floor the path names that is not
+    of its site exactly as one that does not exist: 404, whatever else the request holds
+    (a key for every site is left to the route, which answers 404 for what is missing)."""
+    named = [(param, kind) for param, kind in _PATH_THINGS if param in params]
+    if principal.site_id is None or not named:
+        return
+    param, kind = named[0]
+    thing_id = params[param]
+    if kind == "site":
+        site_id: str | None = thing_id
+    else:
+        async with rt.read() as s:
+            site_id = await sites.site_of(s, params.get("building_id"), params.get("floor_id"))
+    if site_id is None or not principal.sees(site_id):
+        raise not_found(kind, thing_id)
 
 
 def scoped(scope: str) -> Any:
     """A dependency that lets a request through only with a key holding ``scope`` (401
-    without a valid key, 403 without the scope or for another site's resources)."""
+    without a valid key, 403 without the scope, 404 for another site's resources)."""
 
     async def check(request: Request, rt: RuntimeDep, principal: PrincipalDep) -> auth.Principal:
-        site_id = None
-        if principal.site_id is not None:
-            site_id = await _site_of_path(rt, dict(request.path_params))
-        principal.require(scope, site_id)
+        if getattr(request.state, "admitted", None) == scope:
+            return principal
+        principal.require(scope)
+        await _check_site(rt, principal, dict(request.path_params))
+        request.state.admitted = scope  # server.api.body_limit: the bulk limit applies
         return principal
 
+    async def before_body(request: Request) -> auth.Principal:
+        rt: Runtime = request.app.state.runtime
+        token = await _bearer_before_body(request)
+        return await check(request, rt, await get_principal(request, rt, token))
+
+    BEFORE_BODY[check] = before_body
     return Depends(check)
 
 
@@ -129,6 +172,11 @@ async def require_global_admin(principal: Admin) -> auth.Principal:
     return principal
 
 
+async def _global_admin_before_body(request: Request) -> auth.Principal:
+    return await require_global_admin(await BEFORE_BODY[AdminDep.dependency](request))
+
+
+BEFORE_BODY[require_global_admin] = _global_admin_before_body
 GlobalAdminDep = Depends(require_global_admin)
 
 

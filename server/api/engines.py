@@ -7,6 +7,7 @@ from typing import Annotated
 from fastapi import APIRouter, Path, Response, status
 
 from server.api.deps import IdPath, MapsWriteDep, PrincipalDep, SqlDep, ViewerDep
+from server.api.gated_route import GatedRoute
 from server.api.schemas.engines import (
     EngineList,
     EngineRead,
@@ -22,7 +23,7 @@ EnginePath = Annotated[
     str, Path(min_length=1, max_length=64, pattern=r"^[a-z0-9_]+$", description="engine name")
 ]
 
-router = APIRouter(prefix="/v1", tags=["engines"])
+router = APIRouter(prefix="/v1", tags=["engines"], route_class=GatedRoute)
 
 
 def _read(settings: EngineSettings) -> EngineSettingsRead:

@@ -11,11 +11,13 @@ from __future__ import annotations
 import logging
 from typing import Any
 
+import orjson
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException
 from starlette.routing import Match
+from starlette.types import Send
 
 from server.api.deps import client_address
 from server.services import limits, telemetry
@@ -67,6 +69,24 @@ def problem(field: str, msg: str, kind: str) -> dict[str, Any]:
         "detail": [{"loc": field.split("."), "msg": msg, "type": kind}],
         "message": f"{field}: {msg}",
     }
+
+
+async def send_closing_problem(send: Send, status: int, field: str, msg: str, kind: str) -> None:
+    """Answer ``status`` with the error body about ``field`` straight through ASGI, and
+    close the connection after it (for middleware that refuses a request mid-body)."""
+    body = orjson.dumps(problem(field, msg, kind))
+    await send(
+        {
+            "type": "http.response.start",
+            "status": status,
+            "headers": [
+                (b"content-type", b"application/json"),
+                (b"content-length", str(len(body)).encode()),
+                (b"connection", b"close"),
+            ],
+        }
+    )
+    await send({"type": "http.response.body", "body": body})
 
 
 def service_detail(exc: ServiceError) -> dict[str, Any]:

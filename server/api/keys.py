@@ -6,13 +6,16 @@ from typing import Annotated
 
 from fastapi import APIRouter, Path, Query, Response, status
 
-from server.api.deps import GlobalAdminDep, PageQuery, SqlDep, page_query
+from server.api.deps import GlobalAdminDep, PageQuery, RuntimeDep, SqlDep, page_query
+from server.api.gated_route import GatedRoute
 from server.api.schemas.keys import ApiKeyCreate, ApiKeyCreated, ApiKeyList, ApiKeyRead
 from server.api.schemas.pages import CREATED, encode_cursor
-from server.services import auth
+from server.services import auth, revocations
 from server.storage.models import ApiKey
 
-router = APIRouter(prefix="/v1/keys", tags=["keys"], dependencies=[GlobalAdminDep])
+router = APIRouter(
+    prefix="/v1/keys", tags=["keys"], dependencies=[GlobalAdminDep], route_class=GatedRoute
+)
 KeyPath = Annotated[str, Path(pattern=r"^[0-9a-f]{32}$")]
 KeyPage = Annotated[PageQuery, page_query("keys", CREATED)]
 
@@ -53,16 +56,18 @@ async def list_keys(
 
 
 @router.delete("/{key_id}", status_code=status.HTTP_204_NO_CONTENT)
-async def revoke_key(key_id: KeyPath, s: SqlDep) -> Response:
-    """Revoke the key: it stops working at once. Its row stays, for the record (listed
-    with include_revoked); a revoked key cannot be rotated or revoked again (404). The
-    keys of a site also go when the site is deleted."""
-    await auth.revoke_key(s, key_id)
+async def revoke_key(key_id: KeyPath, rt: RuntimeDep) -> Response:
+    """Revoke the key: it stops working at once, and the live sockets it opened are
+    closed (code 4401) within a second, on every replica. Its row stays, for the record
+    (listed with include_revoked); a revoked key cannot be rotated or revoked again
+    (404). The keys of a site also go when the site is deleted."""
+    await revocations.revoke_key(rt, key_id)
     return Response(status_code=status.HTTP_204_NO_CONTENT)
 
 
 @router.post("/{key_id}:rotate")
-async def rotate_key(key_id: KeyPath, s: SqlDep) -> ApiKeyCreated:
-    """A new secret for the key (same id, scopes and site); the old one stops working."""
-    row, key = await auth.rotate_key(s, key_id)
+async def rotate_key(key_id: KeyPath, rt: RuntimeDep) -> ApiKeyCreated:
+    """A new secret for the key (same id, scopes and site); the old one stops working,
+    and the live sockets it opened are closed (code 4401) within a second."""
+    row, key = await revocations.rotate_key(rt, key_id)
     return created(row, key)

@@ -14,6 +14,9 @@ of batches posted after it are never missed), ``{"type": "fix", "seq", "fix"}``,
 over the socket, and ``{"type": "error", "status", "detail", "message"}`` (with the
 ``seq`` of the batch it answers, when it answers one).
 Fan-out goes through the session store's pub/sub, so any replica can serve the socket.
+A socket opened with an API key is closed (an ``error`` message with status 401, then
+code 4401) within a second once the key is revoked or rotated, through any replica
+(``server.services.revocations``); an ended session closes its sockets with 1000.
 """
 
 from __future__ import annotations
@@ -31,14 +34,15 @@ from uvicorn.protocols.utils import ClientDisconnected
 from server.api.convert import to_events
 from server.api.deps import IdPath, client_address, get_ws_runtime
 from server.api.errors import problem, service_detail, validation_detail
+from server.api.gated_route import GatedRoute
 from server.api.schemas.common import StrictIn
 from server.api.schemas.sessions import LiveBatch
 from server.logs import session_context
-from server.services import limits, sessions, telemetry
+from server.services import limits, revocations, sessions, telemetry
 from server.services.errors import ServiceError, Unauthorized
 from server.services.runtime import Runtime
 
-router = APIRouter(prefix="/v1/sessions", tags=["sessions"])
+router = APIRouter(prefix="/v1/sessions", tags=["sessions"], route_class=GatedRoute)
 
 CLOSE_CODES = {401: 4401, 403: 4403, 404: 4404, 429: 4429}
 # what a send or receive raises once the client has gone
@@ -57,9 +61,18 @@ class _Socket:
         async with self.lock:
             await self.ws.send_text(orjson.dumps(message).decode())
 
+    async def refuse(self, exc: ServiceError) -> None:
+        """An ``error`` message for ``exc``, then the close code of its status."""
+        async with self.lock:
+            message = {"type": "error", "status": exc.status, **service_detail(exc)}
+            await self.ws.send_text(orjson.dumps(message).decode())
+            await self.ws.close(code=CLOSE_CODES.get(exc.status, 1008))
+
 
 AUTH_TIMEOUT_S = 10.0
 FOLLOW_ONLY = "a key follows the session; only the session's token sends batches"
+KEY_STOPPED = "the key that opened this socket was revoked or rotated"
+KEY_STOPPED_SEND_S = 0.5  # what the refusal of a stopped key may take to go out
 
 
 class AuthMessage(StrictIn):
@@ -120,27 +133,60 @@ async def _serve(websocket: WebSocket, session_id: str, rt: Runtime, token: str 
             raise
     except ServiceError as exc:
         with contextlib.suppress(*GONE):
-            await sock.send({"type": "error", "status": exc.status, **service_detail(exc)})
-            await websocket.close(code=CLOSE_CODES.get(exc.status, 1008))
+            await sock.refuse(exc)
         return
     except GONE:
         return
+    # a key's socket ends when the key stops working; the session's own token is not a key
+    key = revocations.watch(rt, secret) if not owner else contextlib.nullcontext(anyio.Event())
+    async with key as key_stopped:
+        if key_stopped.is_set():  # revoked since it was let in: refused, never ready
+            with contextlib.suppress(*GONE):
+                await sock.refuse(Unauthorized(KEY_STOPPED, field="authorization"))
+            return
+        await _follow(sock, rt, session_id, secret, owner, key_stopped)
+
+
+async def _follow(
+    sock: _Socket,
+    rt: Runtime,
+    session_id: str,
+    secret: str,
+    owner: bool,
+    key_stopped: anyio.Event,
+) -> None:
+    """Push the session's fixes and read batches until the client goes, the session
+    ends (1000) or ``key_stopped`` is set (4401)."""
+    websocket = sock.ws
     async with sessions.follow(rt, session_id) as messages, anyio.create_task_group() as tg:
         # the subscription is live from here on: tell the client nothing will be missed
         await sock.send({"type": "ready", "session_id": session_id})
 
+        forwarding = anyio.CancelScope()
+
         async def forward() -> None:
             # the client may be gone by the time a fix arrives: that ends the socket quietly
-            with contextlib.suppress(*GONE):
+            with forwarding, contextlib.suppress(*GONE):
                 async for message in messages:
                     if message.get("closed"):
                         break
                     for fix in message["fixes"]:
                         await sock.send({"type": "fix", "seq": message["seq"], "fix": fix})
                 await websocket.close(code=1000)
+            if not forwarding.cancel_called:
+                tg.cancel_scope.cancel()
+
+        async def end_when_key_stops() -> None:
+            await key_stopped.wait()
+            # a client that stopped reading may hold the socket's lock in a send of fixes:
+            # those stop first, and the refusal gets a bounded time to go out
+            forwarding.cancel()
+            with anyio.move_on_after(KEY_STOPPED_SEND_S), contextlib.suppress(*GONE):
+                await sock.refuse(Unauthorized(KEY_STOPPED, field="authorization"))
             tg.cancel_scope.cancel()
 
         tg.start_soon(forward)
+        tg.start_soon(end_when_key_stops)
         with contextlib.suppress(*GONE):
             await _read(sock, rt, session_id, secret, owner)
         tg.cancel_scope.cancel()

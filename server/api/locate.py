@@ -6,11 +6,12 @@ from fastapi import APIRouter
 
 from server.api.convert import ble_pairs, wifi_pairs
 from server.api.deps import AddressDep, Device, RuntimeDep
+from server.api.gated_route import GatedRoute
 from server.api.schemas.locate import LocateIn, LocateOut
 from server.services import limits
 from server.services import locate as service
 
-router = APIRouter(prefix="/v1", tags=["locate"])
+router = APIRouter(prefix="/v1", tags=["locate"], route_class=GatedRoute)
 
 
 @router.post("/locate")

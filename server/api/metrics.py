@@ -11,11 +11,12 @@ import anyio
 from fastapi import APIRouter, Response
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from server.api.gated_route import GatedRoute
 from server.services import telemetry
 
 METRICS_PATH = "/metrics"
 
-router = APIRouter(tags=["metrics"])
+router = APIRouter(tags=["metrics"], route_class=GatedRoute)
 
 
 @router.get(METRICS_PATH, include_in_schema=False)

@@ -8,10 +8,11 @@ from typing import Annotated
 from fastapi import APIRouter, Query
 
 from server.api.deps import IdPath, SqlDep, ViewerDep
+from server.api.gated_route import GatedRoute
 from server.api.schemas.map_quality import MapQualityRead, SurveyPlanRead
 from server.services import map_quality, survey_plans
 
-router = APIRouter(prefix="/v1", tags=["admin"], dependencies=[ViewerDep])
+router = APIRouter(prefix="/v1", tags=["admin"], dependencies=[ViewerDep], route_class=GatedRoute)
 
 
 @router.get("/floors/{floor_id}/maps/quality")

@@ -6,10 +6,13 @@ from __future__ import annotations
 from typing import Annotated
 
 import orjson
-from fastapi import APIRouter, Query, Response, status
+from fastapi import APIRouter, Depends, Query, Request, Response, status
+from fastapi.exceptions import RequestValidationError
 
 from server.api.convert import to_events
 from server.api.deps import (
+    BEFORE_BODY,
+    ID,
     AddressDep,
     BearerDep,
     Device,
@@ -17,8 +20,10 @@ from server.api.deps import (
     PageQuery,
     RuntimeDep,
     Viewer,
+    get_bearer,
     page_query,
 )
+from server.api.gated_route import GatedRoute
 from server.api.schemas.pages import CREATED, encode_cursor
 from server.api.schemas.sessions import (
     BatchIn,
@@ -34,7 +39,7 @@ from server.api.schemas.sessions import (
 from server.logs import session_context
 from server.services import limits, sessions, telemetry
 
-router = APIRouter(prefix="/v1/sessions", tags=["sessions"])
+router = APIRouter(prefix="/v1/sessions", tags=["sessions"], route_class=GatedRoute)
 SessionPage = Annotated[PageQuery, page_query("sessions", CREATED)]
 MAX_TRACK = 5000  # Settings.session_track_len's bound
 
@@ -67,9 +72,33 @@ async def create_session(
     )
 
 
+async def session_token(request: Request, rt: RuntimeDep, token: BearerDep) -> str:
+    """The token of the session the path names, checked (before the batch's body is read;
+    an id that is not one is refused first, 422 naming it)."""
+    if getattr(request.state, "session_token", None) != token:
+        session_id = request.path_params["session_id"]
+        if not ID.fullmatch(session_id):
+            msg = f"String should match pattern '{ID.pattern}'"
+            error = {"loc": ("path", "session_id"), "msg": msg, "type": "string_pattern_mismatch"}
+            raise RequestValidationError([error])
+        with session_context(session_id):
+            await sessions.check_token(rt, session_id, token)
+        request.state.session_token = token
+    return token
+
+
+async def _session_token_before_body(request: Request) -> str:
+    token: str = await BEFORE_BODY[get_bearer](request)
+    return await session_token(request, request.app.state.runtime, token)
+
+
+BEFORE_BODY[session_token] = _session_token_before_body
+SessionToken = Annotated[str, Depends(session_token)]
+
+
 @router.post("/{session_id}/batches", response_model=BatchOut)
 async def post_batch(
-    session_id: IdPath, body: BatchIn, rt: RuntimeDep, token: BearerDep, address: AddressDep
+    session_id: IdPath, body: BatchIn, rt: RuntimeDep, token: SessionToken, address: AddressDep
 ) -> Response:
     """Apply the next batch of the session; its fixes in the answer. The answer is written
     straight from the fixes the service made (already in the ``FixOut`` shape), without a
@@ -106,7 +135,9 @@ async def list_sessions(
 ) -> SessionList:
     """Sessions newest first, from their records (a key of one site sees that site's).
     Follow one with a viewer key over GET /v1/sessions/{id}/live."""
-    principal.require("viewer", site_id)
+    if site_id is not None and not principal.sees(site_id):
+        # another site's sessions are as invisible as a site that does not exist
+        return SessionList(items=[], count=0, next_cursor=None)
     site_id = site_id or principal.site_id
     found = await sessions.list_sessions(rt, site_id, active, page.after, page.limit)
     items = [SessionSummary.model_validate(x, from_attributes=True) for x in found.rows]

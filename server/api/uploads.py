@@ -31,14 +31,15 @@ from server.api.deps import (
     client_address,
     page_query,
 )
+from server.api.gated_route import GatedRoute
 from server.api.schemas.common import DeviceModel
 from server.api.schemas.pages import CREATED, encode_cursor
 from server.api.schemas.uploads import UploadList, UploadRead, UploadStatus, UploadTraceIn
 from server.services import limits, traces, uploads
-from server.services.errors import Invalid, TooLarge
+from server.services.errors import Invalid, TooLarge, not_found
 from server.services.upload_payloads import ILC_TEXT
 
-router = APIRouter(prefix="/v1", tags=["uploads"])
+router = APIRouter(prefix="/v1", tags=["uploads"], route_class=GatedRoute)
 log = logging.getLogger("indoorpos.api.uploads")
 
 XZ_TYPES = {"application/x-xz", "application/xz"}
@@ -172,7 +173,9 @@ async def list_uploads(
 ) -> UploadList:
     """Uploads newest first, with their status and report (a key of one site sees that
     site's)."""
-    principal.require("viewer", site_id)
+    if site_id is not None and not principal.sees(site_id):
+        # another site's uploads are as invisible as a site that does not exist
+        return UploadList(items=[], count=0, next_cursor=None)
     site_id = site_id or principal.site_id
     found = await uploads.list_uploads(s, site_id, upload_status, page.after, page.limit)
     items = [_read(row) for row in found.rows]
@@ -183,7 +186,7 @@ async def list_uploads(
 @router.get("/uploads/{upload_id}")
 async def get_upload(upload_id: IdPath, s: SqlDep, principal: Viewer) -> UploadRead:
     row = await uploads.get_upload(s, upload_id)
-    principal.require("viewer", row.site_id)
+    principal.require("viewer", row.site_id, missing=not_found("upload", upload_id))
     return _read(row)
 
 

@@ -14,7 +14,8 @@ import typer
 import uvicorn
 
 from server.app import create_app
-from server.config import Settings
+from server.cli.http_protocol import http_protocol
+from server.config import Settings, get_settings
 from server.storage import db
 
 
@@ -32,8 +33,13 @@ class ServerThread:
     """uvicorn in a background thread with its own event loop."""
 
     def __init__(self, port: int, settings: Settings | None = None) -> None:
+        settings = settings or get_settings()
         config = uvicorn.Config(
-            create_app(settings), host="127.0.0.1", port=port, log_level="warning"
+            create_app(settings),
+            host="127.0.0.1",
+            port=port,
+            log_level="warning",
+            http=http_protocol(settings),
         )
         self.server = uvicorn.Server(config)
         self.thread = threading.Thread(target=self.server.run, daemon=True)

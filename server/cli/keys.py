@@ -12,7 +12,7 @@ from rich.table import Table
 from server.cli.output import console, masked_url
 from server.cli.service import checked_settings, migrate_or_exit
 from server.config import get_settings
-from server.services import auth
+from server.services import auth, revocations
 from server.services.errors import ServiceError
 from server.services.runtime import open_runtime
 
@@ -36,17 +36,21 @@ def _database(*, for_a_new_key: bool = False) -> str:
     return where
 
 
-async def _in_transaction(work: Any) -> Any:
-    async with open_runtime(get_settings()) as rt, rt.transaction() as s:
-        return await work(s)
+async def _in_runtime(work: Any, whole_runtime: bool) -> Any:
+    async with open_runtime(get_settings()) as rt:
+        if whole_runtime:
+            return await work(rt)
+        async with rt.transaction() as s:
+            return await work(s)
 
 
-def run_keys(work: Any) -> Any:
-    """``work(session)`` in one transaction on the migrated database; a service's refusal is
-    printed and ends the command with status 1."""
+def run_keys(work: Any, *, whole_runtime: bool = False) -> Any:
+    """``work(session)`` in one transaction on the migrated database (``work(runtime)``
+    with ``whole_runtime``, for what also tells the running servers); a service's refusal
+    is printed and ends the command with status 1."""
     migrate_or_exit(checked_settings().resolved_database_url)
     try:
-        return asyncio.run(_in_transaction(work))
+        return asyncio.run(_in_runtime(work, whole_runtime))
     except ServiceError as exc:
         console.print(f"[red]{exc.field or 'key'}: {exc.message}[/]")
         raise typer.Exit(1) from None
@@ -91,15 +95,16 @@ def keys_list(
 
 @keys_app.command("revoke")
 def keys_revoke(key_id: Annotated[str, typer.Argument(help="the key's id")]) -> None:
-    """Revoke a key: it stops working at once."""
-    run_keys(lambda s: auth.revoke_key(s, key_id))
+    """Revoke a key: it stops working at once (the servers sharing its session store close
+    its live sockets)."""
+    run_keys(lambda rt: revocations.revoke_key(rt, key_id), whole_runtime=True)
     console.print(f"key {key_id} revoked in {_database()}")
 
 
 @keys_app.command("rotate")
 def keys_rotate(key_id: Annotated[str, typer.Argument(help="the key's id")]) -> None:
     """Give a key a new secret (printed once); the old one stops working."""
-    _, key = run_keys(lambda s: auth.rotate_key(s, key_id))
+    _, key = run_keys(lambda rt: revocations.rotate_key(rt, key_id), whole_runtime=True)
     console.print(
         f"key {key_id} rotated in {_database(for_a_new_key=True)}; its new secret, shown once:"
     )

@@ -12,6 +12,7 @@ import uvicorn
 from pydantic import ValidationError
 
 from server.app import create_app
+from server.cli.http_protocol import http_protocol
 from server.cli.output import console, fail, masked_url
 from server.config import Settings, get_settings
 from server.services.runtime import open_runtime
@@ -47,6 +48,7 @@ def serve(
         log_level=settings.log_level.lower(),
         access_log=access_log,
         ws_max_size=settings.json_max_bytes,  # a live-socket message: a batch at most
+        http=http_protocol(settings),  # with a deadline for a request's headers
         **settings.proxy_options(),
     )
 

@@ -75,12 +75,13 @@ from typing import Any
 
 import numpy as np
 import shapely
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from shapely.geometry.base import BaseGeometry
 
 from server.positioning.floorplan import FloorPlan
 
 FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
 
 CELL_M = 0.25
 """Default raster cell side (m)."""
@@ -509,7 +510,10 @@ PLAN_MARGIN_M = 10.0
 wrong anchor or a typo must not stretch a floor's maps across a city)."""
 
 
-def plan_extent(geojson: Mapping[str, Any] | None) -> tuple[float, float, float, float] | None:
+Extent = tuple[float, float, float, float]  # x0, y0, x1, y1 (m)
+
+
+def plan_extent(geojson: Mapping[str, Any] | None) -> Extent | None:
     """``(x0, y0, x1, y1)``: the bounding box of a plan's walkable features (what
     ``plan_from_geojson`` builds the walkable area from), without rasterising; None when
     the plan has none or they are not readable geometries."""
@@ -529,6 +533,28 @@ def plan_extent(geojson: Mapping[str, Any] | None) -> tuple[float, float, float,
         return None
     b = np.array(boxes, dtype=np.float64)
     return float(b[:, 0].min()), float(b[:, 1].min()), float(b[:, 2].max()), float(b[:, 3].max())
+
+
+def near_extent(extent: ArrayLike, xy: ArrayLike, margin_m: float = PLAN_MARGIN_M) -> BoolArray:
+    """Whether each coordinate of points lies within ``margin_m`` of an extent.
+
+    Parameters
+    ----------
+    extent : array_like, shape (4,) or (n, 4)
+        ``(x0, y0, x1, y1)`` as :func:`plan_extent` gives it, or one per point.
+    xy : array_like, shape (n, 2)
+        The points.
+
+    Returns
+    -------
+    ndarray, shape (n, 2), bool
+        Per point, whether its x and its y lie within the margin (a point is near the
+        extent where both do).
+    """
+    box = np.asarray(extent, dtype=np.float64)
+    points = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    near: BoolArray = (points >= box[..., :2] - margin_m) & (points <= box[..., 2:] + margin_m)
+    return near
 
 
 def _polygons(geometry: BaseGeometry) -> list[BaseGeometry]:

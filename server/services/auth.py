@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from sqlalchemy.ext.asyncio import AsyncSession
 
 from server.config import Settings
-from server.services.errors import Forbidden, Invalid, NotFound
+from server.services.errors import Forbidden, Invalid, NotFound, not_found
 from server.storage.models import ApiKey
 from server.storage.repositories import api_keys as key_repo
 from server.storage.repositories import sites as site_repo
@@ -56,12 +56,20 @@ class Principal:
     def allows(self, scope: str) -> bool:
         return any(scope in _IMPLIED.get(held, {held}) for held in self.scopes)
 
-    def require(self, scope: str, site_id: str | None = None) -> None:
-        """Raise Forbidden unless the key holds ``scope`` (for ``site_id``, when given)."""
+    def sees(self, site_id: str) -> bool:
+        return self.site_id in (None, site_id)
+
+    def require(
+        self, scope: str, site_id: str | None = None, missing: NotFound | None = None
+    ) -> None:
+        """Raise Forbidden unless the key holds ``scope``; for a thing of ``site_id`` (when
+        given) on a site the key is not for, raise ``missing``, the answer for a thing that
+        does not exist (by default: no such site), so that another site's ids cannot be
+        told from ids that were never made."""
         if not self.allows(scope):
             raise Forbidden(f"this key lacks the {scope!r} scope", field="authorization")
-        if site_id is not None and self.site_id not in (None, site_id):
-            raise Forbidden("this key belongs to another site", field="authorization")
+        if site_id is not None and not self.sees(site_id):
+            raise missing or not_found("site", site_id)
 
 
 def check_scopes(scopes: Iterable[str]) -> frozenset[str]:
@@ -91,7 +99,7 @@ async def create_key(
     """Create a key; returns (row, key). Only the digest is stored: the key is shown once."""
     wanted = check_scopes(scopes)
     if site_id is not None and await site_repo.get_site(s, site_id) is None:
-        raise NotFound(f"site {site_id} not found", field="site_id")
+        raise not_found("site", site_id)
     key = new_secret(KEY_PREFIX)
     row = await key_repo.create_api_key(
         s, name, digest(key), " ".join(sorted(wanted)), site_id=site_id

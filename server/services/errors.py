@@ -16,6 +16,12 @@ class NotFound(ServiceError):
     status = 404
 
 
+def not_found(kind: str, thing_id: str) -> NotFound:
+    """The answer for a ``kind`` (site, building, floor, upload) of this id that does not
+    exist, or that belongs to a site the key is not for: the two look the same."""
+    return NotFound(f"{kind} {thing_id} not found", field=f"{kind}_id")
+
+
 class Conflict(ServiceError):
     status = 409
 

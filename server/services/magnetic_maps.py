@@ -17,7 +17,7 @@ import anyio
 import numpy as np
 from sqlalchemy.ext.asyncio import AsyncSession
 
-from server.positioning.floorplan_geojson import PLAN_MARGIN_M, plan_extent
+from server.positioning.floorplan_geojson import PLAN_MARGIN_M, Extent, near_extent, plan_extent
 from server.positioning.magnetic import MagneticGrid
 from server.positioning.mapping.magnetic_gridding import (
     GridTooLarge,
@@ -27,7 +27,7 @@ from server.positioning.mapping.magnetic_gridding import (
     samples_along_line,
 )
 from server.services.errors import Invalid, NotFound
-from server.storage.models import Floor, MagneticMapVersion
+from server.storage.models import MagneticMapVersion
 from server.storage.repositories import maps as map_repo
 from server.storage.repositories import sites as site_repo
 
@@ -113,26 +113,27 @@ async def fold_sources(
     return await map_repo.save_magnetic_map(s, floor_id, grid, source=source)
 
 
-def check_within_plan(
-    floor: Floor, points: Sequence[MagneticPointData], lines: Sequence[MagneticLineData]
+def check_on_floor(
+    places: Sequence[tuple[str, tuple[float, float], Extent | None]],
+    axes: tuple[str, str] = ("", ""),
 ) -> None:
-    """Refuse (naming it) a survey point or line end farther than ``PLAN_MARGIN_M`` outside
-    the floor plan's walkable extent; floors without a plan are bounded by the grid size
-    alone (``mapping.magnetic_gridding.MAX_GRID_CELLS``)."""
-    extent = plan_extent(floor.plan_geojson)
-    if extent is None:
+    """Refuse the first of ``places`` (name, ``(x, y)``, its floor plan's walkable extent)
+    farther than ``PLAN_MARGIN_M`` outside its extent, naming it: the name, then the
+    suffix in ``axes`` of the coordinate that is out (x first). A place on a floor without
+    a plan (extent None) is bounded by the wire's coordinate range and the grid size alone
+    (``mapping.magnetic_gridding.MAX_GRID_CELLS``). Magnetic and radio surveys
+    (``services.maps``) both check their points with it."""
+    bounded = [(name, xy, extent) for name, xy, extent in places if extent is not None]
+    if not bounded:
         return
-    x0, y0, x1, y1 = extent
-    m = PLAN_MARGIN_M
-    places = [(f"points.{i}", (p.x_m, p.y_m)) for i, p in enumerate(points)]
-    for i, line in enumerate(lines):
-        places += [(f"lines.{i}.start", line.start_xy), (f"lines.{i}.end", line.end_xy)]
-    for name, (x, y) in places:
-        if not (x0 - m <= x <= x1 + m and y0 - m <= y <= y1 + m):
+    near = near_extent([extent for *_, extent in bounded], [xy for _, xy, _ in bounded])
+    for (name, (x, y), extent), (x_near, y_near) in zip(bounded, near.tolist(), strict=True):
+        if not (x_near and y_near):
+            x0, y0, x1, y1 = extent
             raise Invalid(
-                f"({x:g}, {y:g}) lies more than {m:g} m outside the floor plan, which spans "
-                f"x {x0:g}..{x1:g} m and y {y0:g}..{y1:g} m",
-                field=name,
+                f"({x:g}, {y:g}) lies more than {PLAN_MARGIN_M:g} m outside the floor plan, "
+                f"which spans x {x0:g}..{x1:g} m and y {y0:g}..{y1:g} m",
+                field=name + axes[1 if x_near else 0],
             )
 
 
@@ -145,7 +146,14 @@ async def add_magnetic_survey(
     floor = await site_repo.get_floor(s, floor_id)
     if floor is None:
         raise NotFound(f"floor {floor_id} not found", field="floor_id")
-    check_within_plan(floor, points, lines)
+    extent = plan_extent(floor.plan_geojson)
+    places = [(f"points.{i}", (p.x_m, p.y_m), extent) for i, p in enumerate(points)]
+    for i, line in enumerate(lines):
+        places += [
+            (f"lines.{i}.start", line.start_xy, extent),
+            (f"lines.{i}.end", line.end_xy, extent),
+        ]
+    check_on_floor(places)
     sources = survey_sources(points, lines)
     await site_repo.lock_building(s, floor.building_id)
     return await fold_sources(s, floor_id, sources, field="points" if not lines else "lines")

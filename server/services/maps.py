@@ -21,6 +21,7 @@ from server.positioning.fai import FaiMaps
 from server.positioning.fingerprint import MISSING_DBM, RadioMap, in_place_order
 from server.positioning.fix_error import FixErrorModel
 from server.positioning.floor_graph import FloorGraph, attach, site_graphs
+from server.positioning.floorplan_geojson import plan_extent
 from server.positioning.magnetic import MagneticMap
 from server.positioning.mapping.device_offsets import DeviceOffset
 from server.positioning.mapping.gridding import build_radio_map, fold_radio_maps
@@ -31,7 +32,7 @@ from server.positioning.scan_matching import ScanMap, merge_scan_maps
 from server.positioning.sitemaps import FloorRef, SiteMaps
 from server.services.device_offsets import building_offsets
 from server.services.errors import Invalid, NotFound
-from server.services.magnetic_maps import fold_sources
+from server.services.magnetic_maps import check_on_floor, fold_sources
 from server.storage.map_artefacts import decode_artefacts, fix_error_from_json, plan_digest
 from server.storage.models import RadioMapVersion
 from server.storage.repositories import maps as map_repo
@@ -298,7 +299,9 @@ async def add_survey(
 ) -> RadioMapVersion:
     """Store labelled fingerprints and build the building's next radio map version from every
     survey point it has (see ``gridding.build_radio_map`` for the gridding rules). Points
-    from an upload remember it (``upload_id``)."""
+    from an upload remember it (``upload_id``). A point on an unknown floor level, or
+    farther than ``floorplan_geojson.PLAN_MARGIN_M`` outside its floor's plan, is refused
+    naming it (``magnetic_maps.check_on_floor``, as magnetic surveys are checked)."""
     # one rebuild per building at a time: each sees every point the previous one stored
     building = await site_repo.lock_building(s, building_id)
     if building is None:
@@ -310,6 +313,11 @@ async def add_survey(
                 f"floor level {p.floor_level} does not exist in building {building_id}",
                 field=f"points.{i}.floor",
             )
+    extents = {level: plan_extent(f.plan_geojson) for level, f in floor_by_level.items()}
+    check_on_floor(
+        [(f"points.{i}", (p.x_m, p.y_m), extents[p.floor_level]) for i, p in enumerate(points)],
+        axes=(".x_m", ".y_m"),
+    )
     radio = await fold_survey(
         s,
         building_id,

@@ -13,6 +13,7 @@ from sqlalchemy.ext.asyncio import AsyncEngine, AsyncSession, async_sessionmaker
 from server.config import Settings
 from server.services.errors import Conflict
 from server.services.maps import MapCache
+from server.services.revocations import KeyWatches
 from server.services.session_cache import AnySessionCache, SessionCache
 from server.storage import db
 from server.storage.rate_limits import RateLimiter, make_rate_limiter
@@ -36,6 +37,8 @@ class Runtime:
     batch_gate: anyio.Semaphore = field(default_factory=lambda: anyio.Semaphore(1))
     # decoded session records this process last wrote or read (services.session_cache)
     states: AnySessionCache = field(default_factory=lambda: SessionCache(0))
+    # the live sockets opened with API keys, closed when their key stops working
+    key_watches: KeyWatches = field(default_factory=KeyWatches)
 
     @asynccontextmanager
     async def read(self) -> AsyncIterator[AsyncSession]:
@@ -70,6 +73,7 @@ async def open_runtime(settings: Settings) -> AsyncIterator[Runtime]:
     store = make_session_store(settings.redis_url)
     uploads = make_upload_queue(settings.redis_url, settings.upload_visibility_s)
     limits = make_rate_limiter(settings.redis_url)
+    key_watches = KeyWatches()
     try:
         yield Runtime(
             settings=settings,
@@ -82,8 +86,10 @@ async def open_runtime(settings: Settings) -> AsyncIterator[Runtime]:
             sqlite_lock=anyio.Lock() if engine.dialect.name == "sqlite" else None,
             batch_gate=anyio.Semaphore(settings.batch_concurrency),
             states=SessionCache(settings.session_cache_size),
+            key_watches=key_watches,
         )
     finally:
+        await key_watches.close()
         await limits.close()
         await uploads.close()
         await store.close()

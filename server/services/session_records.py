@@ -100,6 +100,7 @@ class SessionState:
     last_fix: bytes  # JSON of the newest fix, b"" before the first
     rebuilt_seq: int = 0  # the first seq applied after a rebuild (0: never rebuilt)
     touched_ms: int = 0  # wall clock of the last refresh of the SQL row's last_active_at
+    last_event_ms: int = 0  # the newest event time of the batches applied (0: none yet)
 
     def to_bytes(self, engine: Engine) -> bytes:
         arrays: dict[str, np.ndarray] = {
@@ -107,6 +108,7 @@ class SessionState:
             "last_seq": np.array(self.last_seq, dtype=np.int64),
             "rebuilt_seq": np.array(self.rebuilt_seq, dtype=np.int64),
             "touched_ms": np.array(self.touched_ms, dtype=np.int64),
+            "last_event_ms": np.array(self.last_event_ms, dtype=np.int64),
             "last_fix": np.frombuffer(self.last_fix, dtype=np.uint8),
             "replies/seq": np.array([r.seq for r in self.replies], dtype=np.int64),
             "replies/digest": np.frombuffer(
@@ -154,6 +156,7 @@ class SessionState:
             last_fix=a["last_fix"].tobytes(),
             rebuilt_seq=int(a["rebuilt_seq"]) if "rebuilt_seq" in a else 0,
             touched_ms=int(a["touched_ms"]) if "touched_ms" in a else 0,
+            last_event_ms=int(a["last_event_ms"]) if "last_event_ms" in a else 0,
         )
 
 

@@ -7,7 +7,9 @@ fix. Writes are compare-and-set on the record's version, so two replicas applyin
 to one session at once never overwrite each other: the loser re-reads and re-applies.
 
 Batches apply strictly in ``seq`` order (1, 2, 3, ...). A batch that arrives before its
-predecessor waits up to ``seq_wait_s`` for it, then is refused with 409.
+predecessor waits up to ``seq_wait_s`` for it, then is refused with 409. A batch whose
+event times stray more than ``max_event_skew_s`` from the session's newest so far (or
+from each other) is refused whole, its seq still free (``check_event_times``).
 
 Each session is also a row in SQL (``SessionRecord``) with the store's epoch it lives in.
 When the store lost its data (a Redis restarted without it: a new epoch), the next call
@@ -285,6 +287,18 @@ async def _load_decoded(
     return version, meta, state
 
 
+async def check_token(rt: Runtime, session_id: str, token: str) -> None:
+    """Refuse a token that opens no live session of this id before anything else of a
+    request is read: from this process's copy of the session where it holds one (a
+    session's token never changes: no I/O), else from the store (the decoded copy is kept;
+    the batch that follows still asks the store whether it changed)."""
+    cached = rt.states.get(session_id)
+    if cached is None:
+        await _load_decoded(rt, session_id, token)
+    elif not hmac.compare_digest(cached[1].token_digest, _digest(token)):
+        raise _no_session()
+
+
 def _not_live(session_id: str) -> NotFound:
     return NotFound(f"no live session {session_id} (it ended or expired)", field="session_id")
 
@@ -301,7 +315,7 @@ async def _viewer_key(rt: Runtime, session_id: str, secret: str) -> SessionMeta:
     if stored is None:
         raise _not_live(session_id)
     meta = SessionMeta.from_bytes(stored.meta)
-    principal.require("viewer", meta.site_id)
+    principal.require("viewer", meta.site_id, missing=_not_live(session_id))
     return meta
 
 
@@ -404,6 +418,7 @@ async def _attempt(
                 field="seq",
             )
         return _Retry.WAIT
+    check_event_times(events, state.last_event_ms, 1000 * rt.settings.max_event_skew_s)
     maps = rt.maps.fresh(meta.site_id) or known_maps  # no SQL while the cached set is fresh
     if maps is None and not meta.contribute:
         return _NeedMaps(meta.site_id)  # read outside the turn
@@ -444,6 +459,7 @@ async def _attempt(
         last_fix=each[-1] if each else state.last_fix,
         rebuilt_seq=seq if rebuilt else state.rebuilt_seq,
         touched_ms=now_ms if touch else state.touched_ms,
+        last_event_ms=max([state.last_event_ms, *map(_event_end_ms, events)]),
     )
     live = orjson.dumps({"seq": seq, "fixes": wire}) if wire else None
     ok = await rt.store.compare_and_set(
@@ -463,6 +479,40 @@ async def _attempt(
         return BatchResult(seq, False, wire, reinitialised=rebuilt, not_used=not_used)
     rt.states.drop(session_id)
     return _Retry.LOST  # another writer got there first: read the new state and try again
+
+
+def check_event_times(events: Sequence[Event], last_event_ms: int, skew_ms: float) -> None:
+    """Refuse a batch (Invalid naming ``events.N.t``, before anything of it is applied)
+    with an event more than ``skew_ms`` either way from the newest event time the session
+    has accepted (``last_event_ms``; 0: none yet), or whose events span more than
+    ``skew_ms``: a clock that jumps by days is a client's bug, not a walk, and the engines
+    would take the jump for one time step.
+
+    The server's clock bounds nothing here: replays of recorded logs (``indoorpos evaluate
+    --via-http``, ``client_sim``) post their original times, years ago. The wire keeps
+    every time in 2000-2099 (``api.schemas.common.TimestampMs``)."""
+    times = [e.t_ms for e in events]
+    lo = hi = times[0] if times else 0
+    for i, t in enumerate(times):
+        if last_event_ms and abs(t - last_event_ms) > skew_ms:
+            side = "before" if t < last_event_ms else "after"
+            raise Invalid(
+                f"{t} lies {abs(t - last_event_ms) / 1000:g} s {side} the newest event time "
+                f"the session has accepted ({last_event_ms}); at most {skew_ms / 1000:g} s",
+                field=f"events.{i}.t",
+            )
+        lo, hi = min(lo, t), max(hi, t)
+        if hi - lo > skew_ms:
+            raise Invalid(
+                f"the batch's events up to this one span {(hi - lo) / 1000:g} s "
+                f"({lo} to {hi}); at most {skew_ms / 1000:g} s",
+                field=f"events.{i}.t",
+            )
+
+
+def _event_end_ms(event: Event) -> int:
+    """The time of an event's last reading (a block of samples runs past its ``t``)."""
+    return event.t_end_ms if isinstance(event, ImuEvent) else event.t_ms
 
 
 def _runs_inline(events: Sequence[Event]) -> bool:

@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 from server.datasets.ilc import floor_level
 from server.datasets.walk import Walk
 from server.positioning.events import WifiEvent
-from server.positioning.floorplan_geojson import PLAN_MARGIN_M
+from server.positioning.floorplan_geojson import PLAN_MARGIN_M, near_extent
 from server.positioning.mapping.anchors import GeoReference, ble_anchors, gnss_anchors
 from server.positioning.mapping.labelled import interpolate_track
 from server.positioning.mapping.magnetic_gridding import MagneticSamples
@@ -105,11 +105,9 @@ def contribution(
     )
     xy, placed, not_used = _place(trace, times, report)
     if level in context.extents:
-        x0, y0, x1, y1 = context.extents[level]
-        m = PLAN_MARGIN_M
-        inside = (xy[:, 0] >= x0 - m) & (xy[:, 0] <= x1 + m) & (xy[:, 1] >= y0 - m)
-        inside &= xy[:, 1] <= y1 + m
+        inside = near_extent(context.extents[level], xy).all(axis=1)
         if n_out := int(np.count_nonzero(placed & ~inside)):
+            m = PLAN_MARGIN_M
             not_used.append(
                 (n_out, f"{n_out} samples placed more than {m:g} m outside the floor plan")
             )

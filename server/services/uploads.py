@@ -29,7 +29,7 @@ from datetime import UTC, datetime, timedelta
 import anyio
 from sqlalchemy.ext.asyncio import AsyncSession
 
-from server.services.errors import Conflict, Invalid, NotFound
+from server.services.errors import Conflict, Invalid, NotFound, not_found
 from server.services.magnetic_maps import fold_sources
 from server.services.maps import add_survey
 from server.services.upload_anchors import upload_building_id
@@ -95,7 +95,7 @@ async def create_upload(s: AsyncSession, new: NewUpload) -> tuple[Upload, bool]:
 async def get_upload(s: AsyncSession, upload_id: str) -> Upload:
     row = await upload_repo.get_upload(s, upload_id)
     if row is None:
-        raise NotFound(f"upload {upload_id} not found", field="upload_id")
+        raise not_found("upload", upload_id)
     return row
 
 

@@ -19,7 +19,9 @@ Two implementations behind one :class:`SessionStore` protocol:
   ``SSUBSCRIBE``, Redis 7). The braces are a Redis Cluster hash tag: the keys and the
   channel of one session live in one slot, so the same code runs on one Redis or on a
   Redis Cluster (``redis+cluster://host:port``: any node of the cluster), where a
-  session's messages stay on the shard that owns it.
+  session's messages stay on the shard that owns it. The ids of API keys that stopped
+  working go on one more sharded channel, ``{prefix}:keys:revoked:v1``, which every api
+  replica holding a socket of a key listens to.
 - :class:`MemorySessionStore` (embedded mode, tests): a dict in the event loop's thread.
 
 Pub/sub is fire-and-forget in both: a subscriber sees the messages published after its
@@ -40,12 +42,14 @@ import anyio
 from redis.asyncio import Redis
 from redis.asyncio.client import PubSub
 from redis.asyncio.cluster import RedisCluster
+from redis.asyncio.connection import AbstractConnection
 
 from server.storage.redis_client import CONNECT_TIMEOUT_S, redis_client, register_script
 
 SUBSCRIBE_TIMEOUT_S = 5.0  # how long subscribe() waits for Redis to confirm
 MEMORY_QUEUE_SIZE = 1024  # messages a slow in-memory subscriber may fall behind by
 MEMORY_SWEEP_INTERVAL_S = 60.0  # how often the in-memory store drops expired records
+MEMORY_REVOKED_CHANNEL = "keys:revoked"  # no session id (32 hex digits) looks like it
 
 
 class SessionExists(Exception):
@@ -116,6 +120,19 @@ class SessionStore(Protocol):
         that is missed. Leaving the block unsubscribes; the iterator then ends."""
         ...
 
+    async def publish_revoked(self, key_id: str) -> None:
+        """Tell every subscriber of :meth:`subscribe_revoked`, in every process sharing
+        the store, that API key ``key_id`` stopped working (revoked or rotated)."""
+        ...
+
+    def subscribe_revoked(self) -> AbstractAsyncContextManager[AsyncIterator[str]]:
+        """``async with store.subscribe_revoked() as key_ids: async for key_id in key_ids:``
+        the ids :meth:`publish_revoked` sends, live when ``__aenter__`` returns. The
+        iterator raises (a :class:`ConnectionError` or a Redis error) when the
+        subscription broke, even if it came back by itself: what was sent meanwhile is
+        lost. Subscribe again, and look for what was missed."""
+        ...
+
     async def epoch(self) -> str:
         """An id of the store's contents: it changes when the store lost what it held
         (a Redis restarted without its data, an embedded process restarted), and only
@@ -153,6 +170,11 @@ class _Record:
     state: bytes
     expires_at: float
     track: list[bytes] = field(default_factory=list)
+
+
+async def _key_ids(messages: AsyncIterator[bytes]) -> AsyncIterator[str]:
+    async for message in messages:
+        yield message.decode()
 
 
 class _QueueMessages:
@@ -195,7 +217,7 @@ class MemorySessionStore:
         self._queue_size = queue_size
         self._clock = clock
         self._records: dict[str, _Record] = {}
-        self._subscribers: dict[str, set[asyncio.Queue[bytes]]] = {}
+        self._subscribers: dict[str, set[asyncio.Queue[bytes]]] = {}  # by channel
         self._next_sweep = clock() + MEMORY_SWEEP_INTERVAL_S
         self._epoch = uuid.uuid4().hex  # a new process starts with a new, empty dict
 
@@ -275,9 +297,9 @@ class MemorySessionStore:
             queue.put_nowait(message)
 
     @asynccontextmanager
-    async def _subscription(self, session_id: str) -> AsyncIterator[AsyncIterator[bytes]]:
+    async def _subscription(self, channel: str) -> AsyncIterator[_QueueMessages]:
         queue: asyncio.Queue[bytes] = asyncio.Queue(self._queue_size)
-        subscribers = self._subscribers.setdefault(session_id, set())
+        subscribers = self._subscribers.setdefault(channel, set())
         subscribers.add(queue)
         messages = _QueueMessages(queue)
         try:
@@ -286,10 +308,21 @@ class MemorySessionStore:
             messages.closed = True
             subscribers.discard(queue)
             if not subscribers:
-                self._subscribers.pop(session_id, None)
+                self._subscribers.pop(channel, None)
 
     def subscribe(self, session_id: str) -> AbstractAsyncContextManager[AsyncIterator[bytes]]:
         return self._subscription(session_id)
+
+    async def publish_revoked(self, key_id: str) -> None:
+        await self.publish(MEMORY_REVOKED_CHANNEL, key_id.encode())
+
+    @asynccontextmanager
+    async def _revoked(self) -> AsyncIterator[AsyncIterator[str]]:
+        async with self._subscription(MEMORY_REVOKED_CHANNEL) as messages:
+            yield _key_ids(messages)
+
+    def subscribe_revoked(self) -> AbstractAsyncContextManager[AsyncIterator[str]]:
+        return self._revoked()
 
     async def epoch(self) -> str:
         return self._epoch
@@ -352,11 +385,24 @@ return redis.call('HMGET', KEYS[1], 'ver', 'meta', 'state')
 
 
 class _PubSubMessages:
-    """Iterator over the data of ``message`` pushes on one pub/sub connection."""
+    """Iterator over the data of the messages of one sharded channel on one pub/sub
+    connection.
 
-    def __init__(self, pubsub: PubSub) -> None:
+    redis-py reconnects a dropped connection by itself, but subscribes it again only to
+    what it subscribed itself, not to a channel of ``SSUBSCRIBE``: :meth:`resubscribe`,
+    which the connection calls on each reconnect, does. Whatever was published while
+    the connection was down is lost; with ``strict`` the iterator then raises
+    :class:`ConnectionError` (as when the channel's slot moved to another node) for the
+    caller to subscribe again and look for what it missed, else it goes on."""
+
+    def __init__(self, pubsub: PubSub, channel: str, *, strict: bool) -> None:
         self.pubsub = pubsub
+        self.channel = channel
+        self.strict = strict
         self.closed = False
+
+    async def resubscribe(self, connection: AbstractConnection) -> None:
+        await connection.send_command("SSUBSCRIBE", self.channel)
 
     def __aiter__(self) -> _PubSubMessages:
         return self
@@ -364,9 +410,15 @@ class _PubSubMessages:
     async def __anext__(self) -> bytes:
         while not self.closed:
             message = await self.pubsub.get_message(timeout=None)
-            if message is not None and message["type"] == "smessage":
+            if message is None:
+                continue
+            if message["type"] == "smessage":
                 data: bytes = message["data"]
                 return data
+            if self.strict and message["type"] in ("ssubscribe", "sunsubscribe"):
+                # after the first confirmation (read on subscribing): a reconnect, or a
+                # slot that moved
+                raise ConnectionError(f"the subscription to {self.channel} broke")
         raise StopAsyncIteration
 
 
@@ -398,6 +450,10 @@ class RedisSessionStore:
     def live_channel(self, session_id: str) -> str:
         """The pub/sub channel of the session's live messages."""
         return f"{self._prefix}:sess:{{{session_id}}}:live:v1"
+
+    def revoked_channel(self) -> str:
+        """The pub/sub channel of the ids of API keys that stopped working."""
+        return f"{self._prefix}:keys:revoked:v1"
 
     async def create(
         self, session_id: str, meta: bytes, state: bytes, ttl_s: int, version: int = 1
@@ -460,6 +516,10 @@ class RedisSessionStore:
         channel = self.live_channel(session_id)
         await (await self._owner(channel)).spublish(channel, message)
 
+    async def publish_revoked(self, key_id: str) -> None:
+        channel = self.revoked_channel()
+        await (await self._owner(channel)).spublish(channel, key_id.encode())
+
     async def _owner(self, channel: str) -> Redis:
         """A client of the node that serves ``channel`` (the store's own on one Redis)."""
         if isinstance(self._client, Redis):
@@ -481,12 +541,14 @@ class RedisSessionStore:
         return found
 
     @asynccontextmanager
-    async def _subscription(self, session_id: str) -> AsyncIterator[AsyncIterator[bytes]]:
-        channel = self.live_channel(session_id)
+    async def _subscription(self, channel: str, *, strict: bool) -> AsyncIterator[_PubSubMessages]:
         pubsub = (await self._owner(channel)).pubsub()
-        messages = _PubSubMessages(pubsub)
+        messages = _PubSubMessages(pubsub, channel, strict=strict)
         try:
             await pubsub.execute_command("SSUBSCRIBE", channel)
+            connection = pubsub.connection
+            assert connection is not None  # execute_command connected it
+            connection.register_connect_callback(messages.resubscribe)
             # SSUBSCRIBE is only sent above; the subscription is live once Redis confirms it.
             async with asyncio.timeout(SUBSCRIBE_TIMEOUT_S):
                 confirmation: dict[str, Any] | None = None
@@ -495,13 +557,23 @@ class RedisSessionStore:
             yield messages
         finally:
             messages.closed = True
+            if pubsub.connection is not None:  # back to the pool: not to subscribe again
+                pubsub.connection.deregister_connect_callback(messages.resubscribe)
             # Closing drops the connection, which unsubscribes; shielded so a cancelled
             # reader still gives its connection back to the pool.
             with anyio.CancelScope(shield=True):
                 await pubsub.aclose()  # type: ignore[no-untyped-call]  # unannotated in redis-py
 
     def subscribe(self, session_id: str) -> AbstractAsyncContextManager[AsyncIterator[bytes]]:
-        return self._subscription(session_id)
+        return self._subscription(self.live_channel(session_id), strict=False)
+
+    @asynccontextmanager
+    async def _revoked(self) -> AsyncIterator[AsyncIterator[str]]:
+        async with self._subscription(self.revoked_channel(), strict=True) as messages:
+            yield _key_ids(messages)
+
+    def subscribe_revoked(self) -> AbstractAsyncContextManager[AsyncIterator[str]]:
+        return self._revoked()
 
     def epoch_key(self) -> str:
         """A key set once, never expiring: a Redis that lost its data has none, and the

@@ -5,7 +5,7 @@ from __future__ import annotations
 import httpx
 import pytest
 
-from tests.api.toy_site import build_toy_site
+from tests.api.toy_site import build_toy_site, rssi_at, toy_plan
 
 
 @pytest.mark.parametrize(
@@ -133,6 +133,45 @@ async def test_survey_errors_name_the_reading(
     r = await client.post(url, json=late, headers=admin)
     assert r.status_code == 422
     assert "points.0.t" in r.json()["message"]
+    # the field goes into the magnetic map: a calibrated magnetometer's, within ±500 µT
+    for field_ut in ([1e308, 0, 0], [0, 0, -501]):
+        odd = {"points": [{"x_m": 0, "y_m": 0, "floor": 0, "mag_ut": field_ut}]}
+        r = await client.post(url, json=odd, headers=admin)
+        assert r.status_code == 422, r.text
+        axis = 0 if field_ut[0] else 2
+        assert r.json()["message"].startswith(f"points.0.mag_ut.{axis}: "), r.json()
+
+
+async def test_a_survey_point_must_lie_on_its_floor_plan(
+    client: httpx.AsyncClient, admin: dict[str, str]
+) -> None:
+    """As magnetic surveys: a point farther than 10 m outside its floor's plan is refused,
+    naming the coordinate, and nothing of the survey is stored; a floor without a plan
+    takes any point in the coordinate range."""
+    site = await build_toy_site(client, admin)
+    r = await client.put(f"/v1/floors/{site.floor_ids[0]}/plan", json=toy_plan(), headers=admin)
+    assert r.status_code == 200, r.text
+    url = f"/v1/buildings/{site.building_id}/survey"
+    versions = f"/v1/buildings/{site.building_id}/radio-maps"
+    before = (await client.get(versions, headers=admin)).json()["count"]
+    near = {"x_m": 29.5, "y_m": -9.5, "floor": 0, "wifi": rssi_at(19, 0, 0)}  # within 10 m
+    for far, field in (
+        ({**near, "x_m": 1000.0}, "points.2.x_m"),
+        ({**near, "x_m": -10.5}, "points.2.x_m"),
+        ({**near, "y_m": 20.5}, "points.2.y_m"),
+        ({**near, "x_m": 1000.0, "y_m": -1000.0}, "points.2.x_m"),
+    ):
+        body = {"points": [near, {**near, "floor": 1, "x_m": 1000.0}, far, far]}
+        r = await client.post(url, json=body, headers=admin)
+        assert r.status_code == 422, r.text
+        assert r.json()["message"].startswith(f"{field}: "), r.json()
+        assert "outside the floor plan" in r.json()["message"]
+    assert (await client.get(versions, headers=admin)).json()["count"] == before
+    # level 1 has no plan: bounded by the coordinate range alone
+    body = {"points": [near, {**near, "floor": 1, "x_m": 1000.0}]}
+    r = await client.post(url, json=body, headers=admin)
+    assert r.status_code == 201, r.text
+    assert r.json()["version"] == before + 1
 
 
 async def test_survey_builds_new_versions(client: httpx.AsyncClient, admin: dict[str, str]) -> None:
@@ -170,8 +209,6 @@ async def test_survey_on_unknown_level_names_the_point(
 async def test_locate_finds_the_surveyed_point(
     client: httpx.AsyncClient, admin: dict[str, str]
 ) -> None:
-    from tests.api.toy_site import rssi_at
-
     site = await build_toy_site(client, admin)
     body = {"site_id": site.site_id, "wifi": rssi_at(12, 3, 1)}
     assert (await client.post("/v1/locate", json=body)).status_code == 401

@@ -9,9 +9,10 @@ import httpx
 import pytest
 
 from tests.api.test_sessions import open_session, step
-from tests.api.toy_site import ToySite, build_toy_site
+from tests.api.toy_site import ToySite, build_toy_site, device_headers
 
 T0 = 1_700_000_000_000
+JSON = {"content-type": "application/json"}
 
 
 @pytest.fixture
@@ -56,8 +57,10 @@ async def test_a_wrong_method_lists_every_method_of_the_path(
     [b"\xff\xfe not utf-8", b"[" * 1000 + b"]" * 1000, b'{"site_id": '],
     ids=["bad-utf8", "deep-nesting", "truncated"],
 )
-async def test_an_unparseable_body_names_the_body(client: httpx.AsyncClient, raw: bytes) -> None:
-    r = await client.post("/v1/sessions", content=raw, headers={"content-type": "application/json"})
+async def test_an_unparseable_body_names_the_body(
+    client: httpx.AsyncClient, admin: dict[str, str], raw: bytes
+) -> None:
+    r = await client.post("/v1/sessions", content=raw, headers={**admin, **JSON})
     assert r.status_code in (400, 422), r.text
     body = r.json()
     assert body["message"].startswith("body"), body
@@ -73,7 +76,7 @@ async def test_a_declared_large_body_is_refused_before_it_is_read(
 
 
 async def test_a_chunked_large_body_is_cut_off_at_the_limit(
-    client: httpx.AsyncClient, app: Any
+    client: httpx.AsyncClient, app: Any, admin: dict[str, str]
 ) -> None:
     limit = app.state.runtime.settings.json_max_bytes
     sent = 0
@@ -86,9 +89,7 @@ async def test_a_chunked_large_body_is_cut_off_at_the_limit(
             yield b"a" * 65536
         yield b'"}'
 
-    r = await client.post(
-        "/v1/sessions", content=chunks(), headers={"content-type": "application/json"}
-    )
+    r = await client.post("/v1/sessions", content=chunks(), headers={**admin, **JSON})
     assert_shape(r, 413, "body")
 
 
@@ -170,14 +171,36 @@ async def test_device_model_is_plain_short_text(
     assert "device_model" in r.json()["message"]
 
 
-async def test_the_bulk_body_size_is_only_for_requests_with_credentials(
-    client: httpx.AsyncClient, app: Any
+async def test_the_bulk_body_size_is_only_for_a_key_the_route_lets_in(
+    client: httpx.AsyncClient, app: Any, admin: dict[str, str]
 ) -> None:
     limit = app.state.runtime.settings.json_max_bytes
     big = b'{"points": [' + b" " * limit + b"]}"
     url = f"/v1/buildings/{'0' * 32}/survey"
-    r = await client.post(url, content=big, headers={"content-type": "application/json"})
-    assert_shape(r, 413, "body")  # no key: never parsed
-    wrong = {"content-type": "application/json", "Authorization": "Bearer wrong"}
-    r = await client.post(url, content=big, headers=wrong)
-    assert r.status_code != 413, r.text  # a bulk route takes it from one with credentials
+    viewer = await device_headers(client, admin, ("viewer",))
+    cases = [
+        ({}, 401, "authorization"),  # no key: never read
+        ({"Authorization": "Bearer wrong"}, 401, "authorization"),
+        (viewer, 403, "authorization"),  # a key without the route's scope
+    ]
+    for headers, status, field in cases:
+        r = await client.post(url, content=big, headers={**headers, **JSON})
+        assert_shape(r, status, field)
+    # an admin key's body is read whole, past the device limit, and judged
+    r = await client.post(url, content=big, headers={**admin, **JSON})
+    assert r.status_code == 422, r.text
+    assert r.json()["message"].startswith("points: ")
+
+
+async def test_a_malformed_session_id_is_refused_before_the_body_is_read(
+    client: httpx.AsyncClient,
+) -> None:
+    r = await client.post(
+        "/v1/sessions/xyz/batches",
+        content=b"not json at all",
+        headers={"Authorization": "Bearer nope", **JSON},
+    )
+    assert r.status_code == 422, r.text
+    body = r.json()
+    assert body["message"].startswith("session_id: "), body
+    assert len(body["detail"]) == 1  # the path alone: the body was never looked at

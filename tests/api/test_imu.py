@@ -127,6 +127,7 @@ def case(name: str, change: Callable[[Event], Event], field: str) -> Any:
         case("accel", row_set("accel", 0, 1, 160.5), "events.0.accel.0.1"),
         case("gyro", row_set("gyro", 0, 3, -35.5), "events.0.gyro.0.3"),
         case("magnetic", row_set("magnetic", 0, 2, 5001.0), "events.0.magnetic.0.2"),
+        case("magnetic 1e308", row_set("magnetic", 1, 1, -1e308), "events.0.magnetic.1.1"),
         case("quaternion", row_set("rotation", 0, 4, 1.01), "events.0.rotation.0.4"),
         case("not unit", row_set("rotation", 0, 4, 0.5), "events.0.rotation"),
         case("low pressure", row_set("pressure", 0, 1, 299.0), "events.0.pressure.0.1"),

@@ -87,11 +87,12 @@ async def test_a_site_key_stays_on_its_site(
     mine = await _calls(client, site, headers)
     assert mine["read floors"] == 200
     assert mine["open session"] == 201
+    # another site's things answer as things that do not exist
     theirs = await _calls(client, other, headers)
-    assert theirs["read floors"] == 403
-    assert theirs["read quality"] == 403
-    assert theirs["open session"] == 403
-    assert theirs["locate"] == 403
+    assert theirs["read floors"] == 404
+    assert theirs["read quality"] == 404
+    assert theirs["open session"] == 404
+    assert theirs["locate"] == 404
     listed = (await client.get("/v1/sites", headers=headers)).json()
     assert [s["id"] for s in listed["items"]] == [site.site_id]
 

@@ -13,7 +13,7 @@ from fastapi import FastAPI
 
 from server.positioning.magnetic import sample
 from server.services.maps import site_maps
-from tests.api.toy_site import build_toy_site
+from tests.api.toy_site import build_toy_site, toy_plan
 
 T0 = 1_700_000_000_000
 
@@ -175,18 +175,7 @@ async def test_a_survey_must_lie_on_the_floor_plan(
 ) -> None:
     site = await build_toy_site(client, admin)
     floor = site.floor_ids[0]
-    outline = [[0.0, 0.0], [20.0, 0.0], [20.0, 10.0], [0.0, 10.0], [0.0, 0.0]]
-    plan = {
-        "type": "FeatureCollection",
-        "features": [
-            {
-                "type": "Feature",
-                "properties": {"kind": "walkable"},
-                "geometry": {"type": "Polygon", "coordinates": [outline]},
-            }
-        ],
-    }
-    r = await client.put(f"/v1/floors/{floor}/plan", json=plan, headers=admin)
+    r = await client.put(f"/v1/floors/{floor}/plan", json=toy_plan(), headers=admin)
     assert r.status_code == 200, r.text
     url = f"/v1/floors/{floor}/magnetic-survey"
     inside = {"x_m": 25.0, "y_m": 5.0, "magnitude_ut": 50.0}  # within the 10 m margin

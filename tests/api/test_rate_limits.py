@@ -114,6 +114,14 @@ async def test_failed_authentication_is_limited_per_address(
     r = await limited.get(f"/v1/sessions/{'0' * 32}", headers=wrong)
     assert _refused(r)
     assert _refused(await limited.get("/v1/sites", headers=admin))
+    # nor a body of a bulk route, whatever its key and size
+    big = b'{"points": [' + b" " * (8 * 1024 * 1024) + b"]}"
+    r = await limited.put(
+        f"/v1/floors/{'0' * 32}/plan",
+        content=big,
+        headers={**wrong, "content-type": "application/json"},
+    )
+    assert _refused(r)
 
 
 async def test_wrong_session_tokens_count_as_failures(

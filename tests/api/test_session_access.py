@@ -72,17 +72,24 @@ async def test_viewer_and_admin_keys_read_a_session_a_device_key_does_not(
         r = await client.get(f"/v1/sessions/{sid}", headers=headers)
         assert r.status_code == 200, r.text
         assert r.json() == own
-    # a device key, even of the site, reads only the sessions it holds the tokens of; a
-    # viewer of another site, none of this one's; another session's token, not this one
+    # a device key, even of the site, reads only the sessions it holds the tokens of;
+    # another session's token, not this one; a viewer of another site hears of it what
+    # it hears of a session that does not exist
     other = await build_toy_site(client, admin)
     stranger = await device_headers(client, admin, ("viewer",), other.site_id)
     _, other_auth = await _open(client, site)
-    for headers in (site.device, stranger, other_auth):
+    for headers in (site.device, other_auth):
         r = await client.get(f"/v1/sessions/{sid}", headers=headers)
         assert r.status_code == 403, r.text
         assert "authorization" in r.json()["message"]
         r = await client.get(f"/v1/sessions/{sid}/track", headers=headers)
         assert r.status_code == 403, r.text
+    missing = "0" * 32
+    for path in ("", "/track"):
+        theirs = await client.get(f"/v1/sessions/{sid}{path}", headers=stranger)
+        none = await client.get(f"/v1/sessions/{missing}{path}", headers=stranger)
+        assert theirs.status_code == none.status_code == 404, theirs.text
+        assert theirs.text.replace(sid, missing) == none.text
     # a key reads; it does not post batches or end the session
     batch = {"seq": 2, "events": [_step(T0 + 600)]}
     r = await client.post(f"/v1/sessions/{sid}/batches", json=batch, headers=admin)

@@ -189,6 +189,12 @@ async def test_other_sessions_token_is_forbidden(client: httpx.AsyncClient, site
             {"type": "ble", "t": T0, "readings": [{"id": "a\u0000", "rssi_dbm": -60}]},
             "events.1.readings.0.id",
         ),
+        # no phone's magnetometer reads more than ±4900 µT on an axis
+        ({"type": "mag", "t": T0, "field_ut": [1e308, 0.0, 0.0]}, "events.1.field_ut.0"),
+        ({"type": "mag", "t": T0, "field_ut": [20.0, 0.0, -5000.5]}, "events.1.field_ut.2"),
+        # an azimuth is at most one turn either way
+        ({"type": "step", "t": T0, "length_m": 0.7, "heading_rad": 1e308}, "events.1.heading_rad"),
+        ({"type": "step", "t": T0, "length_m": 0.7, "heading_rad": -6.3}, "events.1.heading_rad"),
     ],
 )
 async def test_malformed_events_get_422_naming_the_field(
@@ -224,3 +230,93 @@ async def test_deleted_session_is_gone(client: httpx.AsyncClient, site: ToySite)
     sid, auth = await open_session(client, site)
     assert (await client.delete(f"/v1/sessions/{sid}", headers=auth)).status_code == 204
     assert (await client.get(f"/v1/sessions/{sid}", headers=auth)).status_code == 403
+
+
+async def test_the_extremes_of_the_plausible_ranges_are_accepted(
+    client: httpx.AsyncClient, site: ToySite
+) -> None:
+    sid, auth = await open_session(client, site)
+    events = [
+        scan(T0, 5, 5),
+        {"type": "mag", "t": T0 + 1, "field_ut": [5000.0, -5000.0, 0.0]},
+        step(T0 + 600, heading_rad=2 * math.pi),
+        step(T0 + 1200, heading_rad=-2 * math.pi),
+    ]
+    r = await client.post(
+        f"/v1/sessions/{sid}/batches", json={"seq": 1, "events": events}, headers=auth
+    )
+    assert r.status_code == 200, r.text
+
+
+DAY_MS = 86_400_000  # the default max_event_skew_s
+
+
+@pytest.mark.parametrize(
+    ("events", "field"),
+    [
+        # the session's newest event is at T0 + 600
+        ([step(T0 + 1200), step(T0 + 600 + DAY_MS + 1)], "events.1.t"),
+        ([step(T0 + 600 - DAY_MS - 1)], "events.0.t"),
+        ([step(T0 + 2**40)], "events.0.t"),
+        # each within a day of the session's clock, but more than a day apart
+        ([step(T0 + 600 - DAY_MS // 2 - 1), step(T0 + 600 + DAY_MS // 2 + 1)], "events.1.t"),
+    ],
+)
+async def test_event_times_far_from_the_sessions_clock_are_refused_whole(
+    client: httpx.AsyncClient, site: ToySite, events: list[dict[str, Any]], field: str
+) -> None:
+    sid, auth = await open_session(client, site)
+    url = f"/v1/sessions/{sid}/batches"
+    first = [scan(T0, 5, 5), step(T0 + 600)]
+    r = await client.post(url, json={"seq": 1, "events": first}, headers=auth)
+    assert r.status_code == 200, r.text
+    before = (await client.get(f"/v1/sessions/{sid}", headers=auth)).json()
+    r = await client.post(url, json={"seq": 2, "events": events}, headers=auth)
+    assert r.status_code == 422, r.text
+    assert r.json()["message"].startswith(f"{field}: "), r.json()
+    assert (await client.get(f"/v1/sessions/{sid}", headers=auth)).json() == before
+    # nothing was applied and seq 2 is still free: the corrected batch goes in as new
+    r = await client.post(url, json={"seq": 2, "events": [step(T0 + 1200)]}, headers=auth)
+    assert r.status_code == 200, r.text
+    assert r.json()["replayed"] is False
+    start_x = before["last_fix"]["x_m"]
+    assert r.json()["fixes"][-1]["x_m"] == pytest.approx(start_x + 0.7, abs=0.2)
+
+
+async def test_the_sessions_clock_is_its_own_newest_event(
+    client: httpx.AsyncClient, site: ToySite
+) -> None:
+    """Times are checked against the session's own events, not the server's clock (a
+    replay posts a recorded walk's times, years old); the newest time accepted so far is
+    the session's clock, a day either way."""
+    sid, auth = await open_session(client, site)
+    url = f"/v1/sessions/{sid}/batches"
+    recorded = 1_370_000_000_000  # 2013
+    r = await client.post(
+        url,
+        json={"seq": 1, "events": [scan(recorded, 5, 5), step(recorded + DAY_MS + 1)]},
+        headers=auth,
+    )
+    assert r.status_code == 422, r.text  # one batch spans at most a day
+    assert r.json()["message"].startswith("events.1.t: "), r.json()
+    accepted = [
+        [scan(recorded, 5, 5)],
+        [step(recorded + DAY_MS)],  # a day on: still in
+        # a day from the newest time so far, not from the first; the batch's last event
+        # is not its newest
+        [step(recorded + 2 * DAY_MS), step(recorded + 2 * DAY_MS - 1000)],
+    ]
+    for seq, events in enumerate(accepted, start=1):
+        r = await client.post(url, json={"seq": seq, "events": events}, headers=auth)
+        assert r.status_code == 200, r.text
+    # more than a day before the newest
+    late = {"seq": 4, "events": [step(recorded + DAY_MS - 1)]}
+    r = await client.post(url, json=late, headers=auth)
+    assert r.status_code == 422, r.text
+    assert r.json()["message"].startswith("events.0.t: "), r.json()
+    # a retry of a batch the session applied is answered from its record, however far
+    # the session's clock has moved on since
+    first = {"seq": 1, "events": accepted[0]}
+    r = await client.post(url, json=first, headers=auth)
+    assert r.status_code == 200, r.text
+    assert r.json()["replayed"] is True

@@ -391,6 +391,17 @@ async def test_a_malformed_walk_of_our_events_names_the_field(
     r = await client.post("/v1/uploads", params={"site_id": site_id}, json=bad, headers=admin)
     assert r.status_code == 422, r.text
     assert "events.0.t" in r.json()["message"]
+    # the events' plausible ranges hold in a walk as in a session's batch
+    step = {"type": "step", "t": WALK_T0 + 600, "length_m": 0.7, "heading_rad": 1.0}
+    for odd, field in (
+        ({"type": "mag", "t": WALK_T0, "field_ut": [0.0, 1e308, 0.0]}, "events.1.field_ut.1"),
+        ({**step, "heading_rad": 1e308}, "events.1.heading_rad"),
+    ):
+        r = await client.post(
+            "/v1/uploads", params={"site_id": site_id}, json={"events": [step, odd]}, headers=admin
+        )
+        assert r.status_code == 422, r.text
+        assert r.json()["message"].startswith(f"{field}: "), r.json()
     r = await client.post(
         "/v1/uploads", params={"site_id": site_id}, json={"events": []}, headers=admin
     )

@@ -36,6 +36,14 @@ def rssi_at(x_m: float, y_m: float, level: int) -> list[dict[str, Any]]:
     return readings
 
 
+def toy_plan() -> dict[str, Any]:
+    """A floor plan of the toy floor: one walkable 20 m x 10 m rectangle."""
+    outline = [[0.0, 0.0], [WIDTH_M, 0.0], [WIDTH_M, DEPTH_M], [0.0, DEPTH_M], [0.0, 0.0]]
+    walkable = {"type": "Polygon", "coordinates": [outline]}
+    feature = {"type": "Feature", "properties": {"kind": "walkable"}, "geometry": walkable}
+    return {"type": "FeatureCollection", "features": [feature]}
+
+
 async def device_headers(
     client: httpx.AsyncClient,
     admin: dict[str, str],
@@ -49,6 +57,19 @@ async def device_headers(
     r = await client.post("/v1/keys", json=body, headers=admin)
     assert r.status_code == 201, r.text
     return {"Authorization": f"Bearer {r.json()['key']}"}
+
+
+async def new_key(
+    client: httpx.AsyncClient,
+    admin: dict[str, str],
+    scopes: tuple[str, ...],
+    site_id: str | None = None,
+) -> tuple[str, str]:
+    """A new key with ``scopes`` (for ``site_id`` only, when given): its id and secret."""
+    body: dict[str, Any] = {"name": "test key", "scopes": list(scopes), "site_id": site_id}
+    r = await client.post("/v1/keys", json=body, headers=admin)
+    assert r.status_code == 201, r.text
+    return r.json()["id"], r.json()["key"]
 
 
 @dataclass(frozen=True)

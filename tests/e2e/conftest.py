@@ -11,6 +11,7 @@ import pytest
 import uvicorn
 
 from server.app import create_app
+from server.cli.http_protocol import http_protocol
 from server.config import Settings
 
 
@@ -41,7 +42,9 @@ def _serve(settings: Settings) -> Iterator[str]:
             host="127.0.0.1",
             port=port,
             log_level="warning",
-            **settings.proxy_options(),  # as `indoorpos serve` runs it
+            # as `indoorpos serve` runs it
+            http=http_protocol(settings),
+            **settings.proxy_options(),
         )
     )
     thread = threading.Thread(target=server.run, daemon=True)
@@ -60,3 +63,13 @@ def _serve(settings: Settings) -> Iterator[str]:
 def cluster_live_url(settings: Settings, redis_cluster_url: str) -> Iterator[str]:
     """The same server with its sessions, uploads and rate limits in a Redis Cluster."""
     yield from _serve(settings.model_copy(update={"redis_url": redis_cluster_url}))
+
+
+@pytest.fixture(scope="module")
+def replica_url(settings: Settings) -> Iterator[str]:
+    """One more api replica beside ``live_url``, on the same PostgreSQL and Redis.
+    Skipped when embedded: an in-memory session store is its process's own, so two
+    embedded servers are not replicas of one service."""
+    if settings.redis_url is None:
+        pytest.skip("embedded mode runs one process: no second replica shares its store")
+    yield from _serve(settings)

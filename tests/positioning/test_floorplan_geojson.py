@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 from server.positioning.floorplan import valid_moves, walkable_at
 from server.positioning.floorplan_geojson import (
     PlanError,
+    near_extent,
     plan_extent,
     plan_from_geojson,
     validate_plan,
@@ -149,6 +150,21 @@ def test_plan_extent_is_the_box_of_the_walkable_features() -> None:
     assert plan_extent(plan) == (1.0, 2.0, 9.0, 5.0)
     assert plan_extent({"type": "FeatureCollection", "features": []}) is None
     assert plan_extent(None) is None
+
+
+coordinate = st.floats(-100.0, 100.0)
+
+
+@given(x=coordinate, y=coordinate)
+def test_a_point_is_near_an_extent_within_the_margin_per_axis(x: float, y: float) -> None:
+    # the box (0, 0)..(20, 10) grown by the 10 m margin: x in [-10, 30], y in [-10, 20]
+    (x_near, y_near), *_ = near_extent((0.0, 0.0, 20.0, 10.0), [(x, y)]).tolist()
+    assert x_near == (-10.0 <= x <= 30.0)
+    assert y_near == (-10.0 <= y <= 20.0)
+    # one extent per point: the same answer
+    boxes = [(0.0, 0.0, 20.0, 10.0), (-5.0, -5.0, 5.0, 5.0)]
+    both = near_extent(boxes, [(x, y), (x, y)], margin_m=0.0).tolist()
+    assert both == [[0.0 <= x <= 20.0, 0.0 <= y <= 10.0], [-5.0 <= x <= 5.0, -5.0 <= y <= 5.0]]
 
 
 # validate_plan: what a plan sent to the service must pass

@@ -9,10 +9,12 @@ from __future__ import annotations
 import asyncio
 import uuid
 from collections.abc import AsyncIterator, Awaitable, Callable
+from typing import Any, TypeVar
 
 import pytest
 import redis.exceptions
 from redis.asyncio import Redis
+from redis.asyncio.cluster import RedisCluster
 
 from server.storage.redis_client import redis_client
 from server.storage.session_store import (
@@ -28,6 +30,7 @@ from tests.storage.conftest import REDIS_URL, redis_or_skip
 TTL_S = 60
 WAIT_S = 2.0  # upper bound for any single message to arrive
 PREFIX = f"ips-test-{uuid.uuid4().hex[:8]}"  # keys of this run only, never the app's
+T = TypeVar("T")
 
 
 async def _redis_store() -> RedisSessionStore:
@@ -259,7 +262,7 @@ async def test_track_goes_with_its_session(
     assert await store.track(sid, 5) == []
 
 
-async def _next(messages: AsyncIterator[bytes]) -> bytes:
+async def _next(messages: AsyncIterator[T]) -> T:
     async with asyncio.timeout(WAIT_S):
         return await anext(messages)
 
@@ -344,6 +347,81 @@ async def test_cancelled_reader_unsubscribes(
     async with store.subscribe(sid) as messages:
         await store.publish(sid, b"still works")
         assert await _next(messages) == b"still works"
+
+
+async def _replica(store: SessionStore, request: pytest.FixtureRequest) -> SessionStore | None:
+    """Another process's store on the same backend (None in memory: one process)."""
+    backend = request.node.callspec.params["backend"]
+    if backend == "memory":
+        return None
+    url = request.getfixturevalue("redis_cluster_url") if backend == "cluster" else REDIS_URL
+    return RedisSessionStore(redis_client(url), prefix=PREFIX)
+
+
+async def test_revoked_keys_reach_every_subscriber_in_every_process(
+    store: SessionStore, request: pytest.FixtureRequest
+) -> None:
+    other = await _replica(store, request) or store
+    try:
+        await store.publish_revoked("before")  # nobody listens: lost
+        async with store.subscribe_revoked() as here, other.subscribe_revoked() as there:
+            await store.publish_revoked("k1")
+            await other.publish_revoked("k2")
+            assert [await _next(here), await _next(here)] == ["k1", "k2"]
+            assert [await _next(there), await _next(there)] == ["k1", "k2"]
+        async with other.subscribe_revoked() as late:
+            await store.publish_revoked("k3")
+            assert await _next(late) == "k3"
+    finally:
+        if other is not store:
+            await other.close()
+
+
+async def _drop_pubsub_connections(url: str, name: str | None) -> int:
+    """Kill the pub/sub connections (those named ``name`` when given) on every node of
+    the Redis at ``url``; how many there were."""
+    client = redis_client(url, decode_responses=True)
+    try:
+        if isinstance(client, RedisCluster):
+            await client.initialize()
+        nodes = client.get_nodes() if isinstance(client, RedisCluster) else [None]
+        killed = 0
+        for node in nodes:
+            kwargs: dict[str, Any] = {"target_nodes": node} if node is not None else {}
+            for listed in await client.client_list(_type="pubsub", **kwargs):
+                if name is None or listed.get("name") == name:
+                    await client.client_kill_filter(_id=listed["id"], **kwargs)
+                    killed += 1
+        return killed
+    finally:
+        await client.aclose()
+
+
+@pytest.mark.parametrize("kind", ["redis", "cluster"])
+async def test_a_broken_subscription_to_revoked_keys_raises(
+    kind: str, request: pytest.FixtureRequest
+) -> None:
+    """Messages sent while the connection was down are lost: the subscriber is told,
+    even when redis-py reconnected by itself (a cluster node's client retries)."""
+    if kind == "cluster":
+        # the run's own cluster: every pub/sub connection on it is this test's
+        url, name = request.getfixturevalue("redis_cluster_url"), None
+        store = RedisSessionStore(redis_client(url), prefix=PREFIX)
+    else:  # a shared Redis: only this store's connections, by their name
+        await (await redis_or_skip()).aclose()
+        url, name = REDIS_URL, f"{PREFIX}-{uuid.uuid4().hex[:8]}"
+        store = RedisSessionStore(Redis.from_url(url, client_name=name), prefix=PREFIX)
+    try:
+        async with store.subscribe_revoked() as key_ids:
+            assert await _drop_pubsub_connections(url, name) == 1
+            with pytest.raises((ConnectionError, redis.exceptions.ConnectionError)):
+                async with asyncio.timeout(5.0):  # a cluster node's client waits up to 2 s
+                    await anext(key_ids)
+        async with store.subscribe_revoked() as key_ids:  # subscribing again works
+            await store.publish_revoked("k")
+            assert await _next(key_ids) == "k"
+    finally:
+        await store.close()
 
 
 ODD_IDS = ["a", "a}", "{a", "a}:state:v1", "a:b", "*", "?", "[x]", "with space", "ü€", "x\ny"]

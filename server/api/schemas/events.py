@@ -10,7 +10,7 @@ from pydantic import (
     Strict as StrictMode,
 )
 
-from server.api.schemas.common import LAX_ARRAY, EmitterId, FiniteFloat, StrictIn, TimestampMs
+from server.api.schemas.common import LAX_ARRAY, EmitterId, StrictIn, TimestampMs
 
 MAX_READINGS_PER_SCAN = 2048  # malls with every SSID per radio reach 500+
 # raw motion samples: one sensor at 200 Hz for a whole minute fits an event
@@ -35,6 +35,24 @@ ReadingAge = Annotated[
 ]
 
 
+# a magnetometer axis in µT: Earth's field is 25-65 µT, steel and motors indoors add a few
+# hundred, and a raw (uncalibrated) magnetometer reports as much again of hard-iron bias;
+# phone magnetometers saturate at ±4900 µT at most, so ±5000 µT refuses only what no phone
+# measures (a field of 1e308 µT would overflow the particle filter's arithmetic)
+Magnetic = Annotated[float, StrictMode(), Field(ge=-5000, le=5000, allow_inf_nan=False)]
+# an azimuth in either convention: Android's [-π, π] or a compass bearing's [0, 2π)
+Heading = Annotated[
+    float,
+    StrictMode(),
+    Field(
+        ge=-2 * math.pi,
+        le=2 * math.pi,
+        allow_inf_nan=False,
+        description="radians clockwise from north, in [-2π, 2π]: one turn either way",
+    ),
+]
+
+
 class WifiReading(StrictIn):
     bssid: EmitterId
     rssi_dbm: Annotated[float, Field(ge=-130, le=0, allow_inf_nan=False)]
@@ -51,7 +69,7 @@ class StepIn(StrictIn):
     type: Literal["step"]
     t: TimestampMs
     length_m: Annotated[float, Field(gt=0, le=3.0, allow_inf_nan=False)]
-    heading_rad: FiniteFloat
+    heading_rad: Heading
     confidence: Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)] = 1.0
 
 
@@ -70,7 +88,7 @@ class BleIn(StrictIn):
 class MagIn(StrictIn):
     type: Literal["mag"]
     t: TimestampMs
-    field_ut: Annotated[tuple[FiniteFloat, FiniteFloat, FiniteFloat], LAX_ARRAY] | None = None
+    field_ut: Annotated[tuple[Magnetic, Magnetic, Magnetic], LAX_ARRAY] | None = None
     magnitude_ut: Annotated[float | None, Field(ge=0, le=2000, allow_inf_nan=False)] = None
 
     @model_validator(mode="after")
@@ -80,11 +98,9 @@ class MagIn(StrictIn):
         return self
 
 
-# plausible ranges: accelerometers saturate at 16 g, gyroscopes at 2000 °/s; raw
-# (uncalibrated) magnetometers report several hundred µT of hard-iron bias
+# plausible ranges: accelerometers saturate at 16 g, gyroscopes at 2000 °/s
 Accel = Annotated[float, StrictMode(), Field(ge=-160, le=160, allow_inf_nan=False)]
 Gyro = Annotated[float, StrictMode(), Field(ge=-35, le=35, allow_inf_nan=False)]
-Magnetic = Annotated[float, StrictMode(), Field(ge=-5000, le=5000, allow_inf_nan=False)]
 Quaternion = Annotated[float, StrictMode(), Field(ge=-1, le=1, allow_inf_nan=False)]
 Pressure = Annotated[float, StrictMode(), Field(ge=300, le=1100, allow_inf_nan=False)]
 UNIT_NORM_TOLERANCE = 0.1  # how far |q| of a rotation row may be from 1

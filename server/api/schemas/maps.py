@@ -14,7 +14,6 @@ from pydantic import (
 from server.api.schemas.common import (
     LAX_ARRAY,
     Coordinate,
-    FiniteFloat,
     Strict,
     StrictIn,
     TimestampMs,
@@ -22,6 +21,10 @@ from server.api.schemas.common import (
 from server.api.schemas.events import MAX_READINGS_PER_SCAN, BleReading, WifiReading
 
 WalkName = Annotated[str, StringConstraints(min_length=1, max_length=64)]
+# Survey readings (magnetic surveys and the radio survey's mag_ut, which go into the same
+# magnetic maps) must come from a calibrated magnetometer: indoor fields stay far below
+# this, the hard-iron bias of an uncalibrated one often does not
+SurveyField = Annotated[float, StrictMode(), Field(ge=-500, le=500, allow_inf_nan=False)]
 
 
 class SurveyPoint(StrictIn):
@@ -31,7 +34,11 @@ class SurveyPoint(StrictIn):
     t: TimestampMs | None = None
     wifi: Annotated[list[WifiReading], Field(max_length=MAX_READINGS_PER_SCAN)] = []
     ble: Annotated[list[BleReading], Field(max_length=MAX_READINGS_PER_SCAN)] = []
-    mag_ut: Annotated[tuple[FiniteFloat, FiniteFloat, FiniteFloat], LAX_ARRAY] | None = None
+    mag_ut: Annotated[tuple[SurveyField, SurveyField, SurveyField], LAX_ARRAY] | None = Field(
+        None,
+        description="calibrated magnetic field in µT, each axis within ±500; its norm goes "
+        "into the floor's magnetic map",
+    )
     walk: WalkName | None = Field(
         None,
         description="the recorded walk this point was taken on: a walk's points in time "
@@ -74,9 +81,6 @@ class RadioMapList(Strict):
     count: int
 
 
-# Survey readings must come from a calibrated magnetometer: indoor fields stay far below
-# this, the hard-iron bias of an uncalibrated one often does not
-SurveyField = Annotated[float, StrictMode(), Field(ge=-500, le=500, allow_inf_nan=False)]
 MAX_MAGNETIC_SAMPLES = 200_000  # per request, points and line samples together
 
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 
 from sqlalchemy import select
 from sqlalchemy.ext.asyncio import AsyncSession
@@ -55,3 +55,11 @@ async def rotate_api_key(s: AsyncSession, key: ApiKey, key_hash: str) -> None:
     key.key_hash = key_hash
     key.rotated_at = utcnow()
     await s.flush()
+
+
+async def live_key_hashes(s: AsyncSession, key_ids: Iterable[str]) -> set[tuple[str, str]]:
+    """``(id, key_hash)`` of each of ``key_ids`` that is not revoked (nor deleted)."""
+    stmt = select(ApiKey.id, ApiKey.key_hash).where(
+        ApiKey.id.in_(list(key_ids)), ApiKey.revoked_at.is_(None)
+    )
+    return {(row.id, row.key_hash) for row in await s.execute(stmt)}
