@@ -80,7 +80,7 @@ def send_body(host: str, port: int, path: str, bearer: str, size: int, out: list
     out.append({**answer, "sent_mb": round(sent / 2**20, 1)})
 
 
-def dribble(host: str, port: int, bearer: str, body: bool, out: list[float]) -> None:
+def dribble(host: str, port: int, bearer: str, body: bool, out: list[tuple[str, float]]) -> None:
     """Send a request's headers (or, with ``body``, its body, with a good key so that it is
     read) a byte every 0.5 s until the server closes the connection or 120 s pass; how
     long the server held it."""
@@ -107,8 +107,17 @@ def dribble(host: str, port: int, bearer: str, body: bool, out: list[float]) -> 
             time.sleep(0.5)
     except OSError:
         pass  # reset by the server
-    out.append(time.perf_counter() - start)
+    out.append(("bodies" if body else "headers", time.perf_counter() - start))
     sock.close()
+
+
+def held(answers: list[tuple[str, float]]) -> dict[str, dict[str, float]]:
+    """Seconds each kind of slow connection was held: median and longest."""
+    out = {}
+    for kind in ("headers", "bodies"):
+        times = [t for k, t in answers if k == kind]
+        out[kind] = {"p50_s": round(statistics.median(times), 2), "max_s": round(max(times), 2)}
+    return out
 
 
 def main() -> None:
@@ -146,12 +155,7 @@ def main() -> None:
     print(  # noqa: T201 - the probe's report
         json.dumps(
             {
-                "answers": answers
-                if args.mode == "bodies"
-                else {
-                    "held_s_max": round(max(answers), 2),
-                    "held_s_p50": round(statistics.median(answers), 2),
-                },
+                "answers": answers if args.mode == "bodies" else held(answers),
                 "healthz_ms_quiet_p50": round(statistics.median(quiet), 2),
                 "healthz_ms_during_max": round(max(during), 2) if during else None,
                 "rss_mb_before": before and round(before, 1),
