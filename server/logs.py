@@ -81,6 +81,27 @@ class RedactSecrets(logging.Filter):
         return True
 
 
+# an answered batch: a phone posts one a step, so its access line would be most of the log
+# and a share of the server's time; the metrics count batches (indoorpos_batches_total)
+_BATCH_PATH = re.compile(r"^/v1/sessions/[0-9a-f]{32}/batches$")
+
+
+class QuietBatches(logging.Filter):
+    """Lowers the access line of an answered batch (2xx) to DEBUG: written only when the
+    log level is DEBUG. Other requests, and batches refused, keep their INFO line."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        args = record.args
+        # uvicorn's access record: (client, method, path, http version, status)
+        if not (isinstance(args, tuple) and len(args) == 5 and args[1] == "POST"):
+            return True
+        status, path = args[4], str(args[2])
+        if not (isinstance(status, int) and status < 300 and _BATCH_PATH.match(path)):
+            return True
+        record.levelno, record.levelname = logging.DEBUG, "DEBUG"
+        return logging.getLogger().isEnabledFor(logging.DEBUG)
+
+
 class JsonFormatter(logging.Formatter):
     """One JSON object per record: ``ts`` (ISO-8601, UTC), ``level``, ``logger``,
     ``message``, then ``session_id``, ``exc``, ``stack`` and the extra fields when present."""
@@ -127,13 +148,17 @@ class TextFormatter(logging.Formatter):
 
 def dict_config(fmt: LogFormat, level: str) -> dict[str, Any]:
     """A ``dictConfig`` document: one stderr handler on the root logger with the chosen
-    formatter and :class:`RedactSecrets`; uvicorn's loggers hand their records to it."""
+    formatter and :class:`RedactSecrets`; uvicorn's loggers hand their records to it,
+    the access log through :class:`QuietBatches`."""
     formatter = JsonFormatter if fmt == "json" else TextFormatter
     return {
         "version": 1,
         "disable_existing_loggers": False,
         "formatters": {"indoorpos": {"()": f"{__name__}.{formatter.__name__}"}},
-        "filters": {"redact": {"()": f"{__name__}.{RedactSecrets.__name__}"}},
+        "filters": {
+            "redact": {"()": f"{__name__}.{RedactSecrets.__name__}"},
+            "quiet_batches": {"()": f"{__name__}.{QuietBatches.__name__}"},
+        },
         "handlers": {
             "indoorpos": {
                 "class": "logging.StreamHandler",
@@ -143,7 +168,10 @@ def dict_config(fmt: LogFormat, level: str) -> dict[str, Any]:
             }
         },
         "root": {"handlers": ["indoorpos"], "level": level.upper()},
-        "loggers": {name: {"handlers": [], "propagate": True} for name in UVICORN_LOGGERS},
+        "loggers": {
+            **{name: {"handlers": [], "propagate": True} for name in UVICORN_LOGGERS},
+            "uvicorn.access": {"handlers": [], "propagate": True, "filters": ["quiet_batches"]},
+        },
     }
 
 

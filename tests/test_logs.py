@@ -95,14 +95,15 @@ def restore_logging() -> Iterator[None]:
     names = logs.UVICORN_LOGGERS
     saved = (root.handlers[:], root.level)
     saved_uvicorn = [
-        (lg.handlers[:], lg.propagate, lg.level) for lg in map(logging.getLogger, names)
+        (lg.handlers[:], lg.propagate, lg.level, lg.filters[:])
+        for lg in map(logging.getLogger, names)
     ]
     yield
     root.handlers[:], root.level = saved[0], saved[1]
-    for lg, (handlers, propagate, level) in zip(
+    for lg, (handlers, propagate, level, filters) in zip(
         map(logging.getLogger, names), saved_uvicorn, strict=True
     ):
-        lg.handlers[:], lg.propagate, lg.level = handlers, propagate, level
+        lg.handlers[:], lg.propagate, lg.level, lg.filters[:] = handlers, propagate, level, filters
 
 
 def test_configure_sends_uvicorn_lines_through_the_formatter(
@@ -120,6 +121,25 @@ def test_configure_sends_uvicorn_lines_through_the_formatter(
     line = json.loads(lines[0])
     assert line["logger"] == "uvicorn.access"
     assert line["message"] == '127.0.0.1:5000 - "GET /healthz HTTP/1.1" 200'
+
+
+@pytest.mark.parametrize("level", ["info", "debug"])
+def test_an_answered_batch_is_logged_at_debug_only(
+    restore_logging: None, capsys: pytest.CaptureFixture[str], level: str
+) -> None:
+    logs.configure("json", level)
+    access = logging.getLogger("uvicorn.access")
+    access.setLevel(level.upper())  # uvicorn sets its loggers to its --log-level
+    line = '%s - "%s %s HTTP/%s" %d'
+    batches = f"/v1/sessions/{'ab' * 16}/batches"
+    access.info(line, "127.0.0.1:5000", "POST", batches, "1.1", 200)
+    access.info(line, "127.0.0.1:5000", "POST", batches, "1.1", 409)  # refused: kept
+    access.info(line, "127.0.0.1:5000", "POST", "/v1/sessions", "1.1", 201)
+    written = [json.loads(x) for x in capsys.readouterr().err.splitlines()]
+    expected = [("INFO", 409), ("INFO", 201)]
+    if level == "debug":
+        expected.insert(0, ("DEBUG", 200))
+    assert [(w["level"], int(w["message"][-3:])) for w in written] == expected
 
 
 async def test_a_failed_batch_on_the_live_socket_is_logged_with_its_session(

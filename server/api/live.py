@@ -236,7 +236,7 @@ async def _read(sock: _Socket, rt: Runtime, session_id: str, secret: str, owner:
                 "session_id": session_id,
                 "seq": result.seq,
                 "replayed": result.replayed,
-                "fixes": result.fixes,
+                "fixes": orjson.Fragment(result.fixes),
                 "reinitialised": result.reinitialised,
                 "not_used": result.not_used,
             }

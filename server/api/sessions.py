@@ -113,7 +113,7 @@ async def post_batch(
         "session_id": session_id,
         "seq": result.seq,
         "replayed": result.replayed,
-        "fixes": result.fixes,
+        "fixes": orjson.Fragment(result.fixes),
         "reinitialised": result.reinitialised,
         "not_used": result.not_used,
     }

@@ -81,6 +81,13 @@ def bench_load(
         bool, typer.Option(help="also measure two api processes (scale-out ratio)")
     ] = True,
     ws: Annotated[bool, typer.Option("--ws", help="post batches over the live WebSocket")] = False,
+    rate_limits: Annotated[
+        bool,
+        typer.Option(
+            help="rate limits on, as deployed (one address's allowances raised for the "
+            "load generator); --no-rate-limits measures without them"
+        ),
+    ] = True,
     database_url: Annotated[
         str, typer.Option(help="PostgreSQL of the service under test")
     ] = "postgresql://postgres@127.0.0.1:5432/test",
@@ -115,6 +122,7 @@ def bench_load(
             p99_limit_ms=p99_limit_ms,
             two_processes=two_processes,
             transport="ws" if ws else "http",
+            rate_limits=rate_limits,
             database_url=database_url,
             redis_url=redis_url,
             seed=seed,
@@ -122,7 +130,8 @@ def bench_load(
             on_stage=lambda text: status.update(text),
         )
     print_report(
-        f"bench load: {engine}, {batch_steps} step(s) per batch over {'ws' if ws else 'http'}",
+        f"bench load: {engine}, {batch_steps} step(s) per batch over {'ws' if ws else 'http'}, "
+        f"rate limits {'on' if rate_limits else 'off'}",
         {k: v for k, v in result.items() if not isinstance(v, list | dict)},
     )
     if json_path is not None:

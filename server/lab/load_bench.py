@@ -3,8 +3,9 @@
 Shao et al. size their cloud by one CPU core serving 130 users at a 0.67 s step period
 with N = 3000 particles (``papers/001_*``, section IV-B). This measures our figure:
 
-1. **Service.** The api runs as it does in production -- ``uvicorn`` with ``k`` worker
-   processes, sessions in Redis, maps in PostgreSQL, no access log -- as a child process
+1. **Service.** The api runs as it does in production -- ``indoorpos serve`` with ``k``
+   worker processes, sessions in Redis, maps in PostgreSQL, the access log and (unless
+   ``rate_limits`` is off) the rate limits on -- as a child process
    of this one. With at least two CPUs the api is pinned to one CPU per process (CPU 0,
    then 1, ...) and this process (the simulator) to the others, keeping at least one CPU
    for the simulator, so the api has its cores to itself and "users per core" means what
@@ -49,6 +50,7 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -108,7 +110,9 @@ class Level:
 
 
 class ApiProcesses:
-    """``uvicorn`` serving the app with ``workers`` processes, as a child of this one."""
+    """``indoorpos serve`` with ``workers`` processes, as a child of this one: uvicorn as
+    deployed (its HTTP protocol with the header deadline, the log setup, the access log
+    on: an answered batch's line is DEBUG only, ``server.logs.QuietBatches``)."""
 
     def __init__(
         self,
@@ -120,36 +124,40 @@ class ApiProcesses:
         self.url = f"http://127.0.0.1:{self.port}"
         command = [
             sys.executable,
-            "-m",
-            "uvicorn",
-            "server.app:create_app",
-            "--factory",
+            "-c",
+            "from server.cli import app; app()",
+            "serve",
             "--host",
             "127.0.0.1",
             "--port",
             str(self.port),
             "--workers",
             str(workers),
-            "--no-access-log",
-            "--log-level",
-            "warning",
         ]
 
         if cpus is not None:  # the api and every process it starts stay on these CPUs
             command = ["taskset", "--cpu-list", ",".join(map(str, sorted(cpus))), *command]
-        self.process = subprocess.Popen(
-            command,
-            env={**os.environ, **env},
-            stdin=subprocess.DEVNULL,
-            start_new_session=True,  # its own process group: stop() ends the workers too
-        )
+        # its log (INFO, as deployed) in a file of its own, not over the bench's output
+        self.log_path = Path(tempfile.mkstemp(prefix="indoorpos-bench-api-", suffix=".log")[1])
+        with self.log_path.open("wb") as log:
+            self.process = subprocess.Popen(
+                command,
+                env={**os.environ, **env},
+                stdin=subprocess.DEVNULL,
+                stdout=log,
+                stderr=log,
+                start_new_session=True,  # its own process group: stop() ends the workers too
+            )
         self._wait_ready(workers)
 
     def _wait_ready(self, workers: int) -> None:
         deadline = time.monotonic() + START_TIMEOUT_S
         while time.monotonic() < deadline:
             if self.process.poll() is not None:
-                raise RuntimeError(f"the api exited with code {self.process.returncode}")
+                raise RuntimeError(
+                    f"the api exited with code {self.process.returncode} (its log: "
+                    f"{self.log_path})"
+                )
             try:
                 if httpx.get(f"{self.url}/readyz", timeout=2.0).status_code == 200 and (
                     len(_descendants(self.process.pid)) >= (workers if workers > 1 else 0)
@@ -175,6 +183,17 @@ class ApiProcesses:
                 self.process.wait()
 
 
+# Rate limits on, as deployed, with the allowances of one address raised as an operator
+# would for a load generator: every simulated user comes from this machine, so the
+# defaults (60 sessions and 6,000 batches a minute per address) would refuse the 61st
+# user. Each batch still pays for the limits' buckets, as in production.
+LOAD_GENERATOR_LIMITS = {
+    "INDOORPOS_RATE_LIMITS": "true",
+    "INDOORPOS_RATE_SESSIONS_PER_MIN": "1000000",
+    "INDOORPOS_RATE_BATCHES_PER_MIN": "1000000",
+}
+
+
 def run_load_bench(
     *,
     users_max: int,
@@ -188,6 +207,7 @@ def run_load_bench(
     seed: int = 0,
     two_processes: bool = True,
     transport: Transport = "http",
+    rate_limits: bool = True,
     on_level: Callable[[Level], None] | None = None,
     on_stage: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
@@ -205,7 +225,7 @@ def run_load_bench(
         "INDOORPOS_DATABASE_URL": database_url,
         "INDOORPOS_REDIS_URL": redis_url,
         "INDOORPOS_ADMIN_KEY": key,
-        "INDOORPOS_RATE_LIMITS": "false",  # every simulated user comes from this machine
+        **(LOAD_GENERATOR_LIMITS if rate_limits else {"INDOORPOS_RATE_LIMITS": "false"}),
     }
     cpus = sorted(os.sched_getaffinity(0))
     own_cpus = set(cpus)
@@ -265,6 +285,7 @@ def run_load_bench(
         "two_process_cpus": len(_api_cpus(cpus, 2) or cpus) if two_processes else None,
         "engine": engine,
         "transport": transport,
+        "rate_limits": rate_limits,
         "batch_steps": batch_steps,
         "step_period_s": STEP_PERIOD_S,
         "hold_s": hold_s,

@@ -104,9 +104,10 @@ class CreatedSession:
 class BatchResult:
     seq: int
     replayed: bool
-    fixes: list[dict[str, Any]]
+    fixes: bytes  # a JSON array of FixOut, encoded once for the answer, track and live
     reinitialised: bool = False  # the session was rebuilt before this batch
     not_used: tuple[str, ...] = ()  # event kinds of the batch the engine does not read
+    made: int = 0  # fixes this batch made (a replay's were counted when they were made)
 
 
 @dataclass(frozen=True)
@@ -461,7 +462,7 @@ async def _attempt(
         touched_ms=now_ms if touch else state.touched_ms,
         last_event_ms=max([state.last_event_ms, *map(_event_end_ms, events)]),
     )
-    live = orjson.dumps({"seq": seq, "fixes": wire}) if wire else None
+    live = orjson.dumps({"seq": seq, "fixes": orjson.Fragment(body)}) if wire else None
     ok = await rt.store.compare_and_set(
         session_id,
         version,
@@ -476,7 +477,9 @@ async def _attempt(
         if touch:  # the row says the session is alive, should the store lose it
             async with rt.transaction() as s:
                 await repo.touch_session_record(s, session_id)
-        return BatchResult(seq, False, wire, reinitialised=rebuilt, not_used=not_used)
+        return BatchResult(
+            seq, False, body, reinitialised=rebuilt, not_used=not_used, made=len(wire)
+        )
     rt.states.drop(session_id)
     return _Retry.LOST  # another writer got there first: read the new state and try again
 
@@ -555,7 +558,7 @@ def _replay(
             if reply.digest != digest:
                 raise Conflict(f"seq {seq} was already applied with different events", field="seq")
             reinitialised = seq == state.rebuilt_seq
-            return BatchResult(seq, True, orjson.loads(reply.body), reinitialised, not_used)
+            return BatchResult(seq, True, reply.body, reinitialised, not_used)
     raise Conflict(
         f"seq {seq} was applied long ago and its reply is no longer kept; "
         f"the session is at seq {state.last_seq}",

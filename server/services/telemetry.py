@@ -168,7 +168,7 @@ def count_batch(
     BATCHES.labels(transport=transport, outcome=outcome).inc()
     if not result.replayed:
         STEPS.inc(sum(isinstance(e, StepEvent) for e in events))
-        FIXES.inc(len(result.fixes))
+        FIXES.inc(result.made)
     touch_session(session_id, idle_s)
 
 
