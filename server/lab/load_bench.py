@@ -405,8 +405,9 @@ async def _ceiling(database_url: str, walk: _Walk) -> float:
     world = synthesize_world(walk.seed)
     params = walker_params()
     walks = []
+    t0_ms = int(time.time() * 1000)  # a phone's clock: the wire takes times of 2000-2099
     for i in range(CEILING_WALKERS):
-        walker = simulated_walker(world, walk.seed, i, 0, params)
+        walker = simulated_walker(world, walk.seed, i, t0_ms, params)
         batches = step_batches(walker.events(), walk.batch_steps)
         walks.append(
             [
