@@ -155,8 +155,7 @@ class ApiProcesses:
         while time.monotonic() < deadline:
             if self.process.poll() is not None:
                 raise RuntimeError(
-                    f"the api exited with code {self.process.returncode} (its log: "
-                    f"{self.log_path})"
+                    f"the api exited with code {self.process.returncode} (its log: {self.log_path})"
                 )
             try:
                 if httpx.get(f"{self.url}/readyz", timeout=2.0).status_code == 200 and (
