@@ -6,6 +6,12 @@ empty, takes nothing and answers how many seconds until a token is back. Redis k
 bucket as a hash (``tokens``, ``ts``) updated by one Lua script on the server's clock, so
 replicas share the buckets and their clocks do not matter; an idle bucket expires once
 it would be full again.
+
+:meth:`RateLimiter.peek` asks on every request whether the client's address is barred
+(``services.limits``), nearly always to hear that it is not. So Redis's "not empty" is
+taken as good for ``PEEK_FRESH_S`` in the process that heard it, unless that process
+takes from the bucket meanwhile: a bucket emptied through another replica is seen
+within that time. This saves a round trip on nearly every request.
 """
 
 from __future__ import annotations
@@ -19,6 +25,8 @@ from server.storage.redis_client import AnyRedis, redis_client, register_script
 
 KEY_PREFIX = "ips:rl:"
 MEMORY_MAX_BUCKETS = 100_000  # past this, the least recently used bucket is forgotten
+PEEK_FRESH_S = 1.0  # how long a bucket Redis said was not empty is taken as still not
+PEEK_MEMO_MAX = 100_000  # past this many remembered buckets, all are forgotten
 
 _TAKE_LUA = """
 local rate = tonumber(ARGV[1])
@@ -95,14 +103,25 @@ class RedisRateLimiter:
         self._client = client
         self._take = register_script(client, _TAKE_LUA)
         self._peek = register_script(client, _PEEK_LUA)
+        # buckets Redis said were not empty, and until when that is believed here
+        self._not_empty: dict[str, float] = {}
 
     async def take(self, name: str, per_s: float, burst: int) -> float | None:
+        self._not_empty.pop(name, None)
         wait = float(await self._take(keys=[KEY_PREFIX + name], args=[per_s, burst]))
         return None if wait <= 0 else wait
 
     async def peek(self, name: str, per_s: float, burst: int) -> float | None:
+        now = time.monotonic()
+        if self._not_empty.get(name, 0.0) > now:
+            return None
         wait = float(await self._peek(keys=[KEY_PREFIX + name], args=[per_s, burst]))
-        return None if wait <= 0 else wait
+        if wait > 0:
+            return wait
+        if len(self._not_empty) >= PEEK_MEMO_MAX:
+            self._not_empty.clear()
+        self._not_empty[name] = now + PEEK_FRESH_S
+        return None
 
     async def close(self) -> None:
         await self._client.aclose()
