@@ -81,11 +81,12 @@ class Settings(BaseSettings):
         16, ge=1, le=256, description="recent batch replies kept for retried seqs"
     )
     batch_concurrency: int = Field(
-        1,
+        4,
         ge=1,
         le=1024,
-        description="batches one api process works on at once; more interleave on the "
-        "event loop and stretch each other's latency (bench/performance.md)",
+        description="batches one api process works on at once: a few let one batch's "
+        "store round trips overlap another's work; many interleave on the event loop and "
+        "stretch each other's latency (bench/performance.md)",
     )
     session_cache_size: int = Field(
         1024,
