@@ -12,6 +12,7 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.ext.asyncio import AsyncSession
 from starlette.requests import HTTPConnection
 
+from server.api.schemas.common import ID_PATTERN
 from server.api.schemas.pages import DEFAULT_LIMIT, MAX_CURSOR_CHARS, MAX_LIMIT, decode_cursor
 from server.services import auth, limits, sites
 from server.services.errors import Forbidden, Invalid, Unauthorized, not_found
@@ -36,8 +37,8 @@ async def get_ws_runtime(websocket: WebSocket) -> Runtime:
 
 RuntimeDep = Annotated[Runtime, Depends(get_runtime)]
 # ids in paths are the 32-hex-character ids this service hands out
-ID = re.compile(r"[0-9a-f]{32}")
-IdPath = Annotated[str, Path(pattern=f"^{ID.pattern}$")]
+ID = re.compile(ID_PATTERN)
+IdPath = Annotated[str, Path(pattern=ID_PATTERN)]
 
 
 async def get_sql(rt: RuntimeDep) -> AsyncIterator[AsyncSession]:

@@ -8,6 +8,7 @@ from fastapi import APIRouter, Path, Query, Response, status
 
 from server.api.deps import GlobalAdminDep, PageQuery, RuntimeDep, SqlDep, page_query
 from server.api.gated_route import GatedRoute
+from server.api.schemas.common import ID_PATTERN
 from server.api.schemas.keys import ApiKeyCreate, ApiKeyCreated, ApiKeyList, ApiKeyRead
 from server.api.schemas.pages import CREATED, encode_cursor
 from server.services import auth, revocations
@@ -16,7 +17,7 @@ from server.storage.models import ApiKey
 router = APIRouter(
     prefix="/v1/keys", tags=["keys"], dependencies=[GlobalAdminDep], route_class=GatedRoute
 )
-KeyPath = Annotated[str, Path(pattern=r"^[0-9a-f]{32}$")]
+KeyPath = Annotated[str, Path(pattern=ID_PATTERN)]
 KeyPage = Annotated[PageQuery, page_query("keys", CREATED)]
 
 

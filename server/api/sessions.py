@@ -24,6 +24,7 @@ from server.api.deps import (
     page_query,
 )
 from server.api.gated_route import GatedRoute
+from server.api.schemas.common import ID_PATTERN
 from server.api.schemas.pages import CREATED, encode_cursor
 from server.api.schemas.sessions import (
     BatchIn,
@@ -125,9 +126,7 @@ async def list_sessions(
     rt: RuntimeDep,
     principal: Viewer,
     page: SessionPage,
-    site_id: Annotated[
-        str | None, Query(pattern=r"^[0-9a-f]{32}$", description="one site's only")
-    ] = None,
+    site_id: Annotated[str | None, Query(pattern=ID_PATTERN, description="one site's only")] = None,
     active: Annotated[
         bool | None,
         Query(description="true: active ones only (possibly live); false: ended or idle only"),

@@ -32,7 +32,7 @@ from server.api.deps import (
     page_query,
 )
 from server.api.gated_route import GatedRoute
-from server.api.schemas.common import DeviceModel
+from server.api.schemas.common import ID_PATTERN, DeviceModel
 from server.api.schemas.pages import CREATED, encode_cursor
 from server.api.schemas.uploads import UploadList, UploadRead, UploadStatus, UploadTraceIn
 from server.services import limits, traces, uploads
@@ -108,8 +108,8 @@ async def create_upload(
     request: Request,
     response: Response,
     rt: RuntimeDep,
-    site_id: Annotated[str, Query(pattern=r"^[0-9a-f]{32}$")],
-    building_id: Annotated[str | None, Query(pattern=r"^[0-9a-f]{32}$")] = None,
+    site_id: Annotated[str, Query(pattern=ID_PATTERN)],
+    building_id: Annotated[str | None, Query(pattern=ID_PATTERN)] = None,
     floor: Annotated[int | None, Query(ge=-20, le=200, description="floor level hint")] = None,
     device_model: Annotated[DeviceModel | None, Query()] = None,
     content_type: Annotated[str, Header()] = "text/plain",
@@ -164,9 +164,7 @@ async def list_uploads(
     s: SqlDep,
     principal: Viewer,
     page: UploadPage,
-    site_id: Annotated[
-        str | None, Query(pattern=r"^[0-9a-f]{32}$", description="one site's only")
-    ] = None,
+    site_id: Annotated[str | None, Query(pattern=ID_PATTERN, description="one site's only")] = None,
     upload_status: Annotated[
         UploadStatus | None, Query(alias="status", description="in this status only")
     ] = None,

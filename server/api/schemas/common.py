@@ -26,7 +26,8 @@ TimestampMs = Annotated[
 # local coordinates: a building frame is never 100 km across
 Coordinate = Annotated[float, StrictMode(), Field(ge=-100_000, le=100_000, allow_inf_nan=False)]
 # ids we hand out are 32 hex characters
-Id = Annotated[str, Field(pattern=r"^[0-9a-f]{32}$", description="an id this service made")]
+ID_PATTERN = r"^[0-9a-f]{32}$"  # the ids this service hands out
+Id = Annotated[str, Field(pattern=ID_PATTERN, description="an id this service made")]
 # emitter ids: printable ASCII without spaces (BSSIDs, "uuid:major:minor")
 EmitterId = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[!-~]+$")]
 
