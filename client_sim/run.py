@@ -4,7 +4,8 @@
 made before, then runs the walkers concurrently on one event loop. Walker ``i`` walks level
 ``levels[i % n_levels]``, takes a step every ``step_period_s`` on average (each step
 jittered by ``N(0, STEP_JITTER_SD_S)``), starts ``i / walkers`` of a batch interval (or of
-``ramp_s``) after the first, to spread the load, and creates a session. Every
+``ramp_s``) after the first, to spread the load, and creates a session; it stops the same
+spread before the last, so that walkers leave as they came, not all at once. Every
 ``batch_steps`` steps it sends the events its phone produced since the last batch (the
 steps with their magnetometer readings and the WiFi/BLE scans that fell between them) as
 the next ``seq`` (1, 2, 3, ...), over HTTP or, with ``transport="ws"``, over the session's
@@ -25,7 +26,7 @@ walker, and so does a live socket that failed or did not answer in time (``ws``)
 Latency is from sending a batch to its answer; failed attempts are not in it.
 
 Bounded: at most ``MAX_WALKERS`` walkers and ``MAX_DURATION_S`` seconds; walkers stop
-producing at ``duration_s``; every request has a timeout, and a walker still busy
+producing by ``duration_s``; every request has a timeout, and a walker still busy
 ``DRAIN_S + 2 * REQUEST_TIMEOUT_S + 5`` s after that is cancelled (its session is still
 deleted). Traffic goes to ``base_url`` only (HTTP and its WebSocket).
 """
@@ -243,6 +244,7 @@ async def run_walkers(
         stats = [WalkerStats() for _ in range(walkers)]
         params = walker_params(step_period_s)
         spread_s = batch_steps * step_period_s if ramp_s is None else ramp_s
+        walk_s = duration_s - spread_s if spread_s < duration_s else duration_s
         progress = asyncio.create_task(_report_progress(on_progress, start, duration_s))
         try:
             await asyncio.gather(
@@ -258,7 +260,7 @@ async def run_walkers(
                             engine=engine,
                             run_start=start,
                             start=start + spread_s * i / max(walkers, 1),
-                            end=start + duration_s,
+                            end=start + walk_s + spread_s * i / max(walkers, 1),
                             batch_steps=batch_steps,
                             transport=transport,
                             live_socket=live_socket or transport == "ws",
@@ -309,7 +311,7 @@ class _WalkPlan:
     engine: str
     run_start: float  # event-loop time the run started
     start: float  # event-loop time the walker starts
-    end: float  # event-loop time every walker stops producing
+    end: float  # event-loop time the walker stops producing
     batch_steps: int
     transport: Transport
     live_socket: bool
@@ -360,7 +362,8 @@ async def _walk(plan: _WalkPlan, stats: WalkerStats) -> None:
                     stats.errors.append(f"{name}: live socket: {type(exc).__name__}: {exc}")
                     if plan.transport == "ws":
                         return
-            expected = await _post_batches(plan, session, stats, live)
+            phone = ApiClient(await stack.enter_async_context(_own_connection(plan.base_url)))
+            expected = await _post_batches(plan, phone, session, stats, live)
             if live is not None:
                 await live.wait_for(expected, DRAIN_S)
             await end_session()
@@ -378,10 +381,28 @@ async def _walk(plan: _WalkPlan, stats: WalkerStats) -> None:
             await end_session()
 
 
+def _own_connection(base_url: str) -> httpx.AsyncClient:
+    """A walker's own HTTP client, holding one connection as a phone does. (One pool
+    shared by hundreds of walkers costs the simulator more than the server: the pool looks
+    at each of its connections for every request.)"""
+    return httpx.AsyncClient(
+        base_url=base_url,
+        timeout=httpx.Timeout(REQUEST_TIMEOUT_S),
+        limits=httpx.Limits(
+            max_connections=1, max_keepalive_connections=1, keepalive_expiry=KEEPALIVE_EXPIRY_S
+        ),
+    )
+
+
 async def _post_batches(
-    plan: _WalkPlan, session: Session, stats: WalkerStats, live: LiveFixes | None
+    plan: _WalkPlan,
+    phone: ApiClient,
+    session: Session,
+    stats: WalkerStats,
+    live: LiveFixes | None,
 ) -> dict[int, int]:
-    """Post the walk in real time; the number of fixes each acknowledged ``seq`` carried."""
+    """Post the walk in real time, over ``phone`` (the walker's own connection); the
+    number of fixes each acknowledged ``seq`` carried."""
     loop = asyncio.get_running_loop()
     name = f"walker {plan.index}"
     walker = simulated_walker(
@@ -414,7 +435,7 @@ async def _post_batches(
                     assert live is not None
                     result = await live.post_batch(seq, batch, REQUEST_TIMEOUT_S)
                 else:
-                    result = await plan.api.post_batch(session, seq, batch)
+                    result = await phone.post_batch(session, seq, batch)
             except ApiError as exc:
                 stats.errors.append(f"{name}: batch seq {seq}: {_describe(exc)}")
                 if exc.status in RETRYABLE_STATUS:

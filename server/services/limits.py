@@ -11,6 +11,7 @@ from __future__ import annotations
 from server.services.errors import TooMany
 from server.services.runtime import Runtime
 from server.storage.rate_limits import retry_after_s
+from server.storage.session_store import Allowance
 
 # per-key (and per-address, for batches) allowance as a multiple of the base setting: a
 # device key is shared by every phone of an app, an address by the phones behind a NAT
@@ -21,11 +22,17 @@ ADDRESS_FACTOR_BATCHES = 10
 async def _take(rt: Runtime, action: str, subject: str, per_min: int) -> None:
     wait = await rt.limits.take(f"{action}:{subject}", per_min / 60.0, per_min)
     if wait is not None:
-        raise TooMany(
-            f"too many {action} calls for this {subject.split(':', 1)[0]}; retry later",
-            retry_after_s(wait),
-            field="request",
-        )
+        raise too_many(action, subject.split(":", 1)[0], wait)
+
+
+def too_many(action: str, subject: str, wait_s: float) -> TooMany:
+    """The refusal of an ``action`` call past the allowance of its ``subject`` (address,
+    key, session)."""
+    return TooMany(
+        f"too many {action} calls for this {subject}; retry later",
+        retry_after_s(wait_s),
+        field="request",
+    )
 
 
 async def check(rt: Runtime, action: str, address: str, key: str | None = None) -> None:
@@ -44,12 +51,34 @@ async def check(rt: Runtime, action: str, address: str, key: str | None = None) 
         await _take(rt, action, f"key:{key}", base * factor)
 
 
-async def check_batch(rt: Runtime, session_id: str, address: str) -> None:
+def check_batch(rt: Runtime, session_id: str, address: str) -> None:
+    """Refuse a batch of a session whose bucket this process last found empty, and count
+    a batch against its client address (no I/O: ``RateLimiter.spend``)."""
     if not rt.settings.rate_limits:
         return
-    base = rt.settings.rate_batches_per_min
-    await _take(rt, "batches", f"session:{session_id}", base)
-    await _take(rt, "batches", f"address:{address}", base * ADDRESS_FACTOR_BATCHES)
+    wait = rt.limits.empty.wait(f"batches:session:{session_id}")
+    if wait is not None:
+        raise too_many("batches", "session", wait)
+    per_min = rt.settings.rate_batches_per_min * ADDRESS_FACTOR_BATCHES
+    wait = rt.limits.spend(f"batches:address:{address}", per_min / 60.0, per_min)
+    if wait is not None:
+        raise too_many("batches", "address", wait)
+
+
+def session_bucket_empty(rt: Runtime, session_id: str, wait_s: float) -> TooMany:
+    """The refusal of a batch its session's bucket had no token for (the write said so),
+    remembered here until a token is back."""
+    rt.limits.empty.note(f"batches:session:{session_id}", wait_s)
+    return too_many("batches", "session", wait_s)
+
+
+def batch_allowance(rt: Runtime) -> Allowance | None:
+    """The allowance of a session's own bucket, taken by the write that applies a batch
+    (None with rate limits off)."""
+    if not rt.settings.rate_limits:
+        return None
+    per_min = rt.settings.rate_batches_per_min
+    return Allowance(per_min / 60.0, per_min)
 
 
 async def check_auth_failure(rt: Runtime, address: str) -> None:

@@ -74,7 +74,7 @@ from server.services.session_records import (
 from server.storage.models import SessionRecord, utcnow
 from server.storage.repositories import sessions as repo
 from server.storage.repositories.pages import Key, Page
-from server.storage.session_store import SessionExists, StoredSession
+from server.storage.session_store import BucketEmpty, SessionExists, StoredSession
 
 logger = logging.getLogger(__name__)
 SEQ_POLL_S = 0.01
@@ -346,8 +346,9 @@ async def apply_batch(
     would stretch every one's latency by the others' work (each awaits the store twice);
     a batch waiting for its predecessor, or for its site's maps to be read from SQL (a
     new map version rebuilds the plans: up to seconds), does not hold a turn either.
-    With ``address``, the batch counts against the session's and the address's rate
-    limits once the token is known good (``services.limits``)."""
+    With ``address``, the batch counts against the address's rate limit once the token
+    is known good, and against the session's by the write that applies it (a refused
+    batch is not applied; ``services.limits``)."""
     digest = events_digest(events)
     deadline = time.monotonic() + rt.settings.seq_wait_s
     maps: SiteMaps | None = None
@@ -403,7 +404,7 @@ async def _attempt(
         if not hmac.compare_digest(meta.token_digest, _digest(token)):
             raise _no_session()
     if charge is not None:
-        await limits.check_batch(rt, session_id, charge)
+        limits.check_batch(rt, session_id, charge)
     spec = get_engine(meta.engine)
     not_used = not_read(spec.uses, events)
     rebuilt = state.last_seq < 0  # the first batch after a rebuild: its seq is the next one
@@ -463,15 +464,19 @@ async def _attempt(
         last_event_ms=max([state.last_event_ms, *map(_event_end_ms, events)]),
     )
     live = orjson.dumps({"seq": seq, "fixes": orjson.Fragment(body)}) if wire else None
-    ok = await rt.store.compare_and_set(
-        session_id,
-        version,
-        new_state.to_bytes(spec),
-        rt.settings.session_idle_s,
-        live,
-        track=each,
-        track_len=rt.settings.session_track_len,
-    )
+    try:
+        ok = await rt.store.compare_and_set(
+            session_id,
+            version,
+            new_state.to_bytes(spec),
+            rt.settings.session_idle_s,
+            live,
+            track=each,
+            track_len=rt.settings.session_track_len,
+            allowance=limits.batch_allowance(rt),
+        )
+    except BucketEmpty as e:  # not applied: the seq stays free
+        raise limits.session_bucket_empty(rt, session_id, e.wait_s) from None
     if ok:
         rt.states.put(session_id, version + 1, meta, new_state, written=True)
         if touch:  # the row says the session is alive, should the store lose it

@@ -12,21 +12,36 @@ it would be full again.
 taken as good for ``PEEK_FRESH_S`` in the process that heard it, unless that process
 takes from the bucket meanwhile: a bucket emptied through another replica is seen
 within that time. This saves a round trip on nearly every request.
+
+:meth:`RateLimiter.spend` is :meth:`RateLimiter.take` without a round trip of its own,
+for a bucket many calls share (a client address's batches): the process counts the
+calls it let through and takes them from Redis together every ``SPEND_FLUSH_S`` (all
+the buckets of a flush in one pipeline). A bucket may go below empty by what the
+replicas let through before they heard it was empty; it then stays empty longer, by as
+much, so over a minute the allowance holds. Between flushes a process answers from
+what it last heard.
 """
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
+import logging
 import math
 import time
 from collections import OrderedDict
 from typing import Protocol
 
+from redis.asyncio import Redis
+
 from server.storage.redis_client import AnyRedis, redis_client, register_script
 
+logger = logging.getLogger(__name__)
 KEY_PREFIX = "ips:rl:"
 MEMORY_MAX_BUCKETS = 100_000  # past this, the least recently used bucket is forgotten
 PEEK_FRESH_S = 1.0  # how long a bucket Redis said was not empty is taken as still not
 PEEK_MEMO_MAX = 100_000  # past this many remembered buckets, all are forgotten
+SPEND_FLUSH_S = 2.0  # how often a process takes what it spent from the shared buckets
 
 _TAKE_LUA = """
 local rate = tonumber(ARGV[1])
@@ -58,8 +73,58 @@ return tostring((1 - tokens) / rate)
 """
 
 
+# ARGV[3] tokens at once, the bucket going below empty if they are not all there (calls
+# already let through); returns the wait until a token is back, '0' when there is one
+_TAKE_SPENT_LUA = """
+local rate = tonumber(ARGV[1])
+local burst = tonumber(ARGV[2])
+local clock = redis.call('TIME')
+local now = tonumber(clock[1]) + tonumber(clock[2]) / 1000000
+local held = redis.call('HMGET', KEYS[1], 'tokens', 'ts')
+local tokens = tonumber(held[1]) or burst
+local ts = tonumber(held[2]) or now
+tokens = math.min(burst, tokens + math.max(0, now - ts) * rate) - tonumber(ARGV[3])
+tokens = math.max(tokens, -burst)
+redis.call('HSET', KEYS[1], 'tokens', tostring(tokens), 'ts', tostring(now))
+redis.call('EXPIRE', KEYS[1], math.ceil((2 * burst) / rate) + 1)
+if tokens >= 1 then return '0' end
+return tostring((1 - tokens) / rate)
+"""
+
+
+class EmptyBuckets:
+    """Buckets this process heard are empty, and until when (nothing is held past that,
+    and at most ``PEEK_MEMO_MAX`` buckets)."""
+
+    def __init__(self) -> None:
+        self._until: dict[str, float] = {}
+
+    def note(self, name: str, wait_s: float) -> None:
+        if len(self._until) >= PEEK_MEMO_MAX:
+            self._until.clear()
+        self._until[name] = time.monotonic() + wait_s
+
+    def wait(self, name: str) -> float | None:
+        """Seconds until the bucket holds a token again, as last heard; None if it does."""
+        until = self._until.get(name)
+        if until is None:
+            return None
+        left = until - time.monotonic()
+        if left > 0:
+            return left
+        del self._until[name]
+        return None
+
+
 class RateLimiter(Protocol):
+    empty: EmptyBuckets  # what this process heard of buckets it does not take from itself
+
     async def take(self, name: str, per_s: float, burst: int) -> float | None: ...
+
+    def spend(self, name: str, per_s: float, burst: int) -> float | None:
+        """Like :meth:`take`, from what this process knows (module docstring): the wait
+        when the bucket is empty as last heard, else None (the call is counted)."""
+        ...
 
     async def peek(self, name: str, per_s: float, burst: int) -> float | None:
         """Like :meth:`take` without taking: the wait when the bucket is empty, else None."""
@@ -76,8 +141,9 @@ class MemoryRateLimiter:
     def __init__(self, max_buckets: int = MEMORY_MAX_BUCKETS) -> None:
         self._buckets: OrderedDict[str, tuple[float, float]] = OrderedDict()
         self._max = max_buckets
+        self.empty = EmptyBuckets()
 
-    async def take(self, name: str, per_s: float, burst: int) -> float | None:
+    def spend(self, name: str, per_s: float, burst: int) -> float | None:
         now = time.monotonic()
         tokens, ts = self._buckets.pop(name, (float(burst), now))
         tokens = min(float(burst), tokens + (now - ts) * per_s)
@@ -86,6 +152,9 @@ class MemoryRateLimiter:
         while len(self._buckets) > self._max:
             self._buckets.popitem(last=False)
         return wait
+
+    async def take(self, name: str, per_s: float, burst: int) -> float | None:
+        return self.spend(name, per_s, burst)
 
     async def peek(self, name: str, per_s: float, burst: int) -> float | None:
         if name not in self._buckets:
@@ -103,13 +172,56 @@ class RedisRateLimiter:
         self._client = client
         self._take = register_script(client, _TAKE_LUA)
         self._peek = register_script(client, _PEEK_LUA)
+        self._take_spent = register_script(client, _TAKE_SPENT_LUA)
         # buckets Redis said were not empty, and until when that is believed here
         self._not_empty: dict[str, float] = {}
+        # spend(): calls let through since the last flush, per bucket (count, rate,
+        # burst), and the buckets last heard empty, until when
+        self._spent: dict[str, tuple[int, float, int]] = {}
+        self.empty = EmptyBuckets()
+        self._flush: asyncio.Task[None] | None = None
 
     async def take(self, name: str, per_s: float, burst: int) -> float | None:
         self._not_empty.pop(name, None)
         wait = float(await self._take(keys=[KEY_PREFIX + name], args=[per_s, burst]))
         return None if wait <= 0 else wait
+
+    def spend(self, name: str, per_s: float, burst: int) -> float | None:
+        wait = self.empty.wait(name)
+        if wait is not None:
+            return wait
+        count = self._spent.get(name, (0, per_s, burst))[0]
+        self._spent[name] = (count + 1, per_s, burst)
+        if self._flush is None:
+            self._flush = asyncio.get_running_loop().create_task(self._flush_later())
+        return None
+
+    async def _flush_later(self) -> None:
+        await asyncio.sleep(SPEND_FLUSH_S)
+        spent, self._spent, self._flush = self._spent, {}, None
+        try:
+            waits = await self._take_all(spent)
+        except Exception:  # the calls went through; their count is lost, not the service
+            logger.warning("could not count %d buckets' calls in Redis", len(spent), exc_info=True)
+            return
+        for name, wait in zip(spent, waits, strict=True):
+            if float(wait) > 0:
+                self.empty.note(name, float(wait))
+
+    async def _take_all(self, spent: dict[str, tuple[int, float, int]]) -> list[str]:
+        """Take each bucket's count from Redis: in one pipeline on one server; on a
+        cluster, one call per bucket, all at once."""
+        calls = [
+            ([KEY_PREFIX + name], [per_s, burst, n]) for name, (n, per_s, burst) in spent.items()
+        ]
+        if isinstance(self._client, Redis):
+            async with self._client.pipeline(transaction=False) as pipe:
+                for keys, args in calls:
+                    await self._take_spent(keys=keys, args=args, client=pipe)
+                return list(await pipe.execute())
+        return list(
+            await asyncio.gather(*(self._take_spent(keys=keys, args=args) for keys, args in calls))
+        )
 
     async def peek(self, name: str, per_s: float, burst: int) -> float | None:
         now = time.monotonic()
@@ -124,6 +236,10 @@ class RedisRateLimiter:
         return None
 
     async def close(self) -> None:
+        if self._flush is not None:
+            self._flush.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._flush
         await self._client.aclose()
 
 

@@ -4,7 +4,10 @@ A record is immutable ``meta`` (written once at create), a ``state`` blob and a 
 that starts at 1 and grows by one per successful :meth:`SessionStore.compare_and_set`.
 Writers read, compute, then compare-and-set on the version they read, so two replicas
 working on one session never overwrite each other: the loser re-reads and retries.
-Every record expires after ``ttl_s`` seconds without a successful write. Beside it, each
+Every record expires after ``ttl_s`` seconds without a successful write. A write may
+also take a token from the session's own rate-limit bucket, kept in the record: when
+the bucket is empty the write is refused (:class:`BucketEmpty`) and nothing changes, so
+the rate limit costs no round trip of its own. Beside it, each
 session keeps its *track*: the newest fixes it made (at most the ``track_len`` a write
 asks for), pushed by the same :meth:`SessionStore.compare_and_set` that writes the state
 and expiring with it.
@@ -56,6 +59,23 @@ class SessionExists(Exception):
     """:meth:`SessionStore.create` was called for a session id that is already present."""
 
 
+class BucketEmpty(Exception):
+    """:meth:`SessionStore.compare_and_set` found the session's bucket empty: nothing was
+    written; a token is back in ``wait_s`` seconds."""
+
+    def __init__(self, wait_s: float) -> None:
+        super().__init__(f"the session's bucket is empty for {wait_s:.3f} s")
+        self.wait_s = wait_s
+
+
+@dataclass(frozen=True, slots=True)
+class Allowance:
+    """A token bucket: ``burst`` tokens at most, refilled at ``per_s`` a second."""
+
+    per_s: float
+    burst: int
+
+
 @dataclass(frozen=True, slots=True)
 class StoredSession:
     version: int  # 1 after create, +1 per successful compare_and_set
@@ -91,13 +111,16 @@ class SessionStore(Protocol):
         publish: bytes | None = None,
         track: Sequence[bytes] = (),
         track_len: int = 0,
+        allowance: Allowance | None = None,
     ) -> bool:
-        """Atomically: if the record exists at ``expected_version``, store ``state``,
-        bump the version, reset the expiry (of the record and its track) to ``ttl_s``,
-        append ``track`` (fixes, oldest first) to the session's track keeping its newest
-        ``track_len`` entries (none with 0), send ``publish`` (when given) to the
-        session's subscribers as :meth:`publish` would, and return ``True``; otherwise
-        change nothing, send nothing and return ``False``."""
+        """Atomically: if the record exists at ``expected_version`` (and, with
+        ``allowance``, the session's bucket of that allowance holds a token, which is
+        taken; else :class:`BucketEmpty`), store ``state``, bump the version, reset the
+        expiry (of the record and its track) to ``ttl_s``, append ``track`` (fixes,
+        oldest first) to the session's track keeping its newest ``track_len`` entries
+        (none with 0), send ``publish`` (when given) to the session's subscribers as
+        :meth:`publish` would, and return ``True``; otherwise change nothing, send nothing
+        and return ``False``."""
         ...
 
     async def track(self, session_id: str, limit: int) -> list[bytes]:
@@ -170,6 +193,8 @@ class _Record:
     state: bytes
     expires_at: float
     track: list[bytes] = field(default_factory=list)
+    tokens: float | None = None  # the session's bucket (None: full, never taken from)
+    tokens_at: float = 0.0
 
 
 async def _key_ids(messages: AsyncIterator[bytes]) -> AsyncIterator[str]:
@@ -265,11 +290,14 @@ class MemorySessionStore:
         publish: bytes | None = None,
         track: Sequence[bytes] = (),
         track_len: int = 0,
+        allowance: Allowance | None = None,
     ) -> bool:
         _ttl_ms(ttl_s)
         record = self._live(session_id)
         if record is None or record.version != expected_version:
             return False
+        if allowance is not None:
+            self._take(record, allowance)
         record.state = bytes(state)
         record.version += 1
         record.expires_at = self._clock() + ttl_s
@@ -279,6 +307,14 @@ class MemorySessionStore:
         if publish is not None:
             await self.publish(session_id, publish)
         return True
+
+    def _take(self, record: _Record, allowance: Allowance) -> None:
+        now = self._clock()
+        held = allowance.burst if record.tokens is None else record.tokens
+        tokens = min(allowance.burst, held + max(0.0, now - record.tokens_at) * allowance.per_s)
+        if tokens < 1:
+            raise BucketEmpty((1 - tokens) / allowance.per_s)
+        record.tokens, record.tokens_at = tokens - 1, now
 
     async def track(self, session_id: str, limit: int) -> list[bytes]:
         record = self._live(session_id)
@@ -349,18 +385,33 @@ return 1
 """
 
 # KEYS[1] = state key, KEYS[2] = track key; ARGV = expected version, state, ttl_ms, track
-# length, live channel ('' for none), live message, then the fixes to push onto the track
-# (none, or at most track length of them). Returns 1 if written, else 0.
+# length, live channel ('' for none), live message, the bucket's refill per second (0: no
+# bucket) and burst, then the fixes to push onto the track (none, or at most track length
+# of them). Returns 1 if written, 0 if not at that version, or (a string) the seconds
+# until the session's bucket holds a token again.
 _CAS_LUA = """
 local ver = redis.call('HGET', KEYS[1], 'ver')
 if not ver or tonumber(ver) ~= tonumber(ARGV[1]) then
   return 0
 end
+local rate = tonumber(ARGV[7])
+if rate > 0 then
+  local burst = tonumber(ARGV[8])
+  local clock = redis.call('TIME')
+  local now = tonumber(clock[1]) + tonumber(clock[2]) / 1000000
+  local held = redis.call('HMGET', KEYS[1], 'rl_tokens', 'rl_ts')
+  local tokens = tonumber(held[1]) or burst
+  tokens = math.min(burst, tokens + math.max(0, now - (tonumber(held[2]) or now)) * rate)
+  if tokens < 1 then
+    return tostring((1 - tokens) / rate)
+  end
+  redis.call('HSET', KEYS[1], 'rl_tokens', tostring(tokens - 1), 'rl_ts', tostring(now))
+end
 redis.call('HSET', KEYS[1], 'state', ARGV[2])
 redis.call('HINCRBY', KEYS[1], 'ver', 1)
 redis.call('PEXPIRE', KEYS[1], ARGV[3])
-if #ARGV > 6 then
-  redis.call('RPUSH', KEYS[2], unpack(ARGV, 7))
+if #ARGV > 8 then
+  redis.call('RPUSH', KEYS[2], unpack(ARGV, 9))
   redis.call('LTRIM', KEYS[2], -tonumber(ARGV[4]), -1)
 end
 redis.call('PEXPIRE', KEYS[2], ARGV[3])
@@ -492,13 +543,18 @@ class RedisSessionStore:
         publish: bytes | None = None,
         track: Sequence[bytes] = (),
         track_len: int = 0,
+        allowance: Allowance | None = None,
     ) -> bool:
-        # state, track and live message in one script: one round trip for all three
+        # bucket, state, track and live message in one script: one round trip for all
         channel = self.live_channel(session_id) if publish is not None else ""
         args: list[Any] = [expected_version, state, _ttl_ms(ttl_s), max(track_len, 0)]
-        args += [channel, publish or b"", *_kept(track, track_len)]
+        args += [channel, publish or b""]
+        args += [allowance.per_s, allowance.burst] if allowance is not None else [0, 0]
+        args += _kept(track, track_len)
         keys = [self.state_key(session_id), self.track_key(session_id)]
         written = await self._cas(keys=keys, args=args)
+        if isinstance(written, bytes):
+            raise BucketEmpty(float(written))
         return bool(written)
 
     async def track(self, session_id: str, limit: int) -> list[bytes]:

@@ -1,6 +1,9 @@
-"""docker-compose.yml scales: the api publishes no fixed host port (so ``--scale api=3``
-does not collide), a one-shot ``migrate`` runs before api and worker start (so replicas do
-not all migrate at once), and every health condition names a service with a health check.
+"""docker-compose.yml scales: the api publishes no host port (so ``--scale api=3`` does
+not collide) and is reached through the proxy, which routes a session's requests to one
+replica (``deploy/haproxy.cfg``) and whose address alone the api trusts for
+``X-Forwarded-For``; a one-shot ``migrate`` runs before api and worker start (so replicas
+do not all migrate at once), and every health condition names a service with a health
+check. Where HAProxy is installed, it accepts its configuration.
 
 The checks run on the file as written (always) and on the configuration ``docker compose
 config`` (or the older ``docker-compose config``) makes of it, where one is installed;
@@ -19,7 +22,9 @@ from typing import Any
 import pytest
 import yaml  # type: ignore[import-untyped]
 
-COMPOSE_FILE = Path(__file__).resolve().parents[2] / "docker-compose.yml"
+ROOT = Path(__file__).resolve().parents[2]
+COMPOSE_FILE = ROOT / "docker-compose.yml"
+HAPROXY_CONFIG = ROOT / "deploy" / "haproxy.cfg"
 
 
 def _compose_command() -> list[str] | None:
@@ -82,8 +87,14 @@ def _check(config: dict[str, Any]) -> None:
 
     pinned = [p for p in services["api"].get("ports", []) if _fixed_host_port(p) is not None]
     assert pinned == [], f"api replicas would collide on host ports {pinned}"
-    assert services["api"].get("ports"), "the api publishes its container port"
     assert "container_name" not in services["api"]  # a fixed name cannot scale either
+
+    proxy = services["proxy"]
+    assert [_fixed_host_port(p) for p in proxy["ports"]] == ["8000"]
+    assert any("deploy/haproxy.cfg" in str(v) for v in proxy["volumes"])
+    proxy_address = proxy["networks"]["default"]["ipv4_address"]
+    for name in ("api", "worker", "migrate"):
+        assert services[name]["environment"]["INDOORPOS_TRUSTED_PROXIES"] == proxy_address
 
     for name, service in services.items():
         for dependency, condition in _conditions(service).items():
@@ -118,3 +129,12 @@ def test_docker_compose_accepts_the_file_and_it_scales() -> None:
     missing = _config(command)
     assert missing.returncode != 0
     assert "set an admin key" in missing.stderr
+
+
+def test_haproxy_accepts_its_configuration() -> None:
+    if shutil.which("haproxy") is None:
+        pytest.skip("haproxy is not installed")
+    done = subprocess.run(
+        ["haproxy", "-c", "-f", str(HAPROXY_CONFIG)], capture_output=True, text=True, timeout=60
+    )
+    assert done.returncode == 0, done.stdout + done.stderr

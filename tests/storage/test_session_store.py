@@ -18,6 +18,8 @@ from redis.asyncio.cluster import RedisCluster
 
 from server.storage.redis_client import redis_client
 from server.storage.session_store import (
+    Allowance,
+    BucketEmpty,
     MemorySessionStore,
     RedisSessionStore,
     SessionExists,
@@ -138,6 +140,28 @@ async def test_get_changed_sends_the_record_only_when_it_changed(
     assert await store.get_changed(sid, 2) == 2
     await store.delete(sid)
     assert await store.get_changed(sid, 2) is None
+
+
+async def test_a_write_takes_from_the_sessions_bucket_or_changes_nothing(
+    store: SessionStore, new_id: Callable[..., str], sleep: Sleep
+) -> None:
+    sid = new_id()
+    await store.create(sid, b"m", b"s1", TTL_S)
+    allowance = Allowance(per_s=10.0, burst=2)  # two writes, then one every 0.1 s
+    assert await store.compare_and_set(sid, 1, b"s2", TTL_S, allowance=allowance)
+    assert await store.compare_and_set(sid, 2, b"s3", TTL_S, allowance=allowance)
+    with pytest.raises(BucketEmpty) as refused:
+        await store.compare_and_set(sid, 3, b"s4", TTL_S, b"live", [b"f"], 5, allowance)
+    assert 0 < refused.value.wait_s <= 0.1
+    stored = await store.get(sid)
+    assert stored is not None
+    assert (stored.version, stored.state) == (3, b"s3")
+    assert await store.track(sid, 5) == []
+    assert await store.compare_and_set(sid, 3, b"s4", TTL_S)  # without the allowance: written
+    await sleep(0.15)
+    assert await store.compare_and_set(sid, 4, b"s5", TTL_S, allowance=allowance)
+    # a stale version is told apart from an empty bucket, and takes nothing
+    assert not await store.compare_and_set(sid, 4, b"stale", TTL_S, allowance=allowance)
 
 
 async def test_compare_and_set_on_a_missing_session(
