@@ -4,8 +4,7 @@
 made before, then runs the walkers concurrently on one event loop. Walker ``i`` walks level
 ``levels[i % n_levels]``, takes a step every ``step_period_s`` on average (each step
 jittered by ``N(0, STEP_JITTER_SD_S)``), starts ``i / walkers`` of a batch interval (or of
-``ramp_s``) after the first, to spread the load, and creates a session; it stops the same
-spread before the last, so that walkers leave as they came, not all at once. Every
+``ramp_s``) after the first, to spread the load, and creates a session. Every
 ``batch_steps`` steps it sends the events its phone produced since the last batch (the
 steps with their magnetometer readings and the WiFi/BLE scans that fell between them) as
 the next ``seq`` (1, 2, 3, ...), over HTTP or, with ``transport="ws"``, over the session's
@@ -26,7 +25,7 @@ walker, and so does a live socket that failed or did not answer in time (``ws``)
 Latency is from sending a batch to its answer; failed attempts are not in it.
 
 Bounded: at most ``MAX_WALKERS`` walkers and ``MAX_DURATION_S`` seconds; walkers stop
-producing by ``duration_s``; every request has a timeout, and a walker still busy
+producing at ``duration_s``; every request has a timeout, and a walker still busy
 ``DRAIN_S + 2 * REQUEST_TIMEOUT_S + 5`` s after that is cancelled (its session is still
 deleted). Traffic goes to ``base_url`` only (HTTP and its WebSocket).
 """
@@ -244,7 +243,6 @@ async def run_walkers(
         stats = [WalkerStats() for _ in range(walkers)]
         params = walker_params(step_period_s)
         spread_s = batch_steps * step_period_s if ramp_s is None else ramp_s
-        walk_s = duration_s - spread_s if spread_s < duration_s else duration_s
         progress = asyncio.create_task(_report_progress(on_progress, start, duration_s))
         try:
             await asyncio.gather(
@@ -260,7 +258,7 @@ async def run_walkers(
                             engine=engine,
                             run_start=start,
                             start=start + spread_s * i / max(walkers, 1),
-                            end=start + walk_s + spread_s * i / max(walkers, 1),
+                            end=start + duration_s,
                             batch_steps=batch_steps,
                             transport=transport,
                             live_socket=live_socket or transport == "ws",
@@ -311,7 +309,7 @@ class _WalkPlan:
     engine: str
     run_start: float  # event-loop time the run started
     start: float  # event-loop time the walker starts
-    end: float  # event-loop time the walker stops producing
+    end: float  # event-loop time every walker stops producing
     batch_steps: int
     transport: Transport
     live_socket: bool

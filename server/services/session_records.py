@@ -1,11 +1,17 @@
-"""A session's record in the session store: its immutable meta and its state blob, and
-the digest and wire form of the batch replies it keeps.
+"""A session's record in the session store: its immutable meta, its state snapshot, the
+log of the batches applied since, and the digest and wire form of the batch replies it
+keeps.
 
-Both are named-array containers (``storage.codec``). The state blob holds the engine
-state under ``engine/`` (``state_codec``, layout ``state_codec.LAYOUT``), the last applied
+All are named-array containers (``storage.codec``). The snapshot holds the engine state
+under ``engine/`` (``state_codec``, layout ``state_codec.LAYOUT``), the last applied
 ``seq``, the replies of the last few batches and the last fix. An engine state written
 under another layout is not decoded: :class:`StaleEngineState` says so, and the session
-goes on from a fresh engine state (``services.sessions``).
+goes on from a fresh engine state (``services.sessions``). A log entry
+(:class:`LogEntry`) holds one applied batch: its ``seq``, digest and events
+(``storage.event_codec``) and the answer it got. The state after it is the state before
+it :meth:`SessionState.applied` with it: the bookkeeping at once, the engine's step left
+``pending`` for whoever steps the engine next, with the session's maps and random stream
+(the engines are deterministic given both, so the state comes out as it was).
 
 A session's SQL row says when it was last active (``SessionRecord.last_active_at``, lagging
 the last batch by up to half an idle timeout); :func:`active_since` is how far back that
@@ -28,10 +34,18 @@ from server.positioning.engines.base import Engine
 from server.positioning.events import Event, Fix, ImuEvent
 from server.positioning.sitemaps import SiteMaps
 from server.positioning.state_codec import StateError
-from server.storage.codec import array_to_str, decode_arrays, encode_arrays, str_to_array
+from server.storage.codec import (
+    CodecError,
+    array_to_str,
+    decode_arrays,
+    encode_arrays,
+    str_to_array,
+)
+from server.storage.event_codec import event_arrays, events_from_arrays
 from server.storage.models import utcnow
 
 ENGINE_PREFIX = "engine/"
+EVENTS_PREFIX = "events/"
 # a row's last_active_at lags the last batch by up to half an idle timeout: a session is
 # live (and rebuilt, should the store lose it) only if that is at most 1.5 idle timeouts
 # ago (never taking a live one for gone)
@@ -93,6 +107,54 @@ class Reply:
 
 
 @dataclass(frozen=True)
+class LogEntry:
+    """One applied batch, as the session's log keeps it."""
+
+    seq: int
+    digest: bytes
+    events: tuple[Event, ...]
+    body: bytes  # the answer's fixes, as the reply keeps them
+    last_fix: bytes  # the newest fix of the batch, b"" for none
+    touched_ms: int  # the session's touched_ms after the batch
+
+    def to_bytes(self) -> bytes:
+        arrays: dict[str, np.ndarray] = {
+            "seq": np.array(self.seq, dtype=np.int64),
+            "digest": np.frombuffer(self.digest, dtype=np.uint8),
+            "body": np.frombuffer(self.body, dtype=np.uint8),
+            "last_fix": np.frombuffer(self.last_fix, dtype=np.uint8),
+            "touched_ms": np.array(self.touched_ms, dtype=np.int64),
+        }
+        for name, value in event_arrays(self.events).items():
+            arrays[EVENTS_PREFIX + name] = value
+        return encode_arrays(arrays)
+
+    @classmethod
+    def from_bytes(cls, data: bytes) -> LogEntry:
+        """Raises ``CodecError`` for bytes that are not an entry."""
+        a = decode_arrays(data)
+        try:
+            events = events_from_arrays(
+                {k[len(EVENTS_PREFIX) :]: v for k, v in a.items() if k.startswith(EVENTS_PREFIX)}
+            )
+            return cls(
+                seq=int(a["seq"]),
+                digest=a["digest"].tobytes(),
+                events=tuple(events),
+                body=a["body"].tobytes(),
+                last_fix=a["last_fix"].tobytes(),
+                touched_ms=int(a["touched_ms"]),
+            )
+        except (KeyError, TypeError, ValueError) as e:
+            raise CodecError(f"not a log entry: {e!r}") from None
+
+
+def event_end_ms(event: Event) -> int:
+    """The time of an event's last reading (a block of samples runs past its ``t``)."""
+    return event.t_end_ms if isinstance(event, ImuEvent) else event.t_ms
+
+
+@dataclass(frozen=True)
 class SessionState:
     last_seq: int  # -1: rebuilt after the store lost it; the next seq is taken as it comes
     engine_state: object
@@ -101,8 +163,30 @@ class SessionState:
     rebuilt_seq: int = 0  # the first seq applied after a rebuild (0: never rebuilt)
     touched_ms: int = 0  # wall clock of the last refresh of the SQL row's last_active_at
     last_event_ms: int = 0  # the newest event time of the batches applied (0: none yet)
+    # batches applied after ``engine_state``: their engine steps are still to be taken
+    pending: tuple[LogEntry, ...] = ()
+
+    def applied(
+        self, entry: LogEntry, replay_window: int, engine_state: object | None = None
+    ) -> SessionState:
+        """The state after the batch ``entry`` records: with the engine's state after it,
+        or, without ``engine_state``, the engine's step left pending."""
+        if engine_state is not None and self.pending:
+            raise ValueError("the pending engine steps come first")
+        return SessionState(
+            last_seq=entry.seq,
+            engine_state=self.engine_state if engine_state is None else engine_state,
+            replies=(*self.replies, Reply(entry.seq, entry.digest, entry.body))[-replay_window:],
+            last_fix=entry.last_fix or self.last_fix,
+            rebuilt_seq=entry.seq if self.last_seq < 0 else self.rebuilt_seq,
+            touched_ms=entry.touched_ms,
+            last_event_ms=max([self.last_event_ms, *map(event_end_ms, entry.events)]),
+            pending=(*self.pending, entry) if engine_state is None else (),
+        )
 
     def to_bytes(self, engine: Engine) -> bytes:
+        if self.pending:
+            raise ValueError("a snapshot holds no pending engine steps")
         arrays: dict[str, np.ndarray] = {
             "engine_layout": np.array(state_codec.LAYOUT, dtype=np.int64),
             "last_seq": np.array(self.last_seq, dtype=np.int64),

@@ -1,10 +1,16 @@
 """Positioning sessions: create, apply a batch of events exactly once, read, end, follow live.
 
 A session is one record in the session store: immutable meta (site, engine, token digest,
-RNG entropy) and a state blob holding the engine state, the last applied ``seq``, the
-replies of the last few batches (so a retried ``seq`` gets the same answer) and the last
-fix. Writes are compare-and-set on the record's version, so two replicas applying batches
-to one session at once never overwrite each other: the loser re-reads and re-applies.
+RNG entropy), a snapshot of its state (the engine state, the last applied ``seq``, the
+replies of the last few batches, so a retried ``seq`` gets the same answer, and the last
+fix) and the log of the batches applied since (``session_records``). A batch's write
+appends the batch and its answer to the log (a few hundred bytes); every
+``SNAPSHOT_EVERY``-th ``seq`` writes a snapshot instead, which empties the log. A process
+holding the session's newest state (it wrote it) steps on from it; any other reads the
+snapshot and the log and steps the engine through the logged batches first, with the
+session's random stream, so it goes on from the state the writer had. Writes are
+compare-and-set on the record's version, so two replicas applying batches to one session
+at once never overwrite each other: the loser re-reads and re-applies.
 
 Batches apply strictly in ``seq`` order (1, 2, 3, ...). A batch that arrives before its
 predecessor waits up to ``seq_wait_s`` for it, then is refused with 409. A batch whose
@@ -37,7 +43,7 @@ import time
 import uuid
 from collections.abc import AsyncIterator, Mapping, Sequence
 from contextlib import asynccontextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import datetime
 from typing import Any
 
@@ -49,12 +55,14 @@ from server.positioning.engines import NEEDS_GRAPHS, get_engine
 from server.positioning.events import (
     BleEvent,
     Event,
+    Fix,
     GnssEvent,
     ImuEvent,
     MagEvent,
     StepEvent,
     WifiEvent,
 )
+from server.positioning.params import Params
 from server.positioning.sitemaps import SiteMaps
 from server.services import auth, engine_settings, limits, telemetry, traces, uploads
 from server.services.device_offsets import on_common_level
@@ -63,7 +71,7 @@ from server.services.maps import site_maps, with_graphs
 from server.services.runtime import Runtime
 from server.services.session_records import (
     REBUILD_IDLE_FACTOR,
-    Reply,
+    LogEntry,
     SessionMeta,
     SessionState,
     StaleEngineState,
@@ -71,6 +79,7 @@ from server.services.session_records import (
     events_digest,
     fix_to_wire,
 )
+from server.storage.codec import CodecError
 from server.storage.models import SessionRecord, utcnow
 from server.storage.repositories import sessions as repo
 from server.storage.repositories.pages import Key, Page
@@ -80,6 +89,9 @@ logger = logging.getLogger(__name__)
 SEQ_POLL_S = 0.01
 INLINE_MAX_STEPS = 2  # batches with more steps, or any raw samples, run in a worker thread
 INLINE_MAX_EVENTS = 32
+# a snapshot of the state at every seq divisible by this (else a log entry): a process that
+# takes a session over steps the engine through at most this many logged batches first
+SNAPSHOT_EVERY = 16
 # the wire's name of each event kind (what an engine's ``uses`` holds)
 EVENT_KINDS: dict[type, str] = {
     StepEvent: "step",
@@ -276,7 +288,9 @@ async def _load_decoded(
         version = stored.version
         try:
             state = SessionState.from_bytes(stored.state, get_engine(meta.engine))
-        except StaleEngineState as e:
+            for data in stored.log:  # the engine's steps wait for the next batch
+                state = state.applied(LogEntry.from_bytes(data), rt.settings.replay_window)
+        except (StaleEngineState, CodecError) as e:
             # written by an older server (or not a state of this engine): go on from a
             # fresh engine state, as after a rebuild (the next batch is answered
             # reinitialised; a retry of an earlier batch is applied again)
@@ -435,45 +449,54 @@ async def _attempt(
                 await repo.keep_session_batch(s, session_id, seq, walk)
     if meta.engine in NEEDS_GRAPHS:
         maps = await with_graphs(maps)
-    rng = np.random.default_rng(np.random.SeedSequence(meta.entropy, spawn_key=(seq,)))
     params = engine_settings.session_params(meta.engine, meta.params)
     scans_level = maps.device_offsets.get(meta.device_model)
     run = telemetry.timed_engine(meta.engine, spec.step)
-    args = (state.engine_state, on_common_level(events, scans_level), maps, params, rng)
+
+    def step() -> tuple[object, Sequence[Fix]]:
+        engine_state = caught_up(state, meta, maps, params)
+        return run(
+            engine_state, on_common_level(events, scans_level), maps, params, _rng(meta, seq)
+        )
+
     try:
-        if _runs_inline(events):
-            new_engine_state, fixes = run(*args)
+        if _runs_inline(events) and not state.pending:
+            new_engine_state, fixes = step()
         else:
-            new_engine_state, fixes = await anyio.to_thread.run_sync(run, *args)
+            new_engine_state, fixes = await anyio.to_thread.run_sync(step)
     except BaseException:
         rt.states.drop(session_id)  # never reuse a state an engine failed on
         raise
     wire = [fix_to_wire(f, maps, meta.engine) for f in fixes]
     each = [orjson.dumps(f) for f in wire]  # for the track; the reply is their list
     body = b"[" + b",".join(each) + b"]"
-    replies = (*state.replies, Reply(seq, digest, body))[-rt.settings.replay_window :]
     now_ms = _now_ms()
     touch = now_ms - state.touched_ms > 500 * rt.settings.session_idle_s  # half the timeout
-    new_state = SessionState(
-        last_seq=seq,
-        engine_state=new_engine_state,
-        replies=replies,
-        last_fix=each[-1] if each else state.last_fix,
-        rebuilt_seq=seq if rebuilt else state.rebuilt_seq,
-        touched_ms=now_ms if touch else state.touched_ms,
-        last_event_ms=max([state.last_event_ms, *map(_event_end_ms, events)]),
+    entry = LogEntry(
+        seq,
+        digest,
+        tuple(events),
+        body,
+        each[-1] if each else b"",
+        now_ms if touch else state.touched_ms,
+    )
+    # step() stepped through the logged batches: the new state holds them
+    new_state = replace(state, pending=()).applied(
+        entry, rt.settings.replay_window, new_engine_state
     )
     live = orjson.dumps({"seq": seq, "fixes": orjson.Fragment(body)}) if wire else None
+    snapshot = seq % SNAPSHOT_EVERY == 0
     try:
         ok = await rt.store.compare_and_set(
             session_id,
             version,
-            new_state.to_bytes(spec),
+            new_state.to_bytes(spec) if snapshot else None,
             rt.settings.session_idle_s,
             live,
             track=each,
             track_len=rt.settings.session_track_len,
             allowance=limits.batch_allowance(rt),
+            entry=None if snapshot else entry.to_bytes(),
         )
     except BucketEmpty as e:  # not applied: the seq stays free
         raise limits.session_bucket_empty(rt, session_id, e.wait_s) from None
@@ -518,9 +541,21 @@ def check_event_times(events: Sequence[Event], last_event_ms: int, skew_ms: floa
             )
 
 
-def _event_end_ms(event: Event) -> int:
-    """The time of an event's last reading (a block of samples runs past its ``t``)."""
-    return event.t_end_ms if isinstance(event, ImuEvent) else event.t_ms
+def caught_up(state: SessionState, meta: SessionMeta, maps: SiteMaps, params: Params) -> object:
+    """The engine state after the logged batches ``state`` holds that its engine has not
+    been stepped through (``state.pending``), each with its own random stream."""
+    spec = get_engine(meta.engine)
+    scans_level = maps.device_offsets.get(meta.device_model)
+    engine_state = state.engine_state
+    for entry in state.pending:
+        events = on_common_level(entry.events, scans_level)
+        engine_state, _ = spec.step(engine_state, events, maps, params, _rng(meta, entry.seq))
+    return engine_state
+
+
+def _rng(meta: SessionMeta, seq: int) -> np.random.Generator:
+    """The random stream of batch ``seq`` of the session: the same in every process."""
+    return np.random.default_rng(np.random.SeedSequence(meta.entropy, spawn_key=(seq,)))
 
 
 def _runs_inline(events: Sequence[Event]) -> bool:

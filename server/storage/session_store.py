@@ -1,7 +1,11 @@
 """Per-session state store: one versioned record per session plus a live pub/sub channel.
 
-A record is immutable ``meta`` (written once at create), a ``state`` blob and a ``version``
-that starts at 1 and grows by one per successful :meth:`SessionStore.compare_and_set`.
+A record is immutable ``meta`` (written once at create), a ``state`` blob (a snapshot),
+the ``log`` of entries written since that snapshot, and a ``version`` that starts at 1 and
+grows by one per successful :meth:`SessionStore.compare_and_set`. A write either replaces
+the snapshot (and empties the log) or appends one entry to the log: the caller decides
+what a snapshot and an entry hold (``services.sessions``: the whole session state, and a
+batch with its answer), so a write sends a few hundred bytes, not the state.
 Writers read, compute, then compare-and-set on the version they read, so two replicas
 working on one session never overwrite each other: the loser re-reads and retries.
 Every record expires after ``ttl_s`` seconds without a successful write. A write may
@@ -15,9 +19,10 @@ and expiring with it.
 Two implementations behind one :class:`SessionStore` protocol:
 
 - :class:`RedisSessionStore` (production): one hash per session at
-  ``{prefix}:sess:{<session_id>}:state:v1`` with fields ``ver``, ``meta``, ``state``, and
-  a capped list ``{prefix}:sess:{<session_id>}:track:v1`` of its newest fixes, written by
-  Lua scripts so check, write, track and expiry happen atomically; live messages on
+  ``{prefix}:sess:{<session_id>}:state:v1`` with fields ``ver``, ``meta``, ``state``, its
+  log, the list ``{prefix}:sess:{<session_id>}:log:v1``, and a capped list
+  ``{prefix}:sess:{<session_id>}:track:v1`` of its newest fixes, written by Lua scripts so
+  check, write, log, track and expiry happen atomically; live messages on
   the sharded pub/sub channel ``{prefix}:sess:{<session_id>}:live:v1`` (``SPUBLISH`` /
   ``SSUBSCRIBE``, Redis 7). The braces are a Redis Cluster hash tag: the keys and the
   channel of one session live in one slot, so the same code runs on one Redis or on a
@@ -80,7 +85,8 @@ class Allowance:
 class StoredSession:
     version: int  # 1 after create, +1 per successful compare_and_set
     meta: bytes  # written once at create, never changed
-    state: bytes
+    state: bytes  # the snapshot, written at version - len(log)
+    log: tuple[bytes, ...] = ()  # the entries written since, oldest first
 
 
 class SessionStore(Protocol):
@@ -93,7 +99,8 @@ class SessionStore(Protocol):
         ...
 
     async def get(self, session_id: str) -> StoredSession | None:
-        """The record, or ``None`` if it never existed, expired or was deleted."""
+        """The record (its snapshot and log), or ``None`` if it never existed, expired or
+        was deleted."""
         ...
 
     async def get_changed(self, session_id: str, known_version: int) -> StoredSession | int | None:
@@ -106,21 +113,23 @@ class SessionStore(Protocol):
         self,
         session_id: str,
         expected_version: int,
-        state: bytes,
+        state: bytes | None,
         ttl_s: int,
         publish: bytes | None = None,
         track: Sequence[bytes] = (),
         track_len: int = 0,
         allowance: Allowance | None = None,
+        entry: bytes | None = None,
     ) -> bool:
         """Atomically: if the record exists at ``expected_version`` (and, with
         ``allowance``, the session's bucket of that allowance holds a token, which is
-        taken; else :class:`BucketEmpty`), store ``state``, bump the version, reset the
-        expiry (of the record and its track) to ``ttl_s``, append ``track`` (fixes,
-        oldest first) to the session's track keeping its newest ``track_len`` entries
-        (none with 0), send ``publish`` (when given) to the session's subscribers as
-        :meth:`publish` would, and return ``True``; otherwise change nothing, send nothing
-        and return ``False``."""
+        taken; else :class:`BucketEmpty`), store ``state`` as the snapshot and empty the
+        log, or, with ``state`` None, append ``entry`` to the log; bump the version, reset
+        the expiry (of the record, its log and its track) to ``ttl_s``, append ``track``
+        (fixes, oldest first) to the session's track keeping its newest ``track_len``
+        entries (none with 0), send ``publish`` (when given) to the session's subscribers
+        as :meth:`publish` would, and return ``True``; otherwise change nothing, send
+        nothing and return ``False``."""
         ...
 
     async def track(self, session_id: str, limit: int) -> list[bytes]:
@@ -178,6 +187,15 @@ def _ttl_ms(ttl_s: int) -> int:
     return int(ttl_s * 1000)
 
 
+def _written(state: bytes | None, entry: bytes | None) -> bytes:
+    """What a write stores: a snapshot or a log entry, exactly one of them."""
+    if state is not None and entry is None:
+        return bytes(state)
+    if entry is not None and state is None:
+        return bytes(entry)
+    raise ValueError("a write stores a snapshot or a log entry, exactly one of them")
+
+
 def _kept(track: Sequence[bytes], track_len: int) -> list[bytes]:
     """What of ``track`` can stay on a track of ``track_len`` entries."""
     return [bytes(b) for b in track[-track_len:]] if track_len > 0 else []
@@ -193,6 +211,7 @@ class _Record:
     state: bytes
     expires_at: float
     track: list[bytes] = field(default_factory=list)
+    log: list[bytes] = field(default_factory=list)
     tokens: float | None = None  # the session's bucket (None: full, never taken from)
     tokens_at: float = 0.0
 
@@ -271,7 +290,7 @@ class MemorySessionStore:
         record = self._live(session_id)
         if record is None:
             return None
-        return StoredSession(record.version, record.meta, record.state)
+        return StoredSession(record.version, record.meta, record.state, tuple(record.log))
 
     async def get_changed(self, session_id: str, known_version: int) -> StoredSession | int | None:
         record = self._live(session_id)
@@ -279,26 +298,31 @@ class MemorySessionStore:
             return None
         if record.version == known_version:
             return known_version
-        return StoredSession(record.version, record.meta, record.state)
+        return StoredSession(record.version, record.meta, record.state, tuple(record.log))
 
     async def compare_and_set(
         self,
         session_id: str,
         expected_version: int,
-        state: bytes,
+        state: bytes | None,
         ttl_s: int,
         publish: bytes | None = None,
         track: Sequence[bytes] = (),
         track_len: int = 0,
         allowance: Allowance | None = None,
+        entry: bytes | None = None,
     ) -> bool:
         _ttl_ms(ttl_s)
+        written = _written(state, entry)
         record = self._live(session_id)
         if record is None or record.version != expected_version:
             return False
         if allowance is not None:
             self._take(record, allowance)
-        record.state = bytes(state)
+        if state is not None:
+            record.state, record.log = written, []
+        else:
+            record.log.append(written)
         record.version += 1
         record.expires_at = self._clock() + ttl_s
         if kept := _kept(track, track_len):
@@ -372,23 +396,25 @@ class MemorySessionStore:
 
 # --- Redis ----------------------------------------------------------------------------------
 
-# KEYS[1] = state key, KEYS[2] = track key; ARGV = meta, state, ttl_ms, version. Returns 1
-# if created, 0 if present. A new record starts with an empty track.
+# KEYS[1] = state key, KEYS[2] = track key, KEYS[3] = log key; ARGV = meta, state, ttl_ms,
+# version. Returns 1 if created, 0 if present. A new record starts with an empty track
+# and an empty log.
 _CREATE_LUA = """
 if redis.call('EXISTS', KEYS[1]) == 1 then
   return 0
 end
 redis.call('HSET', KEYS[1], 'ver', ARGV[4], 'meta', ARGV[1], 'state', ARGV[2])
 redis.call('PEXPIRE', KEYS[1], ARGV[3])
-redis.call('DEL', KEYS[2])
+redis.call('DEL', KEYS[2], KEYS[3])
 return 1
 """
 
-# KEYS[1] = state key, KEYS[2] = track key; ARGV = expected version, state, ttl_ms, track
-# length, live channel ('' for none), live message, the bucket's refill per second (0: no
-# bucket) and burst, then the fixes to push onto the track (none, or at most track length
-# of them). Returns 1 if written, 0 if not at that version, or (a string) the seconds
-# until the session's bucket holds a token again.
+# KEYS[1] = state key, KEYS[2] = track key, KEYS[3] = log key; ARGV = expected version,
+# snapshot or log entry, ttl_ms, track length, live channel ('' for none), live message,
+# the bucket's refill per second (0: no bucket) and burst, 'snapshot' or 'entry', then the
+# fixes to push onto the track (none, or at most track length of them). Returns 1 if
+# written, 0 if not at that version, or (a string) the seconds until the session's bucket
+# holds a token again.
 _CAS_LUA = """
 local ver = redis.call('HGET', KEYS[1], 'ver')
 if not ver or tonumber(ver) ~= tonumber(ARGV[1]) then
@@ -407,11 +433,17 @@ if rate > 0 then
   end
   redis.call('HSET', KEYS[1], 'rl_tokens', tostring(tokens - 1), 'rl_ts', tostring(now))
 end
-redis.call('HSET', KEYS[1], 'state', ARGV[2])
+if ARGV[9] == 'snapshot' then
+  redis.call('HSET', KEYS[1], 'state', ARGV[2])
+  redis.call('DEL', KEYS[3])
+else
+  redis.call('RPUSH', KEYS[3], ARGV[2])
+  redis.call('PEXPIRE', KEYS[3], ARGV[3])
+end
 redis.call('HINCRBY', KEYS[1], 'ver', 1)
 redis.call('PEXPIRE', KEYS[1], ARGV[3])
-if #ARGV > 8 then
-  redis.call('RPUSH', KEYS[2], unpack(ARGV, 9))
+if #ARGV > 9 then
+  redis.call('RPUSH', KEYS[2], unpack(ARGV, 10))
   redis.call('LTRIM', KEYS[2], -tonumber(ARGV[4]), -1)
 end
 redis.call('PEXPIRE', KEYS[2], ARGV[3])
@@ -422,16 +454,22 @@ return 1
 """
 
 
-# the version alone while it is still ARGV[1]; else version, meta and state
-_GET_CHANGED_LUA = """
+# KEYS[1] = state key, KEYS[2] = log key; ARGV[1] = the version the caller holds (''
+# for none). The version alone while it is still that one; else version, meta, snapshot
+# and the log's entries
+_GET_LUA = """
 local ver = redis.call('HGET', KEYS[1], 'ver')
 if not ver then
   return false
 end
-if tonumber(ver) == tonumber(ARGV[1]) then
+if ARGV[1] ~= '' and tonumber(ver) == tonumber(ARGV[1]) then
   return {ver}
 end
-return redis.call('HMGET', KEYS[1], 'ver', 'meta', 'state')
+local found = redis.call('HMGET', KEYS[1], 'ver', 'meta', 'state')
+for _, entry in ipairs(redis.call('LRANGE', KEYS[2], 0, -1)) do
+  table.insert(found, entry)
+end
+return found
 """
 
 
@@ -488,11 +526,15 @@ class RedisSessionStore:
         self._prefix = prefix
         self._create = register_script(client, _CREATE_LUA)
         self._cas = register_script(client, _CAS_LUA)
-        self._get_changed = register_script(client, _GET_CHANGED_LUA)
+        self._get = register_script(client, _GET_LUA)
 
     def state_key(self, session_id: str) -> str:
         """The hash holding the session's ``ver``, ``meta`` and ``state``."""
         return f"{self._prefix}:sess:{{{session_id}}}:state:v1"
+
+    def log_key(self, session_id: str) -> str:
+        """The list of the entries written since the snapshot, oldest first."""
+        return f"{self._prefix}:sess:{{{session_id}}}:log:v1"
 
     def track_key(self, session_id: str) -> str:
         """The list of the session's newest fixes, oldest first."""
@@ -510,48 +552,52 @@ class RedisSessionStore:
         self, session_id: str, meta: bytes, state: bytes, ttl_s: int, version: int = 1
     ) -> None:
         created = await self._create(
-            keys=[self.state_key(session_id), self.track_key(session_id)],
+            keys=[self.state_key(session_id), self.track_key(session_id), self.log_key(session_id)],
             args=[meta, state, _ttl_ms(ttl_s), version],
         )
         if not created:
             raise SessionExists(session_id)
 
     async def get(self, session_id: str) -> StoredSession | None:
-        fields = self._client.hmget(self.state_key(session_id), ["ver", "meta", "state"])
-        ver, meta, state = await cast("Awaitable[list[bytes | None]]", fields)
-        if ver is None or meta is None or state is None:
-            return None
-        return StoredSession(int(ver), meta, state)
+        found = await self._read(session_id, "")
+        assert not isinstance(found, int)  # no version given: the whole record or None
+        return found
 
     async def get_changed(self, session_id: str, known_version: int) -> StoredSession | int | None:
-        found = await self._get_changed(keys=[self.state_key(session_id)], args=[known_version])
+        return await self._read(session_id, known_version)
+
+    async def _read(self, session_id: str, known_version: int | str) -> StoredSession | int | None:
+        keys = [self.state_key(session_id), self.log_key(session_id)]
+        found = await self._get(keys=keys, args=[known_version])
         if not found:
             return None
         if len(found) == 1:
             return int(found[0])
-        ver, meta, state = found
+        ver, meta, state, *log = found
         if ver is None or meta is None or state is None:
             return None
-        return StoredSession(int(ver), meta, state)
+        return StoredSession(int(ver), meta, state, tuple(log))
 
     async def compare_and_set(
         self,
         session_id: str,
         expected_version: int,
-        state: bytes,
+        state: bytes | None,
         ttl_s: int,
         publish: bytes | None = None,
         track: Sequence[bytes] = (),
         track_len: int = 0,
         allowance: Allowance | None = None,
+        entry: bytes | None = None,
     ) -> bool:
-        # bucket, state, track and live message in one script: one round trip for all
+        # bucket, state or log, track and live message in one script: one round trip
+        written = _written(state, entry)
         channel = self.live_channel(session_id) if publish is not None else ""
-        args: list[Any] = [expected_version, state, _ttl_ms(ttl_s), max(track_len, 0)]
+        args: list[Any] = [expected_version, written, _ttl_ms(ttl_s), max(track_len, 0)]
         args += [channel, publish or b""]
         args += [allowance.per_s, allowance.burst] if allowance is not None else [0, 0]
-        args += _kept(track, track_len)
-        keys = [self.state_key(session_id), self.track_key(session_id)]
+        args += ["snapshot" if state is not None else "entry", *_kept(track, track_len)]
+        keys = [self.state_key(session_id), self.track_key(session_id), self.log_key(session_id)]
         written = await self._cas(keys=keys, args=args)
         if isinstance(written, bytes):
             raise BucketEmpty(float(written))
@@ -565,7 +611,7 @@ class RedisSessionStore:
 
     async def delete(self, session_id: str) -> bool:
         removed: int = await self._client.delete(self.state_key(session_id))
-        await self._client.delete(self.track_key(session_id))
+        await self._client.delete(self.track_key(session_id), self.log_key(session_id))
         return removed > 0
 
     async def publish(self, session_id: str, message: bytes) -> None:

@@ -11,6 +11,8 @@ from server.positioning.engines import get_engine
 from server.positioning.engines.pf_magnetic import PfMagneticState
 from server.positioning.fix_error import DEFAULT_ERROR_68_M
 from server.positioning.particle_cloud import Particles
+from server.services import engine_settings, sessions
+from server.services.maps import site_maps
 from server.services.session_records import SessionState
 from server.storage.repositories.engine_settings import put_engine_setting
 from tests.api.test_session_rebuild import lose_the_store
@@ -38,13 +40,20 @@ def error_field(r: httpx.Response) -> str:
 
 
 async def cloud_size(app: FastAPI, session_id: str) -> int:
-    """Particles in the session's stored state, read back from the store."""
-    stored = await app.state.runtime.store.get(session_id)
-    return pf_cloud(stored.state).n
+    """Particles in the session's state, read back from the store."""
+    return (await pf_cloud(app, session_id)).n
 
 
-def pf_cloud(blob: bytes) -> Particles:
-    engine_state = SessionState.from_bytes(blob, get_engine("pf_magnetic")).engine_state
+async def pf_cloud(app: FastAPI, session_id: str) -> Particles:
+    """The session's cloud as the store holds it: its snapshot, stepped through the
+    batches logged since (``services.sessions``), not this process's copy."""
+    rt = app.state.runtime
+    rt.states.drop(session_id)
+    _, meta, state = await sessions._load_decoded(rt, session_id, None)
+    async with rt.transaction() as s:
+        maps = await site_maps(s, rt.maps, meta.site_id)
+    params = engine_settings.session_params(meta.engine, meta.params)
+    engine_state = sessions.caught_up(state, meta, maps, params)
     assert isinstance(engine_state, PfMagneticState)
     assert engine_state.cloud is not None
     return engine_state.cloud
@@ -117,8 +126,7 @@ async def test_site_settings_reach_new_sessions_under_their_own_params(
     # a session's own params go over the site's, field by field
     own = await open_pf(client, site, {"particles": {"window": 4}})
     await start_cloud(client, own)
-    stored = await app.state.runtime.store.get(own.json()["id"])
-    cloud = pf_cloud(stored.state)
+    cloud = await pf_cloud(app, own.json()["id"])
     assert cloud.n == 800
     assert cloud.observed.shape == (5,)
     # a later change reaches new sessions only

@@ -320,3 +320,35 @@ async def test_the_sessions_clock_is_its_own_newest_event(
     r = await client.post(url, json=first, headers=auth)
     assert r.status_code == 200, r.text
     assert r.json()["replayed"] is True
+
+
+@pytest.mark.parametrize(
+    ("content", "content_type", "error"),
+    [
+        (b"", "application/json", "missing"),  # no body at all
+        (b'{"seq": 1, "events": [', "application/json", "json_invalid"),
+        (b'{"seq": 1, "events": []}', None, "model_type"),  # JSON only when it says so
+        (b'{"seq": 1, "events": []}', "text/plain", "model_type"),
+        (b'{"seq": 0, "events": []}', "application/vnd.indoorpos+json", "greater_than_equal"),
+    ],
+)
+async def test_a_batch_body_is_read_as_json_only_under_a_json_content_type(
+    client: httpx.AsyncClient,
+    site: ToySite,
+    content: bytes,
+    content_type: str | None,
+    error: str,
+) -> None:
+    sid, auth = await open_session(client, site)
+    headers = auth if content_type is None else {**auth, "content-type": content_type}
+    r = await client.post(f"/v1/sessions/{sid}/batches", content=content, headers=headers)
+    assert r.status_code == 422, r.text
+    (detail,) = r.json()["detail"]
+    assert detail["loc"][0] == "body"
+    assert detail["type"] == error
+    r = await client.post(
+        f"/v1/sessions/{sid}/batches",
+        content=b'{"seq": 1, "events": []}',
+        headers={**auth, "content-type": "application/json; charset=utf-8"},
+    )
+    assert r.status_code == 200, r.text

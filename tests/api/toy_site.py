@@ -7,6 +7,7 @@ surveyed point matches that point best.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -106,3 +107,19 @@ async def build_toy_site(client: httpx.AsyncClient, admin: dict[str, str]) -> To
     assert r.status_code == 201, r.text
     device = await device_headers(client, admin, site_id=site_id)
     return ToySite(site_id, building_id, floor_ids, device)
+
+
+WALK_T0_MS = 1_700_000_000_000
+
+
+def walk_batch(n: int) -> list[dict[str, Any]]:
+    """Batch ``n`` of a walk east and back along y = 5 m: a step, a scan, a magnetometer
+    reading."""
+    x = 2.0 + (n % 30) * 0.5 if (n // 30) % 2 == 0 else 17.0 - (n % 30) * 0.5
+    t = WALK_T0_MS + 600 * n
+    heading = math.pi / 2 if (n // 30) % 2 == 0 else -math.pi / 2
+    return [
+        {"type": "step", "t": t, "length_m": 0.5, "heading_rad": heading},
+        {"type": "wifi", "t": t + 50, "readings": rssi_at(x, 5.0, 0)},
+        {"type": "mag", "t": t + 60, "field_ut": [20.0, 5.0, -40.0]},
+    ]

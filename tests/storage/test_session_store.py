@@ -164,6 +164,44 @@ async def test_a_write_takes_from_the_sessions_bucket_or_changes_nothing(
     assert not await store.compare_and_set(sid, 4, b"stale", TTL_S, allowance=allowance)
 
 
+async def test_entries_go_on_the_log_until_the_next_snapshot(
+    store: SessionStore, new_id: Callable[..., str], sleep: Sleep
+) -> None:
+    sid = new_id()
+    await store.create(sid, b"m", b"snap-1", TTL_S)
+    assert await store.compare_and_set(sid, 1, None, TTL_S, entry=b"e2")
+    assert await store.compare_and_set(sid, 2, None, TTL_S, entry=b"e3\x00\xff")
+    assert not await store.compare_and_set(sid, 2, None, TTL_S, entry=b"stale")
+    stored = await store.get(sid)
+    assert stored == StoredSession(3, b"m", b"snap-1", (b"e2", b"e3\x00\xff"))
+    assert await store.get_changed(sid, 3) == 3
+    assert await store.get_changed(sid, 2) == stored
+    # a snapshot empties the log
+    assert await store.compare_and_set(sid, 3, b"snap-4", TTL_S)
+    assert await store.get(sid) == StoredSession(4, b"m", b"snap-4", ())
+    assert await store.compare_and_set(sid, 4, None, TTL_S, entry=b"e5")
+    # the log expires with the record, and a record made again starts with none
+    assert await store.delete(sid)
+    await store.create(sid, b"m2", b"snap-new", TTL_S)
+    assert await store.get(sid) == StoredSession(1, b"m2", b"snap-new", ())
+    with pytest.raises(ValueError, match="exactly one"):
+        await store.compare_and_set(sid, 1, b"both", TTL_S, entry=b"both")
+    with pytest.raises(ValueError, match="exactly one"):
+        await store.compare_and_set(sid, 1, None, TTL_S)
+
+
+async def test_the_log_expires_with_its_record(
+    store: SessionStore, new_id: Callable[..., str], sleep: Sleep
+) -> None:
+    sid = new_id()
+    await store.create(sid, b"m", b"s", 1)
+    assert await store.compare_and_set(sid, 1, None, 1, entry=b"e2")
+    await sleep(1.2)
+    assert await store.get(sid) is None
+    await store.create(sid, b"m", b"s", TTL_S)
+    assert await store.get(sid) == StoredSession(1, b"m", b"s", ())
+
+
 async def test_compare_and_set_on_a_missing_session(
     store: SessionStore, new_id: Callable[..., str]
 ) -> None:
