@@ -106,7 +106,8 @@ def bench_load(
         cpu = level.server_cpu_us_per_step
         console.print(
             f"  {level.processes} process(es), {level.users:5d} users: {mark}  "
-            f"p50 {level.p50_ms or 0:6.1f} ms  p99 {level.p99_ms or 0:6.1f} ms  "
+            f"p50 {level.p50_ms or 0:6.1f} ms  p99 {level.p99_ms or 0:6.1f} ms "
+            f"(server ≤ {level.server_p99_ms or 0:.0f} ms)  "
             f"errors {level.errors}  {level.steps_per_s:7.1f} steps/s  "
             f"server {cpu or 0:7.0f} µs/step  simulator CPU {level.client_cpu_s:5.1f} s"
             + (f"  ({level.first_error})" if level.first_error else "")

@@ -21,7 +21,9 @@ with N = 3000 particles (``papers/001_*``, section IV-B). This measures our figu
    by half from ``users_start`` while levels are held (at most ``users_max``), falls by a
    third from the start while they are not, and the bracket between the last held and the
    first failed count is then halved until it is narrower than ``RESOLUTION`` of the held
-   count.
+   count. Beside the phones' p99, each level reports the server's own: the bound of the
+   first bucket of the api's batch-duration histogram (``/metrics``) holding 99 % of the
+   level's batches, which leaves out the simulator's own delays.
 4. **CPU.** The api processes' CPU time (user + system, the process and its children,
    from ``/proc``) over a level, divided by the steps the level applied:
    ``server_cpu_us_per_step``. The simulator's own CPU time is reported beside it, as the
@@ -59,6 +61,7 @@ from typing import Any
 
 import httpx
 import numpy as np
+from prometheus_client.parser import text_string_to_metric_families
 
 from client_sim.api import ApiClient
 from client_sim.run import (
@@ -107,6 +110,7 @@ class Level:
     client_cpu_s: float
     mean_error_m: float | None
     first_error: str | None
+    server_p99_ms: float | None = None  # the api's own histogram: an upper bound
 
 
 class ApiProcesses:
@@ -347,7 +351,38 @@ class _Walk:
     transport: Transport
 
 
+BATCH_ROUTE = "/v1/sessions/{session_id}/batches"
+
+
+def _batch_buckets(url: str) -> dict[float, float]:
+    """The api's answered batches by duration bucket (cumulative counts, by upper bound
+    in seconds), from its ``/metrics``."""
+    text = httpx.get(f"{url}/metrics", timeout=10.0).text
+    buckets: dict[float, float] = {}
+    for family in text_string_to_metric_families(text):
+        for sample in family.samples:
+            labels = sample.labels
+            if (
+                sample.name == "indoorpos_http_request_duration_seconds_bucket"
+                and labels.get("route") == BATCH_ROUTE
+                and labels.get("status") == "200"
+            ):
+                bound = float(labels["le"])
+                buckets[bound] = buckets.get(bound, 0.0) + sample.value
+    return buckets
+
+
+def _bucket_p99_ms(before: dict[float, float], after: dict[float, float]) -> float | None:
+    """The bound of the first bucket holding 99 % of the batches answered in between."""
+    counts = {bound: after[bound] - before.get(bound, 0.0) for bound in sorted(after)}
+    total = counts.get(math.inf, 0.0)
+    if total <= 0:
+        return None
+    return next(1000.0 * bound for bound, n in counts.items() if n >= 0.99 * total)
+
+
 def _hold(api: ApiProcesses, walk: _Walk, users: int, processes: int, p99_limit_ms: float) -> Level:
+    buckets_before = _batch_buckets(api.url)
     server_before, client_before = api.cpu_seconds(), time.process_time()
     summary = asyncio.run(
         run_walkers(
@@ -365,6 +400,7 @@ def _hold(api: ApiProcesses, walk: _Walk, users: int, processes: int, p99_limit_
         )
     )
     server_cpu = api.cpu_seconds() - server_before
+    server_p99 = _bucket_p99_ms(buckets_before, _batch_buckets(api.url))
     p99 = summary.p99_ms
     return Level(
         processes=processes,
@@ -383,6 +419,7 @@ def _hold(api: ApiProcesses, walk: _Walk, users: int, processes: int, p99_limit_
         client_cpu_s=time.process_time() - client_before,
         mean_error_m=summary.mean_error_m,
         first_error=summary.error_messages[0] if summary.error_messages else None,
+        server_p99_ms=server_p99,
     )
 
 

@@ -43,9 +43,13 @@ PEEK_FRESH_S = 1.0  # how long a bucket Redis said was not empty is taken as sti
 PEEK_MEMO_MAX = 100_000  # past this many remembered buckets, all are forgotten
 SPEND_FLUSH_S = 2.0  # how often a process takes what it spent from the shared buckets
 
+# ARGV[3] = 0: take a token if there is one, else the wait until there is; n > 0: take n
+# tokens that calls already spent (``spend``), the bucket going below empty (down to -burst)
+# if they were not all there, and answer the wait until a token is back ('0': there is one)
 _TAKE_LUA = """
 local rate = tonumber(ARGV[1])
 local burst = tonumber(ARGV[2])
+local spent = tonumber(ARGV[3])
 local clock = redis.call('TIME')
 local now = tonumber(clock[1]) + tonumber(clock[2]) / 1000000
 local held = redis.call('HMGET', KEYS[1], 'tokens', 'ts')
@@ -53,9 +57,16 @@ local tokens = tonumber(held[1]) or burst
 local ts = tonumber(held[2]) or now
 tokens = math.min(burst, tokens + math.max(0, now - ts) * rate)
 local wait = 0
-if tokens >= 1 then tokens = tokens - 1 else wait = (1 - tokens) / rate end
+if spent > 0 then
+  tokens = math.max(tokens - spent, -burst)
+  if tokens < 1 then wait = (1 - tokens) / rate end
+elseif tokens >= 1 then
+  tokens = tokens - 1
+else
+  wait = (1 - tokens) / rate
+end
 redis.call('HSET', KEYS[1], 'tokens', tostring(tokens), 'ts', tostring(now))
-redis.call('EXPIRE', KEYS[1], math.ceil(burst / rate) + 1)
+redis.call('EXPIRE', KEYS[1], math.ceil((2 * burst) / rate) + 1)
 return tostring(wait)
 """
 
@@ -68,25 +79,6 @@ if not held[1] then return '0' end
 local clock = redis.call('TIME')
 local now = tonumber(clock[1]) + tonumber(clock[2]) / 1000000
 local tokens = math.min(burst, tonumber(held[1]) + math.max(0, now - tonumber(held[2])) * rate)
-if tokens >= 1 then return '0' end
-return tostring((1 - tokens) / rate)
-"""
-
-
-# ARGV[3] tokens at once, the bucket going below empty if they are not all there (calls
-# already let through); returns the wait until a token is back, '0' when there is one
-_TAKE_SPENT_LUA = """
-local rate = tonumber(ARGV[1])
-local burst = tonumber(ARGV[2])
-local clock = redis.call('TIME')
-local now = tonumber(clock[1]) + tonumber(clock[2]) / 1000000
-local held = redis.call('HMGET', KEYS[1], 'tokens', 'ts')
-local tokens = tonumber(held[1]) or burst
-local ts = tonumber(held[2]) or now
-tokens = math.min(burst, tokens + math.max(0, now - ts) * rate) - tonumber(ARGV[3])
-tokens = math.max(tokens, -burst)
-redis.call('HSET', KEYS[1], 'tokens', tostring(tokens), 'ts', tostring(now))
-redis.call('EXPIRE', KEYS[1], math.ceil((2 * burst) / rate) + 1)
 if tokens >= 1 then return '0' end
 return tostring((1 - tokens) / rate)
 """
@@ -172,7 +164,6 @@ class RedisRateLimiter:
         self._client = client
         self._take = register_script(client, _TAKE_LUA)
         self._peek = register_script(client, _PEEK_LUA)
-        self._take_spent = register_script(client, _TAKE_SPENT_LUA)
         # buckets Redis said were not empty, and until when that is believed here
         self._not_empty: dict[str, float] = {}
         # spend(): calls let through since the last flush, per bucket (count, rate,
@@ -183,7 +174,7 @@ class RedisRateLimiter:
 
     async def take(self, name: str, per_s: float, burst: int) -> float | None:
         self._not_empty.pop(name, None)
-        wait = float(await self._take(keys=[KEY_PREFIX + name], args=[per_s, burst]))
+        wait = float(await self._take(keys=[KEY_PREFIX + name], args=[per_s, burst, 0]))
         return None if wait <= 0 else wait
 
     def spend(self, name: str, per_s: float, burst: int) -> float | None:
@@ -217,10 +208,10 @@ class RedisRateLimiter:
         if isinstance(self._client, Redis):
             async with self._client.pipeline(transaction=False) as pipe:
                 for keys, args in calls:
-                    await self._take_spent(keys=keys, args=args, client=pipe)
+                    await self._take(keys=keys, args=args, client=pipe)
                 return list(await pipe.execute())
         return list(
-            await asyncio.gather(*(self._take_spent(keys=keys, args=args) for keys, args in calls))
+            await asyncio.gather(*(self._take(keys=keys, args=args) for keys, args in calls))
         )
 
     async def peek(self, name: str, per_s: float, burst: int) -> float | None:
