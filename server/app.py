@@ -72,12 +72,6 @@ def _operation_id(route: APIRoute) -> str:
     return f"{route.tags[0]}-{route.name}" if route.tags else route.name
 
 
-def _warm_up_kernels() -> None:
-    kernels.warm_up()
-    gc.collect()
-    gc.freeze()  # the compiled code and its type caches live as long as the process
-
-
 def create_app(settings: Settings | None = None) -> FastAPI:
     settings = settings or get_settings()
 
@@ -91,13 +85,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             # the compiled particle-filter loops, in the background (seconds when their disk
             # cache is cold): a session that needs one first waits for it, neither start-up
             # nor shutdown does
+            threading.Thread(target=kernels.warm_up, name="kernels", daemon=True).start()
             # what start-up made lives as long as the process: keep it out of the garbage
             # collector's full passes, which otherwise walk ~170,000 objects (40-75 ms on
-            # the event loop, every few seconds under load; bench/performance.md), and so
-            # does what compiling the kernels made, once they are compiled
+            # the event loop, every few seconds under load; bench/performance.md)
             gc.collect()
             gc.freeze()
-            threading.Thread(target=_warm_up_kernels, name="kernels", daemon=True).start()
             stop, stopped = anyio.Event(), anyio.Event()
 
             async def run_worker() -> None:

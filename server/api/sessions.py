@@ -3,12 +3,13 @@
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable, Coroutine
 from email.message import Message
 from typing import Annotated, Any
 
 import orjson
-from fastapi import APIRouter, Depends, Query, Request, Response, status
+from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response, status
 from fastapi.exceptions import RequestValidationError
 from pydantic import ValidationError
 
@@ -126,26 +127,49 @@ async def post_batch(
 
 async def _batch_body(request: Request) -> BatchIn:
     """The body as the framework would read it for ``post_batch`` (JSON only under a JSON
-    content type; errors located under ``body``), parsed and validated in one pass."""
-    raw = await request.body()
+    content type; errors located under ``body``, as it words them), parsed and validated
+    in one pass."""
     try:
-        if not raw:
-            raise RequestValidationError(
-                [{"type": "missing", "loc": ("body",), "msg": "Field required", "input": None}]
-            )
-        content_type = Message()
-        content_type["content-type"] = request.headers.get("content-type", "")
-        subtype = content_type.get_content_subtype()
-        if content_type.get_content_maintype() == "application" and (
-            subtype == "json" or subtype.endswith("+json")
-        ):
-            return BatchIn.model_validate_json(raw)
-        return BatchIn.model_validate(raw)  # not JSON: refused as the framework would
-    except ValidationError as e:
-        errors = e.errors(include_url=False)
+        raw = await request.body()
+    except Exception as e:  # the client went away, or a limit cut the body off (answered)
+        raise HTTPException(400, "There was an error parsing the body") from e
+    if not raw:
         raise RequestValidationError(
-            [{**error, "loc": ("body", *error["loc"])} for error in errors]
-        ) from None
+            [{"type": "missing", "loc": ("body",), "msg": "Field required", "input": None}]
+        )
+    content_type = Message()
+    content_type["content-type"] = request.headers.get("content-type", "")
+    subtype = content_type.get_content_subtype()
+    is_json = content_type.get_content_maintype() == "application" and (
+        subtype == "json" or subtype.endswith("+json")
+    )
+    try:
+        # not JSON: refused as the framework would (the bytes are no object)
+        return BatchIn.model_validate_json(raw) if is_json else BatchIn.model_validate(raw)
+    except ValidationError as e:
+        if any(error["type"] == "json_invalid" for error in e.errors()):
+            return _framework_json(raw)  # its words and its character offset
+        raise _in_body(e) from None
+
+
+def _framework_json(raw: bytes) -> BatchIn:
+    """What the framework makes of a body the fast parser refused as JSON."""
+    try:
+        parsed = json.loads(raw)
+    except json.JSONDecodeError as e:
+        error = {"type": "json_invalid", "loc": ("body", e.pos), "msg": "JSON decode error"}
+        raise RequestValidationError([{**error, "input": {}, "ctx": {"error": e.msg}}]) from None
+    except Exception as e:  # not UTF-8, nested too deep
+        raise HTTPException(400, "There was an error parsing the body") from e
+    try:
+        return BatchIn.model_validate(parsed)
+    except ValidationError as e:
+        raise _in_body(e) from None
+
+
+def _in_body(e: ValidationError) -> RequestValidationError:
+    errors = e.errors(include_url=False)
+    return RequestValidationError([{**error, "loc": ("body", *error["loc"])} for error in errors])
 
 
 async def _serve_batch(request: Request) -> Response:

@@ -23,7 +23,8 @@ with N = 3000 particles (``papers/001_*``, section IV-B). This measures our figu
    first failed count is then halved until it is narrower than ``RESOLUTION`` of the held
    count. Beside the phones' p99, each level reports the server's own: the bound of the
    first bucket of the api's batch-duration histogram (``/metrics``) holding 99 % of the
-   level's batches, which leaves out the simulator's own delays.
+   level's batches, which leaves out the simulator's own delays (one api process only:
+   each process keeps its own histogram).
 4. **CPU.** The api processes' CPU time (user + system, the process and its children,
    from ``/proc``) over a level, divided by the steps the level applied:
    ``server_cpu_us_per_step``. The simulator's own CPU time is reported beside it, as the
@@ -382,7 +383,7 @@ def _bucket_p99_ms(before: dict[float, float], after: dict[float, float]) -> flo
 
 
 def _hold(api: ApiProcesses, walk: _Walk, users: int, processes: int, p99_limit_ms: float) -> Level:
-    buckets_before = _batch_buckets(api.url)
+    buckets_before = _batch_buckets(api.url) if processes == 1 else {}
     server_before, client_before = api.cpu_seconds(), time.process_time()
     summary = asyncio.run(
         run_walkers(
@@ -400,7 +401,10 @@ def _hold(api: ApiProcesses, walk: _Walk, users: int, processes: int, p99_limit_
         )
     )
     server_cpu = api.cpu_seconds() - server_before
-    server_p99 = _bucket_p99_ms(buckets_before, _batch_buckets(api.url))
+    # with more than one process, each /metrics is one process's own: no whole count
+    server_p99 = (
+        _bucket_p99_ms(buckets_before, _batch_buckets(api.url)) if processes == 1 else None
+    )
     p99 = summary.p99_ms
     return Level(
         processes=processes,

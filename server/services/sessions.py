@@ -289,7 +289,7 @@ async def _load_decoded(
         try:
             state = SessionState.from_bytes(stored.state, get_engine(meta.engine))
             for data in stored.log:  # the engine's steps wait for the next batch
-                state = state.applied(LogEntry.from_bytes(data), rt.settings.replay_window)
+                state = _followed(state, LogEntry.from_bytes(data), rt.settings.replay_window)
         except (StaleEngineState, CodecError) as e:
             # written by an older server (or not a state of this engine): go on from a
             # fresh engine state, as after a rebuild (the next batch is answered
@@ -300,6 +300,15 @@ async def _load_decoded(
     if token is not None and not hmac.compare_digest(meta.token_digest, _digest(token)):
         raise _no_session()
     return version, meta, state
+
+
+def _followed(state: SessionState, entry: LogEntry, replay_window: int) -> SessionState:
+    """``state`` after a logged batch, whose engine step is left pending. Entries follow
+    their snapshot seq by seq; anything else (an entry the snapshot already holds, a gap)
+    is a log this server did not write, refused as unreadable."""
+    if state.last_seq >= 0 and entry.seq != state.last_seq + 1:
+        raise CodecError(f"log entry of seq {entry.seq} after a state at seq {state.last_seq}")
+    return state.applied(entry, replay_window)
 
 
 async def check_token(rt: Runtime, session_id: str, token: str) -> None:
@@ -485,7 +494,10 @@ async def _attempt(
         entry, rt.settings.replay_window, new_engine_state
     )
     live = orjson.dumps({"seq": seq, "fixes": orjson.Fragment(body)}) if wire else None
-    snapshot = seq % SNAPSHOT_EVERY == 0
+    # a snapshot every SNAPSHOT_EVERY seqs; and at once after a restart (the log behind the
+    # old snapshot is not this state's) or after stepping through a log (so that a session
+    # going back and forth between processes is not stepped through it again and again)
+    snapshot = rebuilt or bool(state.pending) or seq % SNAPSHOT_EVERY == 0
     try:
         ok = await rt.store.compare_and_set(
             session_id,

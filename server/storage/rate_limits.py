@@ -183,13 +183,19 @@ class RedisRateLimiter:
             return wait
         count = self._spent.get(name, (0, per_s, burst))[0]
         self._spent[name] = (count + 1, per_s, burst)
-        if self._flush is None:
+        if self._flush is None or self._flush.done():  # done: its loop went away unflushed
             self._flush = asyncio.get_running_loop().create_task(self._flush_later())
         return None
 
     async def _flush_later(self) -> None:
         await asyncio.sleep(SPEND_FLUSH_S)
-        spent, self._spent, self._flush = self._spent, {}, None
+        self._flush = None
+        await self._flush_now()
+
+    async def _flush_now(self) -> None:
+        spent, self._spent = self._spent, {}
+        if not spent:
+            return
         try:
             waits = await self._take_all(spent)
         except Exception:  # the calls went through; their count is lost, not the service
@@ -231,6 +237,7 @@ class RedisRateLimiter:
             self._flush.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await self._flush
+        await self._flush_now()  # what was spent since the last flush still counts
         await self._client.aclose()
 
 

@@ -18,7 +18,7 @@ from server.positioning.engines import get_engine
 from server.services import engine_settings, sessions
 from server.services.maps import site_maps
 from server.services.runtime import Runtime
-from server.services.session_records import SessionMeta
+from server.services.session_records import LogEntry, SessionMeta
 from tests.api.toy_site import ToySite, build_toy_site, walk_batch
 
 BATCHES = 2 * sessions.SNAPSHOT_EVERY + 3  # two snapshots and a log behind the last one
@@ -109,3 +109,38 @@ async def test_a_snapshot_and_its_log_rebuild_the_exact_state(
         written[2].replies,
     )
     assert isinstance(meta, SessionMeta)
+
+
+async def test_a_log_that_does_not_follow_its_snapshot_is_not_read(
+    app: FastAPI, client: httpx.AsyncClient, site: ToySite
+) -> None:
+    """An entry the snapshot does not lead to (a gap; an older server's write) makes the
+    record unreadable: the session goes on from a fresh state, as after a lost store, and
+    its next write is a snapshot, so nothing is read behind the old one again."""
+    rt: Runtime = app.state.runtime
+    sid, token = await open_session(client, site, "step_ekf")
+    auth = {"Authorization": f"Bearer {token}"}
+    for n in (1, 2):
+        r = await client.post(
+            f"/v1/sessions/{sid}/batches", json={"seq": n, "events": walk_batch(n)}, headers=auth
+        )
+        assert r.status_code == 200, r.text
+    stored = await rt.store.get(sid)
+    assert stored is not None
+    stray = LogEntry(9, b"\0" * 32, (), b"[]", b"", 0)
+    ttl = rt.settings.session_idle_s
+    assert await rt.store.compare_and_set(sid, stored.version, None, ttl, entry=stray.to_bytes())
+    rt.states.drop(sid)
+    r = await client.post(
+        f"/v1/sessions/{sid}/batches", json={"seq": 3, "events": walk_batch(3)}, headers=auth
+    )
+    assert r.status_code == 200, r.text
+    assert r.json()["reinitialised"]
+    after = await rt.store.get(sid)
+    assert after is not None
+    assert after.log == ()  # written as a snapshot
+    r = await client.post(
+        f"/v1/sessions/{sid}/batches", json={"seq": 4, "events": walk_batch(4)}, headers=auth
+    )
+    assert r.status_code == 200, r.text
+    assert not r.json()["reinitialised"]
