@@ -402,9 +402,7 @@ def _hold(api: ApiProcesses, walk: _Walk, users: int, processes: int, p99_limit_
     )
     server_cpu = api.cpu_seconds() - server_before
     # with more than one process, each /metrics is one process's own: no whole count
-    server_p99 = (
-        _bucket_p99_ms(buckets_before, _batch_buckets(api.url)) if processes == 1 else None
-    )
+    server_p99 = _bucket_p99_ms(buckets_before, _batch_buckets(api.url)) if processes == 1 else None
     p99 = summary.p99_ms
     return Level(
         processes=processes,
