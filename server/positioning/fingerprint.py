@@ -37,14 +37,15 @@ engine's ``min_fix_var_m2``).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.special import logsumexp
 
 from server.positioning.events import RadioReading, radio_key
+from server.positioning.floor_filter import logsumexp
 
 MISSING_DBM = -100.0
 DISTANCE_EPS_DB = 1e-6  # floor under D_i in the 1/D weights (papers/002_* eq 3)
@@ -68,6 +69,13 @@ class RadioMap:
     count: np.ndarray
     emitters: tuple[str, ...]
     rp_points: np.ndarray | None = None
+
+    @functools.cached_property
+    def heard_by(self) -> NDArray[np.bool_]:
+        """``count > 0`` emitter-major, shape (n_em, n_rp), made once per map: a scan
+        reads its own emitters' rows of it rather than a few columns out of every row of
+        ``count`` (from a cold cache, as after a particle step, ~2x faster)."""
+        return np.ascontiguousarray(self.count.T > 0)
 
 
 @dataclass(frozen=True)
@@ -154,7 +162,7 @@ def scan_vector(radio_map: RadioMap, readings: Sequence[RadioReading], kind: str
         ``rssi_dbm`` and ``mask`` of shape (n_em,), and the number of columns heard.
     """
     n_em = len(radio_map.emitters)
-    column = {key: j for j, key in enumerate(radio_map.emitters)}
+    column = _columns(radio_map.emitters)
     rssi = np.full(n_em, MISSING_DBM, dtype=np.float64)
     heard = np.zeros(n_em, dtype=bool)
     cols = [column.get(radio_key(kind, r.emitter), -1) for r in readings]
@@ -166,13 +174,25 @@ def scan_vector(radio_map: RadioMap, readings: Sequence[RadioReading], kind: str
         rssi[idx] = -np.inf
         np.maximum.at(rssi, idx, values[keep])
         heard[idx] = True
-    prefix = f"{kind}:"
-    mask = np.fromiter((key.startswith(prefix) for key in radio_map.emitters), bool, n_em)
+    mask = _kind_columns(radio_map.emitters, kind).copy()
     # a reading at or below MISSING_DBM says no more than "not heard"
     evidence = heard & (rssi > MISSING_DBM)
     return ScanVector(
         rssi_dbm=rssi.astype(np.float32), mask=mask, n_matched=int(np.count_nonzero(evidence))
     )
+
+
+@functools.lru_cache(maxsize=64)
+def _columns(emitters: tuple[str, ...]) -> dict[str, int]:
+    """Each emitter key's column, once per map rather than per scan."""
+    return {key: j for j, key in enumerate(emitters)}
+
+
+@functools.lru_cache(maxsize=64)
+def _kind_columns(emitters: tuple[str, ...], kind: str) -> NDArray[np.bool_]:
+    """The columns of the emitters of a kind (key prefix ``"<kind>:"``), once per map."""
+    prefix = f"{kind}:"
+    return np.fromiter((key.startswith(prefix) for key in emitters), bool, len(emitters))
 
 
 def signal_distances(
@@ -199,10 +219,15 @@ def signal_distances(
         D_i in dB.
     """
     cols = np.flatnonzero(scan.mask & (scan.rssi_dbm > MISSING_DBM))
+    # rows, then columns: ~3x faster than one np.ix_ gather
     fingerprints = (
-        radio_map.mean_dbm[:, cols] if rows is None else radio_map.mean_dbm[np.ix_(rows, cols)]
+        radio_map.mean_dbm[:, cols]
+        if rows is None
+        else np.take(radio_map.mean_dbm, rows, axis=0)[:, cols]
     )
-    diff = fingerprints.astype(np.float64) - scan.rssi_dbm[cols]
+    # the scan in float64 once, not cast again for every row
+    diff = fingerprints.astype(np.float64)
+    diff -= scan.rssi_dbm[cols].astype(np.float64)
     squared: NDArray[np.float64] = np.einsum("ij,ij->i", diff, diff)
     return np.sqrt(squared)
 
@@ -221,27 +246,39 @@ def _nearest(distances: NDArray[np.float64], k: int) -> NDArray[np.int64]:
     return part[order].astype(np.int64)
 
 
+def nearest_per_floor(
+    distances_db: NDArray[np.float64], floors: NDArray[np.int64], n_floors: int, k: int
+) -> dict[int, NDArray[np.int64]]:
+    """The positions of each floor's ``k`` nearest candidates (``_nearest``: ties with the
+    k-th kept, nearest first), for the floors ``0 .. n_floors - 1`` that have any."""
+    near: dict[int, NDArray[np.int64]] = {}
+    for f in np.unique(floors).tolist():
+        if 0 <= f < n_floors:
+            on = np.flatnonzero(floors == f)
+            near[f] = on[_nearest(distances_db[on], k)]
+    return near
+
+
 def floor_log_likelihood(
     distances_db: NDArray[np.float64],
-    floors: NDArray[np.int64],
+    near: dict[int, NDArray[np.int64]],
     n_floors: int,
     empty_distance_db: float,
     n_matched: int,
-    k: int,
     sd_db: float,
     max_emitters: int,
     floors_in_map: NDArray[np.integer],
 ) -> NDArray[np.float64]:
     """Log-likelihood of each floor given a scan's signal distances to candidate RPs.
 
-    Per floor, the mean squared distance of its ``k`` nearest candidates per matched
-    emitter is taken as the mean squared RSS difference ``m_f`` (dB²) of the scan to the
-    floor; a floor with no candidate is as far as an RP that hears none of the scan's
-    emitters (``empty_distance_db``). With independent Gaussian RSS errors of ``sd_db``
-    (``papers/000_*`` eq 10-11 take each AP's RSS as Gaussian), the log-likelihood is
-    ``-n * m_f / (2 sd²)``, ``n`` being the matched emitters capped at ``max_emitters``:
-    readings of nearby emitters share their errors (body, orientation, the same walls), so
-    a 100-AP scan is not 100 independent votes.
+    Per floor, the mean squared distance of its ``k`` nearest candidates (``near``, from
+    ``nearest_per_floor``) per matched emitter is taken as the mean squared RSS difference
+    ``m_f`` (dB²) of the scan to the floor; a floor with no candidate is as far as an RP
+    that hears none of the scan's emitters (``empty_distance_db``). With independent
+    Gaussian RSS errors of ``sd_db`` (``papers/000_*`` eq 10-11 take each AP's RSS as
+    Gaussian), the log-likelihood is ``-n * m_f / (2 sd²)``, ``n`` being the matched
+    emitters capped at ``max_emitters``: readings of nearby emitters share their errors
+    (body, orientation, the same walls), so a 100-AP scan is not 100 independent votes.
 
     ``floors_in_map`` (the floor of every RP of the map) tells which floors have any
     reference point: a floor with none gets ``-inf`` (nothing says the phone is there, and
@@ -255,11 +292,8 @@ def floor_log_likelihood(
     msd = np.full(n_floors, empty_distance_db**2 / max(n_matched, 1))
     # floors the map has no reference point on at all cannot be told from the scan
     mapped = np.bincount(floors_in_map, minlength=n_floors)[:n_floors] > 0
-    for f in np.unique(floors).tolist():
-        if 0 <= f < n_floors:
-            on = np.flatnonzero(floors == f)
-            near = on[_nearest(distances_db[on], k)]
-            msd[f] = float(np.mean(distances_db[near] ** 2)) / max(n_matched, 1)
+    for f, rows in near.items():
+        msd[f] = float(np.mean(distances_db[rows] ** 2)) / max(n_matched, 1)
     n = min(n_matched, max_emitters)
     loglik: NDArray[np.float64] = np.where(mapped, -n * msd / (2.0 * sd_db**2), -np.inf)
     return loglik - float(loglik.max())
@@ -312,17 +346,17 @@ def wknn(
         raise ValueError(f"k must be at least 1, got {k}")
     if scan.n_matched < max(min_matched, 1):
         return None
-    n_rp = radio_map.rp_xy.shape[0]
+    # RPs that share no emitter with the scan are all equally far from it; letting them
+    # in would make neighbours of arbitrary RPs, chosen by their order in the map
+    heard = np.flatnonzero(scan.mask & (scan.rssi_dbm > MISSING_DBM))
+    heard_by = radio_map.heard_by[heard]
     if candidates is None:
-        cand = np.arange(n_rp, dtype=np.int64)
+        cand = np.flatnonzero(heard_by.any(axis=0))
     else:
         cand = np.asarray(candidates)
         # sorted and unique, so ties in distance go to the lower RP index
         cand = np.flatnonzero(cand) if cand.dtype == bool else np.unique(cand.astype(np.int64))
-    # RPs that share no emitter with the scan are all equally far from it; letting them
-    # in would make neighbours of arbitrary RPs, chosen by their order in the map
-    heard = np.flatnonzero(scan.mask & (scan.rssi_dbm > MISSING_DBM))
-    cand = cand[(radio_map.count[np.ix_(cand, heard)] > 0).any(axis=1)]
+        cand = cand[heard_by[:, cand].any(axis=0)]
     if cand.size == 0:
         return None
 
@@ -336,15 +370,14 @@ def wknn(
     n_floors = int(radio_map.rp_floor.max()) + 1
     if floor_log_prior is not None and floor_log_prior.shape[0] > n_floors:
         n_floors = floor_log_prior.shape[0]
-    cols = np.flatnonzero(scan.mask & (scan.rssi_dbm > MISSING_DBM))
-    empty = float(np.linalg.norm(scan.rssi_dbm[cols].astype(np.float64) - MISSING_DBM))
+    empty = float(np.linalg.norm(scan.rssi_dbm[heard].astype(np.float64) - MISSING_DBM))
+    near = nearest_per_floor(dist, floors, n_floors, k)
     loglik = floor_log_likelihood(
         dist,
-        floors,
+        near,
         n_floors,
         empty,
         scan.n_matched,
-        k,
         floor_sd_db,
         floor_max_emitters,
         radio_map.rp_floor.astype(np.int64),
@@ -357,12 +390,13 @@ def wknn(
             logp = loglik.copy()
     logp -= float(logsumexp(logp))
     # the most probable floor among those the scan matched reference points on
-    matched = np.isin(np.arange(n_floors), floors)
+    # (floors are not negative: floor_log_likelihood's bincount over the map's refuses it)
+    matched = np.zeros(n_floors, dtype=bool)
+    matched[floors] = True
     floor = int(np.argmax(np.where(matched, logp, -np.inf)))
 
     # WKNN over the k nearest candidates of that floor
-    on_floor = np.flatnonzero(floors == floor)
-    sel = on_floor[_nearest(dist[on_floor], k)]
+    sel = near[floor]
     weights = inv[sel] / inv[sel].sum()
     rp = cand[sel]
     xy_rp = radio_map.rp_xy[rp].astype(np.float64)

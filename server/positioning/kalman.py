@@ -25,6 +25,7 @@ short form ``(I - K H) P`` does not; the result is also symmetrised explicitly.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -76,6 +77,17 @@ def wrap_angle(angle: ArrayLike) -> FloatArray:
     """
     a = np.asarray(angle, dtype=np.float64)
     return a - 2.0 * np.pi * np.ceil((a - np.pi) / (2.0 * np.pi))
+
+
+def wrap_angle_float(angle: float) -> float:
+    """``wrap_angle`` of one finite angle in Python floats: the same operations without
+    numpy's few µs per call on a scalar; a non-finite angle goes through ``wrap_angle``."""
+    if not math.isfinite(angle):
+        return float(wrap_angle(angle))
+    turns = (angle - math.pi) / (2.0 * math.pi)
+    # np.ceil as a float: math.ceil's integer converts back exactly, the sign puts back
+    # the -0.0 of a ceiling in (-1, 0]
+    return angle - 2.0 * math.pi * math.copysign(math.ceil(turns), turns)
 
 
 def _symmetric(P: FloatArray) -> FloatArray:

@@ -234,6 +234,7 @@ def take_rows(array: NDArray[_A], rows: slice | NDArray[np.intp]) -> NDArray[_A]
 
 def weights(p: Particles) -> FloatArray:
     """Weights of a living cloud in float64, renormalised after the float32 rounding."""
-    w = np.exp(p.log_w.astype(np.float64))
+    w = p.log_w.astype(np.float64)
+    np.exp(w, out=w)
     w /= w.sum()
     return w

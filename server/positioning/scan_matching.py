@@ -47,10 +47,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.special import logsumexp
 
 from server.positioning.events import RadioReading, radio_key
 from server.positioning.fingerprint import MISSING_DBM, WknnFix
+from server.positioning.floor_filter import logsumexp
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]

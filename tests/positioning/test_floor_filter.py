@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from scipy import special
 
 from server.positioning import floor_filter
 
@@ -48,3 +49,30 @@ def test_prediction_is_a_distribution_nearer_uniform(
     # mixing with the uniform distribution never moves a floor away from 1/n
     n = len(p)
     assert np.all(np.abs(out - 1 / n) <= np.abs(probs - 1 / n) + 1e-9)
+
+
+def _same_bits(a: float, b: float) -> bool:
+    """Equal to the last bit, NaN included and the sign of zero told apart."""
+    return np.float64(a).tobytes() == np.float64(b).tobytes() or (math.isnan(a) and math.isnan(b))
+
+
+@settings(max_examples=500, deadline=None)
+@given(
+    values=st.lists(
+        st.floats(-1e300, 1e300, allow_nan=False)
+        | st.sampled_from([0.0, -0.0, -1.0, -np.inf, np.inf, np.nan, 709.0, -745.0]),
+        min_size=1,
+        max_size=40,
+    )
+)
+def test_logsumexp_is_scipys_to_the_bit(values: list[float]) -> None:
+    a = np.array(values)
+    assert _same_bits(floor_filter.logsumexp(a), float(special.logsumexp(a)))
+
+
+def test_logsumexp_of_ties_and_long_arrays_is_scipys_to_the_bit() -> None:
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 7, 8, 9, 130, 1000):
+        for a in (rng.normal(0, 30, n), np.round(rng.normal(0, 2, n)), np.zeros(n)):
+            a[rng.random(n) < 0.2] = -np.inf
+            assert _same_bits(floor_filter.logsumexp(a), float(special.logsumexp(a)))

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from numpy.typing import NDArray
 
-from server.positioning.kalman import predict, predict_ekf, update, wrap_angle
+from server.positioning.kalman import predict, predict_ekf, update, wrap_angle, wrap_angle_float
 
 
 def test_scalar_predict_update_by_hand() -> None:
@@ -150,3 +150,17 @@ def test_covariance_stays_symmetric_positive_definite(
     assert u.mahalanobis2 >= 0.0
     # a measurement never adds uncertainty
     assert np.trace(u.P) <= np.trace(Pp) * (1 + 1e-9)
+
+
+@given(
+    st.floats(allow_nan=True, allow_infinity=True)
+    | st.sampled_from([0.0, -0.0, math.pi, -math.pi, 3 * math.pi, -2 * math.pi, 1e-300])
+    | st.integers(-1000, 1000).map(lambda k: k * math.pi)
+)
+def test_wrap_angle_float_is_wrap_angle_to_the_bit(angle: float) -> None:
+    with np.errstate(invalid="ignore"):  # wrap_angle of an infinity is NaN
+        expected = float(wrap_angle(angle))
+        got = wrap_angle_float(angle)
+    assert np.float64(got).tobytes() == np.float64(expected).tobytes() or (
+        math.isnan(got) and math.isnan(expected)
+    )

@@ -35,6 +35,9 @@ from server.positioning.particle import (
     initialise,
     mass_centered_update,
     move,
+    position,
+    resample_when_low,
+    reweight,
     step,
     systematic_resample,
 )
@@ -308,6 +311,51 @@ def test_estimate_by_hand() -> None:
 def test_estimate_floor_is_the_heaviest_including_negative_levels() -> None:
     p = cloud([(0.0, 0.0)] * 4, weights=[0.3, 0.3, 0.35, 0.05], floors=[-1, -1, 2, 3])
     assert estimate(p).floor == -1
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    weights=st.lists(
+        st.sampled_from([0.0, 1.0]) | st.floats(1e-6, 1.0), min_size=1, max_size=60
+    ).filter(lambda w: sum(w) > 0),
+    floor_of=st.lists(st.integers(-2, 3), min_size=60, max_size=60),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_position_is_the_estimates_mean_and_floor(
+    weights: list[float], floor_of: list[int], seed: int
+) -> None:
+    n = len(weights)
+    xy = np.random.default_rng(seed).normal(0.0, 20.0, (n, 2))
+    p = cloud([(float(x), float(y)) for x, y in xy], weights=weights, floors=floor_of[:n])
+    mean, floor = position(p)
+    e = estimate(p)
+    np.testing.assert_array_equal(mean, e.xy)
+    assert floor == e.floor
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    weights=st.lists(
+        st.sampled_from([0.0, 1.0]) | st.floats(1e-6, 1.0), min_size=1, max_size=60
+    ).filter(lambda w: sum(w) > 0),
+    fraction=st.sampled_from([0.0, 0.5, 0.9, 1.0]),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_resample_when_low_resamples_below_the_ess_threshold_only(
+    weights: list[float], fraction: float, seed: int
+) -> None:
+    p = cloud([(float(i), 0.0) for i in range(len(weights))], weights=weights)
+    params = ParticleParams(resample_ess_fraction=fraction)
+    got = resample_when_low(p, np.random.default_rng(seed), params)
+    if effective_sample_size(p) < fraction * p.n:
+        assert_same(got, systematic_resample(p, np.random.default_rng(seed)))
+    else:
+        assert got is p
+
+
+def test_reweight_refuses_a_likelihood_of_another_length() -> None:
+    with pytest.raises(ValueError, match="broadcast"):
+        reweight(cloud([(0.0, 0.0)] * 3), np.zeros((3, 1)))
 
 
 def test_effective_sample_size() -> None:

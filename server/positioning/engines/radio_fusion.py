@@ -45,7 +45,7 @@ from server.positioning.barometer import BaroParams, BaroState, FloorChange
 from server.positioning.engines import dispatch
 from server.positioning.events import Event, Fix, ImuEvent, WifiEvent
 from server.positioning.fingerprint import ScanVector, WknnFix, scan_vector, wknn
-from server.positioning.kalman import Update, update, wrap_angle
+from server.positioning.kalman import Update, update, wrap_angle, wrap_angle_float
 from server.positioning.params import AtLeastOne, NonNegative, Positive
 from server.positioning.scan_matching import MatchParams
 from server.positioning.sitemaps import FloorRef, SiteMaps
@@ -383,7 +383,7 @@ def to_fix(
 def in_building_frame(maps: SiteMaps, floor: int, north_rad: float) -> float:
     """A heading clockwise from north turned into the frame of the floor's building."""
     rotation = maps.floors[floor].rotation_rad if 0 <= floor < len(maps.floors) else 0.0
-    return float(wrap_angle(north_rad - rotation))
+    return wrap_angle_float(north_rad - rotation)
 
 
 def turn_between(previous_rad: float, heading_rad: float) -> float:
