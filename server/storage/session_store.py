@@ -5,7 +5,7 @@ the ``log`` of entries written since that snapshot, and a ``version`` that start
 grows by one per successful :meth:`SessionStore.compare_and_set`. A write either replaces
 the snapshot (and empties the log) or appends one entry to the log: the caller decides
 what a snapshot and an entry hold (``services.sessions``: the whole session state, and a
-batch with its answer), so a write sends a few hundred bytes, not the state.
+batch with its answer), so a write sends a few kilobytes at most, not the state.
 Writers read, compute, then compare-and-set on the version they read, so two replicas
 working on one session never overwrite each other: the loser re-reads and retries.
 Every record expires after ``ttl_s`` seconds without a successful write. A write may
