@@ -38,7 +38,7 @@ from server.api.gated_route import GatedRoute
 from server.api.schemas.common import StrictIn
 from server.api.schemas.sessions import LiveBatch
 from server.logs import session_context
-from server.services import limits, revocations, sessions, telemetry
+from server.services import batches, limits, revocations, sessions, telemetry
 from server.services.errors import ServiceError, Unauthorized
 from server.services.runtime import Runtime
 
@@ -214,7 +214,7 @@ async def _read(sock: _Socket, rt: Runtime, session_id: str, secret: str, owner:
             continue
         try:
             events = to_events(batch.events)
-            result = await sessions.apply_batch(
+            result = await batches.apply_batch(
                 rt, session_id, secret, batch.seq, events, client_address(sock.ws)
             )
         except ServiceError as exc:

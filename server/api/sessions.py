@@ -43,7 +43,7 @@ from server.api.schemas.sessions import (
     SessionTrack,
 )
 from server.logs import session_context
-from server.services import limits, sessions, telemetry
+from server.services import batches, limits, sessions, telemetry
 
 router = APIRouter(prefix="/v1/sessions", tags=["sessions"], route_class=GatedRoute)
 SessionPage = Annotated[PageQuery, page_query("sessions", CREATED)]
@@ -110,7 +110,7 @@ async def post_batch(
     second validation on the way out."""
     with session_context(session_id):
         events = to_events(body.events)
-        result = await sessions.apply_batch(rt, session_id, token, body.seq, events, address)
+        result = await batches.apply_batch(rt, session_id, token, body.seq, events, address)
         telemetry.count_batch(
             "http", events, result, session_id=session_id, idle_s=rt.settings.session_idle_s
         )

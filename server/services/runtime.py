@@ -33,7 +33,7 @@ class Runtime:
 
     # SQLite allows one writer; an embedded process takes turns rather than failing
     sqlite_lock: anyio.Lock | None = None
-    # turns for applying batches (Settings.batch_concurrency; services.sessions)
+    # turns for applying batches (Settings.batch_concurrency; services.batches)
     batch_gate: anyio.Semaphore = field(default_factory=lambda: anyio.Semaphore(1))
     # decoded session records this process last wrote or read (services.session_cache)
     states: AnySessionCache = field(default_factory=lambda: SessionCache(0))

@@ -6,7 +6,7 @@ All are named-array containers (``storage.codec``). The snapshot holds the engin
 under ``engine/`` (``state_codec``, layout ``state_codec.LAYOUT``), the last applied
 ``seq``, the replies of the last few batches and the last fix. An engine state written
 under another layout is not decoded: :class:`StaleEngineState` says so, and the session
-goes on from a fresh engine state (``services.sessions``). A log entry
+goes on from a fresh engine state (``services.batches``). A log entry
 (:class:`LogEntry`) holds one applied batch: its ``seq``, digest and events
 (``storage.event_codec``) and the answer it got. The state after it is the state before
 it :meth:`SessionState.applied` with it: the bookkeeping at once, the engine's step left

@@ -53,7 +53,7 @@ from sqlalchemy.exc import DBAPIError, InterfaceError, OperationalError
 from server.positioning.events import Event, StepEvent
 
 if TYPE_CHECKING:  # sessions imports this module
-    from server.services.sessions import BatchResult
+    from server.services.batches import BatchResult
 
 P = ParamSpec("P")
 R = TypeVar("R")

@@ -274,7 +274,7 @@ class SessionRecord(Base):
     params: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict, server_default="{}")
     epoch: Mapped[str] = mapped_column(String(64))
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
-    # a batch at most every half idle timeout refreshes it (services.sessions)
+    # a batch at most every half idle timeout refreshes it (services.batches)
     last_active_at: Mapped[datetime] = mapped_column(default=utcnow, index=True)
     ended_at: Mapped[datetime | None] = mapped_column()
 

@@ -4,7 +4,7 @@ A record is immutable ``meta`` (written once at create), a ``state`` blob (a sna
 the ``log`` of entries written since that snapshot, and a ``version`` that starts at 1 and
 grows by one per successful :meth:`SessionStore.compare_and_set`. A write either replaces
 the snapshot (and empties the log) or appends one entry to the log: the caller decides
-what a snapshot and an entry hold (``services.sessions``: the whole session state, and a
+what a snapshot and an entry hold (``services.batches``: the whole session state, and a
 batch with its answer), so a write sends a few kilobytes at most, not the state.
 Writers read, compute, then compare-and-set on the version they read, so two replicas
 working on one session never overwrite each other: the loser re-reads and retries.

@@ -11,7 +11,7 @@ from server.positioning.engines import get_engine
 from server.positioning.engines.pf_magnetic import PfMagneticState
 from server.positioning.fix_error import DEFAULT_ERROR_68_M
 from server.positioning.particle_cloud import Particles
-from server.services import engine_settings, sessions
+from server.services import batches, engine_settings, sessions
 from server.services.maps import site_maps
 from server.services.session_records import SessionState
 from server.storage.repositories.engine_settings import put_engine_setting
@@ -46,14 +46,14 @@ async def cloud_size(app: FastAPI, session_id: str) -> int:
 
 async def pf_cloud(app: FastAPI, session_id: str) -> Particles:
     """The session's cloud as the store holds it: its snapshot, stepped through the
-    batches logged since (``services.sessions``), not this process's copy."""
+    batches logged since (``services.batches``), not this process's copy."""
     rt = app.state.runtime
     rt.states.drop(session_id)
-    _, meta, state = await sessions._load_decoded(rt, session_id, None)
+    _, meta, state = await sessions.load_state(rt, session_id, None)
     async with rt.transaction() as s:
         maps = await site_maps(s, rt.maps, meta.site_id)
     params = engine_settings.session_params(meta.engine, meta.params)
-    engine_state = sessions.caught_up(state, meta, maps, params)
+    engine_state = batches.caught_up(state, meta, maps, params)
     assert isinstance(engine_state, PfMagneticState)
     assert engine_state.cloud is not None
     return engine_state.cloud

@@ -1,6 +1,6 @@
 """A session's log: a process that did not write a session's newest state reads the
 snapshot and the batches logged since, steps the engine through them, and goes on exactly
-as the writer would have (``services.sessions``).
+as the writer would have (``services.batches``).
 
 Forgetting the process's own copy of a session before each batch stands for a batch that
 lands on another replica; ``tests/e2e/test_session_takeover.py`` does it with two."""
@@ -15,13 +15,13 @@ import pytest
 from fastapi import FastAPI
 
 from server.positioning.engines import get_engine
-from server.services import engine_settings, sessions
+from server.services import batches, engine_settings, sessions
 from server.services.maps import site_maps
 from server.services.runtime import Runtime
 from server.services.session_records import LogEntry, SessionMeta
 from tests.api.toy_site import ToySite, build_toy_site, walk_batch
 
-BATCHES = 2 * sessions.SNAPSHOT_EVERY + 3  # two snapshots and a log behind the last one
+BATCHES = 2 * batches.SNAPSHOT_EVERY + 3  # two snapshots and a log behind the last one
 ENGINES = ("pf_magnetic", "step_ekf")  # a cloud drawn from the random stream; a Kalman filter
 
 
@@ -88,17 +88,17 @@ async def test_a_snapshot_and_its_log_rebuild_the_exact_state(
     assert written is not None
     stored = await rt.store.get(sid)
     assert stored is not None
-    assert len(stored.log) == BATCHES % sessions.SNAPSHOT_EVERY  # entries since the snapshot
+    assert len(stored.log) == BATCHES % batches.SNAPSHOT_EVERY  # entries since the snapshot
 
     rt.states.drop(sid)
-    _, meta, state = await sessions._load_decoded(rt, sid, token)
+    _, meta, state = await sessions.load_state(rt, sid, token)
     assert [entry.seq for entry in state.pending] == list(
         range(BATCHES - len(stored.log) + 1, BATCHES + 1)
     )
     async with rt.transaction() as s:
         maps = await site_maps(s, rt.maps, site.site_id)
     params = engine_settings.session_params(meta.engine, meta.params)
-    rebuilt = sessions.caught_up(state, meta, maps, params)
+    rebuilt = batches.caught_up(state, meta, maps, params)
     spec = get_engine(engine)
     expected, found = spec.encode(written[2].engine_state), spec.encode(rebuilt)
     assert expected.keys() == found.keys()

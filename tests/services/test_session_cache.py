@@ -13,7 +13,7 @@ from fastapi import FastAPI
 from server.api.convert import to_events
 from server.api.schemas.sessions import BatchIn
 from server.positioning.events import Event
-from server.services import session_records, sessions
+from server.services import batches, session_records, sessions
 from server.services.maps import MapCache
 from server.services.runtime import Runtime
 from server.services.session_cache import SessionCache
@@ -61,9 +61,9 @@ async def test_alternating_processes_see_each_others_writes(
     seen = []
     for seq, (events, rt) in enumerate(zip(_batches(), order, strict=True), start=1):
         before = decodes
-        got = await sessions.apply_batch(rt, alternating.id, alternating.token, seq, events)
+        got = await batches.apply_batch(rt, alternating.id, alternating.token, seq, events)
         seen.append(decodes - before)
-        want = await sessions.apply_batch(plain, reference.id, reference.token, seq, events)
+        want = await batches.apply_batch(plain, reference.id, reference.token, seq, events)
         assert got.fixes == want.fixes  # step_ekf is deterministic: same state, same fixes
     # a decodes its first read; its second batch finds its own write; b reads a's write;
     # a then finds b's write (a new version); b and b again: its own write
@@ -110,7 +110,7 @@ async def test_batches_to_the_process_that_wrote_last_skip_the_read(
     per_batch, fixes = [], []
     for seq, (events, rt) in enumerate(zip(_batches(), [a, a, a, b, a, a], strict=True), start=1):
         before = len(reads)
-        got = await sessions.apply_batch(rt, session.id, session.token, seq, events)
+        got = await batches.apply_batch(rt, session.id, session.token, seq, events)
         per_batch.append(len(reads) - before)
         fixes.append(got.fixes)
     # a reads once, then goes on from its own writes; b reads a's write (and once more
@@ -119,9 +119,9 @@ async def test_batches_to_the_process_that_wrote_last_skip_the_read(
     assert per_batch == [1, 0, 0, 2, 1, 0]
     reference = await sessions.create_session(plain, site.site_id, "step_ekf")
     for seq, events in enumerate(_batches(), start=1):
-        want = await sessions.apply_batch(plain, reference.id, reference.token, seq, events)
+        want = await batches.apply_batch(plain, reference.id, reference.token, seq, events)
         assert want.fixes == fixes[seq - 1]
     # a retried batch is answered as a replay after the store's word
-    again = await sessions.apply_batch(a, session.id, session.token, 6, _batches()[5])
+    again = await batches.apply_batch(a, session.id, session.token, 6, _batches()[5])
     assert again.replayed
     assert again.fixes == fixes[5]

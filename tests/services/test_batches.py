@@ -1,4 +1,4 @@
-"""The session service's checks that need no stores: event times against the session's
+"""The batch service's checks that need no stores: event times against the session's
 clock."""
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from server.positioning.events import StepEvent
+from server.services.batches import check_event_times
 from server.services.errors import Invalid
-from server.services.sessions import check_event_times
 
 T0 = 1_700_000_000_000
 SKEW_MS = 1000.0
