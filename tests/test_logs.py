@@ -15,7 +15,7 @@ import pytest
 from websockets.asyncio.client import connect
 
 from server import logs
-from server.services import sessions as session_service
+from server.services import batches as batch_service
 from tests.api.toy_site import build_toy_site
 from tests.conftest import ADMIN_KEY
 from tests.e2e.conftest import live_url  # noqa: F401  (the real server the socket test needs)
@@ -164,7 +164,7 @@ async def test_a_failed_batch_on_the_live_socket_is_logged_with_its_session(
         async def diverges(*args: object) -> None:
             raise ArithmeticError("the filter diverged")
 
-        monkeypatch.setattr(session_service, "apply_batch", diverges)
+        monkeypatch.setattr(batch_service, "apply_batch", diverges)
         url = live_url.replace("http", "ws", 1) + f"/v1/sessions/{sid}/live"
         async with connect(url, additional_headers={"Authorization": f"Bearer {token}"}) as ws:
             assert json.loads(await asyncio.wait_for(ws.recv(), 10))["type"] == "ready"

@@ -195,6 +195,8 @@ def observe_request(method: str, route: str | None, status: int, seconds: float)
 # where a failure was raised tells which store it came from: the innermost frame of ours
 _STORE_MODULES: tuple[tuple[str, Store], ...] = (
     ("server.storage.session_store", "session"),
+    ("server.storage.redis_session_store", "session"),
+    ("server.storage.memory_session_store", "session"),
     ("server.storage.upload_queue", "queue"),
     # the rate limits and the shared client live in the session store's Redis
     ("server.storage.rate_limits", "session"),

@@ -22,10 +22,10 @@ from redis.exceptions import ConnectionError as RedisConnectionError
 from sqlalchemy.exc import IntegrityError, OperationalError
 from websockets.asyncio.client import connect
 
-from server.services import sessions as session_service
+from server.services import batches as batch_service
 from server.services import telemetry
 from server.storage.rate_limits import RedisRateLimiter
-from server.storage.session_store import RedisSessionStore
+from server.storage.redis_session_store import RedisSessionStore
 from server.storage.upload_queue import RedisUploadQueue
 from tests.api.toy_site import ToySite, build_toy_site, rssi_at
 from tests.conftest import ADMIN_KEY
@@ -283,7 +283,7 @@ async def test_batches_over_the_socket_count_as_ws(
         async def unreachable(*args: object) -> None:
             raise RedisConnectionError("Connection refused")
 
-        monkeypatch.setattr(session_service, "apply_batch", unreachable)
+        monkeypatch.setattr(batch_service, "apply_batch", unreachable)
         errors = value("indoorpos_store_errors_total", store="session")
         await ws.send(json.dumps({**batch, "seq": 2}))
         assert (await result())["status"] == 500

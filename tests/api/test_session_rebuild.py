@@ -13,7 +13,7 @@ from sqlalchemy import update
 
 from server.services.runtime import Runtime
 from server.storage.models import SessionRecord
-from server.storage.session_store import RedisSessionStore
+from server.storage.redis_session_store import RedisSessionStore
 from tests.api.test_sessions import open_session, scan, step
 from tests.api.toy_site import ToySite, build_toy_site
 

@@ -19,7 +19,7 @@ from redis.asyncio import Redis
 from server.services import auth, revocations
 from server.services.revocations import KeyWatches
 from server.services.runtime import Runtime
-from server.storage.session_store import RedisSessionStore
+from server.storage.redis_session_store import RedisSessionStore
 from tests.conftest import ADMIN_KEY
 from tests.storage.conftest import REDIS_URL, redis_or_skip
 

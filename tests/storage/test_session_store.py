@@ -16,12 +16,12 @@ import redis.exceptions
 from redis.asyncio import Redis
 from redis.asyncio.cluster import RedisCluster
 
+from server.storage.memory_session_store import MemorySessionStore
 from server.storage.redis_client import redis_client
+from server.storage.redis_session_store import RedisSessionStore
 from server.storage.session_store import (
     Allowance,
     BucketEmpty,
-    MemorySessionStore,
-    RedisSessionStore,
     SessionExists,
     SessionStore,
     StoredSession,
