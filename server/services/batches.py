@@ -93,7 +93,8 @@ async def apply_batch(
 ) -> BatchResult:
     """Apply batch ``seq`` once (module docstring). At most ``batch_concurrency`` batches
     are worked on at a time in a process: interleaving many of them on the event loop
-    would stretch every one's latency by the others' work (each awaits the store twice);
+    would stretch every one's latency by the others' work (each awaits the store once or
+    twice);
     a batch waiting for its predecessor, or for its site's maps to be read from SQL (a
     new map version rebuilds the plans: up to seconds), does not hold a turn either.
     With ``address``, the batch counts against the address's rate limit once the token
