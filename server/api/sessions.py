@@ -132,7 +132,7 @@ async def _batch_body(request: Request) -> BatchIn:
     try:
         raw = await request.body()
     except Exception as e:  # the client went away, or a limit cut the body off (answered)
-        raise HTTPException(400, "There was an error parsing the body") from e
+        raise _unreadable() from e
     if not raw:
         raise RequestValidationError(
             [{"type": "missing", "loc": ("body",), "msg": "Field required", "input": None}]
@@ -160,11 +160,15 @@ def _framework_json(raw: bytes) -> BatchIn:
         error = {"type": "json_invalid", "loc": ("body", e.pos), "msg": "JSON decode error"}
         raise RequestValidationError([{**error, "input": {}, "ctx": {"error": e.msg}}]) from None
     except Exception as e:  # not UTF-8, nested too deep
-        raise HTTPException(400, "There was an error parsing the body") from e
+        raise _unreadable() from e
     try:
         return BatchIn.model_validate(parsed)
     except ValidationError as e:
         raise _in_body(e) from None
+
+
+def _unreadable() -> HTTPException:
+    return HTTPException(400, "There was an error parsing the body")  # the framework's words
 
 
 def _in_body(e: ValidationError) -> RequestValidationError:
