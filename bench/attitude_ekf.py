@@ -2,7 +2,7 @@
 
 Run from the repository root: ``.venv/bin/python -m bench.attitude_ekf [trace.txt.xz]``.
 One batch over the whole trace's gyro and accelerometer, best of 7 runs (``timeit``), for
-``server.positioning.sensors.attitude_ekf.attitude_ekf`` and for the reference
+``server.positioning.motion.attitude_ekf.attitude_ekf`` and for the reference
 ``generic_attitude_ekf`` of its tests (``kalman.predict_ekf`` and ``kalman.update``);
 the largest difference of their outputs is printed too.
 """
@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from server.datasets.ilc import read_trace
-from server.positioning.sensors.attitude_ekf import AttitudeParams, attitude_ekf, initial_attitude
-from tests.positioning.sensors.test_attitude_ekf import generic_attitude_ekf
+from server.positioning.motion.attitude_ekf import AttitudeParams, attitude_ekf, initial_attitude
+from tests.positioning.motion.test_attitude_ekf import generic_attitude_ekf
 
 TRACE = Path("../shared/data/ilc20-sample/site2/F1/path_data_files/5dd365f944333f00067aa11a.txt.xz")
 

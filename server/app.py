@@ -32,7 +32,7 @@ from server.api import (
 )
 from server.api.schemas.errors import ErrorOut
 from server.config import Settings, get_settings
-from server.positioning import kernels
+from server.positioning.filters import particle_kernels
 from server.services import telemetry
 from server.services.runtime import open_runtime
 from server.storage import db
@@ -85,7 +85,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             # the compiled particle-filter loops, in the background (seconds when their disk
             # cache is cold): a session that needs one first waits for it, neither start-up
             # nor shutdown does
-            threading.Thread(target=kernels.warm_up, name="kernels", daemon=True).start()
+            threading.Thread(target=particle_kernels.warm_up, name="kernels", daemon=True).start()
             # what start-up made lives as long as the process: keep it out of the garbage
             # collector's full passes, which otherwise walk ~170,000 objects (40-75 ms on
             # the event loop, every few seconds under load; bench/performance.md)

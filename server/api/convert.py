@@ -19,7 +19,7 @@ from server.api.schemas.events import (
     WifiIn,
     WifiReading,
 )
-from server.positioning.events import (
+from server.positioning.model.events import (
     BleEvent,
     Event,
     Fix,

@@ -90,7 +90,7 @@ def evaluate_ilc(
     from server.lab.ilc_evaluation import evaluate_ilc
     from server.lab.replay import in_process_replayer
     from server.lab.service_replay import http_replayer, summarise_crowd
-    from server.positioning.params import assignments as nested
+    from server.positioning.model.params import assignments as nested
 
     if via_http and not admin_key:
         raise typer.BadParameter("--via-http needs --admin-key (or INDOORPOS_ADMIN_KEY)")
@@ -234,7 +234,7 @@ def evaluate_ipin(
     from server.lab import ipin_evaluation
     from server.lab.engine_params import engine_params
     from server.lab.service_replay import http_replayer
-    from server.positioning.params import assignments as nested
+    from server.positioning.model.params import assignments as nested
 
     if via_http and not admin_key:
         raise typer.BadParameter("--via-http needs --admin-key (or INDOORPOS_ADMIN_KEY)")
@@ -336,7 +336,7 @@ def evaluate_pdr(
     """PDR alone on ILC 2.0 traces: walked-distance error of step detection against the
     waypoints, and dead-reckoning drift from the first waypoint."""
     from server.lab import pdr_evaluation
-    from server.positioning.step_tracker import TrackerParams
+    from server.positioning.motion.step_tracker import TrackerParams
 
     params = pdr_evaluation.with_detector(
         TrackerParams(heading=heading.value), detector.value, length_model.value

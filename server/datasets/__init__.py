@@ -1,7 +1,7 @@
 """Readers of recorded public datasets.
 
 Each reader turns files into the service's own values — a ``walk.Walk`` (scans, motion
-samples and ground truth, with event views from ``server.positioning.events``, so a
+samples and ground truth, with event views from ``server.positioning.model.events``, so a
 replayed trace and live phone traffic go through the same code) or plain arrays of
 fingerprints — with units in the field names (``t_ms``, ``x_m``, ``rssi_dbm``). What a
 reader could not read goes into its report (``records.ParseReport``), not into the walk.

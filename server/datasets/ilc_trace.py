@@ -36,7 +36,7 @@ become one ``WifiEvent``, each reading with its age (the scan time less the row'
 ``last_seen`` is older than the scan); by default they are kept (matching discounts them
 by their age), and ``wifi_max_age_ms`` drops them (see ``WIFI_MAX_AGE_MS``). A BSSID listed
 twice in one scan (one radio announcing several SSIDs) keeps its strongest reading, as
-``fingerprint.scan_vector`` does.
+``fingerprints.scan_vector`` does.
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ from numpy.typing import NDArray
 
 from server.datasets.records import ParseReport, file_id, keep_strongest, open_text, readings
 from server.datasets.walk import Walk
-from server.positioning.events import BleEvent, WifiEvent, window_ble
+from server.positioning.model.events import BleEvent, WifiEvent, window_ble
 
 WIFI_MAX_AGE_MS: int | None = None
 """Oldest ``last_seen`` kept in a WiFi scan, in ms before the scan time (None: keep all).

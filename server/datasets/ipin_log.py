@@ -75,7 +75,7 @@ from numpy.typing import NDArray
 from server.datasets.ipin_frame import LocalFrame, venue_frame
 from server.datasets.records import ParseReport, file_id, keep_strongest, open_text, readings
 from server.datasets.walk import Walk
-from server.positioning.events import BLE_WINDOW_MS, BleEvent, WifiEvent, window_ble
+from server.positioning.model.events import BLE_WINDOW_MS, BleEvent, WifiEvent, window_ble
 
 SENSOR_CLOCK_TOLERANCE_MS = 500
 """Largest gap between a sample's SensorTimestamp moved onto the app clock and its

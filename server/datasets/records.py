@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
 
-from server.positioning.events import RadioReading
+from server.positioning.model.events import RadioReading
 
 
 @dataclass(frozen=True)

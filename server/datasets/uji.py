@@ -46,7 +46,7 @@ from typing import IO, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from server.positioning.events import RadioReading
+from server.positioning.model.events import RadioReading
 
 NOT_HEARD_DBM = 100.0  # what both UJI sets write for an access point not heard
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from server.positioning.events import BleEvent, Event, ImuEvent, WifiEvent
+from server.positioning.model.events import BleEvent, Event, ImuEvent, WifiEvent
 
 IMU_BLOCK_MS = 1000
 """Phone time covered by one ``ImuEvent`` of ``Walk.imu_events``: a phone posting raw

@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 from server.positioning.engines import get_engine
-from server.positioning.params import Params, assignments
+from server.positioning.model.params import Params, assignments
 
 
 def engine_params(engine: str, overrides: Mapping[str, str] | None = None) -> Params:

@@ -29,7 +29,7 @@ from server.lab.scoring import PathResult, estimates_at_waypoints, summarize
 from server.lab.split import SplitPaths, restrict, split_site
 from server.lab.training_maps import TrainingSurvey, build_site_maps, parts_for
 from server.positioning.engines import get_engine
-from server.positioning.sitemaps import SiteMaps
+from server.positioning.model.site_maps import SiteMaps
 
 
 @dataclass(frozen=True)

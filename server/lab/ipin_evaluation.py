@@ -48,10 +48,10 @@ from server.lab.training_maps import (
     site_floors,
 )
 from server.positioning.engines import get_engine
-from server.positioning.events import Fix
 from server.positioning.mapping.map_set import MAGNETIC, SiteRecords, build_map_set
-from server.positioning.metrics import ipin_score
-from server.positioning.sitemaps import SiteMaps
+from server.positioning.model.error_metrics import ipin_score
+from server.positioning.model.events import Fix
+from server.positioning.model.site_maps import SiteMaps
 
 VALIDATION_REPETITIONS = frozenset({1, 3})
 """Repetitions read with ``validation``."""
@@ -217,7 +217,7 @@ def score_log(log: IpinLog, venue: IpinVenue, fixes: Sequence[Fix]) -> PathResul
 def _ipin_score(
     paths: Sequence[PathResult], venue: IpinVenue, levels: Sequence[NDArray[np.int64]]
 ) -> float | None:
-    """``metrics.ipin_score`` over the POSI lines of ``paths`` (``levels``: per path, the
+    """``error_metrics.ipin_score`` over the POSI lines of ``paths`` (``levels``: per path, the
     true level of each of its lines). A missing estimate (floor index -1) is left out by
     ``ipin_score`` whatever level it is given here."""
     if not paths:

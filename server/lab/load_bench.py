@@ -79,7 +79,7 @@ from server.api.convert import to_events
 from server.api.schemas.sessions import BatchIn
 from server.config import Settings
 from server.positioning.engines import get_engine
-from server.positioning.events import StepEvent
+from server.positioning.model.events import StepEvent
 from server.services.maps import site_maps
 from server.services.runtime import open_runtime
 from server.storage import db

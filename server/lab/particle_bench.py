@@ -10,9 +10,9 @@ timed code contained. Measured here, in one process and on the same inputs:
   eq (c) and the normalisation. The inputs are the moved clouds of a recorded walk,
   each with full windows, and the magnitude the phone measured at that step.
 * **Distance**: eq (b) on those windows against the DTW of the same windows sampled as
-  the baseline samples them (``dtw_samples_per_step`` per step, ``magnetic_distance.
-  densified``), both compiled (``kernels.mmse``, ``kernels.dtw``): the only part that
-  differs between the two updates.
+  the baseline samples them (``dtw_samples_per_step`` per step,
+  ``sequence_distance.densified``), both compiled (``particle_kernels.mmse``,
+  ``particle_kernels.dtw``): the only part that differs between the two updates.
 * **Filter step**: a whole step -- move with the floor plan's wall test, update,
   resampling when ``N_eff`` is low -- from the clouds of the same walk, as the engine
   runs it: ``particle.step_on_floor`` (one compiled pass) for the mass-centered filter,
@@ -43,19 +43,19 @@ from typing import Any
 
 import numpy as np
 
-from server.positioning import kernels, state_codec
-from server.positioning import particle as pf
-from server.positioning import particle_cloud as pc
-from server.positioning.floorplan import (
+from server.positioning.filters import particle, particle_kernels
+from server.positioning.filters import particle_cloud as pc
+from server.positioning.magnetic.field_grid import MagneticGrid, _bilinear, sample
+from server.positioning.magnetic.sequence_distance import densified
+from server.positioning.mapping.magnetic_gridding import grid_from_samples
+from server.positioning.model import state_codec
+from server.positioning.plan.floor_plan import (
     FloorPlan,
     valid_moves,
     valid_moves_reference,
     walkable_at,
 )
-from server.positioning.floorplan_geojson import plan_from_geojson
-from server.positioning.magnetic import MagneticGrid, _bilinear, sample
-from server.positioning.magnetic_distance import densified
-from server.positioning.mapping.magnetic_gridding import grid_from_samples
+from server.positioning.plan.geojson_plan import plan_from_geojson
 from server.storage.codec import decode_arrays, encode_arrays
 
 CORRIDOR_M = (60.0, 3.0)  # length along x, width along y
@@ -119,15 +119,17 @@ def particle_bench(
     per_step = params.dtw_samples_per_step
     plan, grid = _corridor(seed)
 
-    def sample_map(_floor: pc.FloorArray, xy: pf.FloatArray) -> pf.FloatArray:
+    def sample_map(_floor: pc.FloorArray, xy: particle.FloatArray) -> particle.FloatArray:
         return sample(grid, xy)
 
-    def valid_move(_floor: pc.FloorArray, a: pf.FloatArray, b: pf.FloatArray) -> pf.BoolArray:
+    def valid_move(
+        _floor: pc.FloorArray, a: particle.FloatArray, b: particle.FloatArray
+    ) -> particle.BoolArray:
         return valid_moves(plan, a, b)
 
     walk = _record_walk(plan, grid, params, seed, sample_map, valid_move)
     pairs = list(zip(walk.moved, walk.observed_ut, strict=True))
-    updated = [pf.mass_centered_update(q, o, sample_map, params) for q, o in pairs]
+    updated = [particle.mass_centered_update(q, o, sample_map, params) for q, o in pairs]
     # full windows (the walk skipped W steps), as each distance takes them
     windows = [(p.observed.astype(np.float64), p.mags.astype(np.float64)) for p in updated]
     sampled = [(densified(o, per_step), densified(m, per_step)) for o, m in windows]
@@ -144,25 +146,29 @@ def particle_bench(
         rng = np.random.default_rng([seed, 2])
         if weighting == "mass_centered":  # as the engine runs it
             return lambda: [
-                pf.step_on_floor(p, STEP_M, walk.heading_rad, o, rng, params, plan, grid)
+                particle.step_on_floor(p, STEP_M, walk.heading_rad, o, rng, params, plan, grid)
                 for p, o in steps
             ]
         return lambda: [
-            pf.step(p, STEP_M, walk.heading_rad, o, rng, params, valid_move, sample_map, weighting)
+            particle.step(
+                p, STEP_M, walk.heading_rad, o, rng, params, valid_move, sample_map, weighting
+            )
             for p, o in steps
         ]
 
     def numpy_step() -> Callable[[], object]:
         rng = np.random.default_rng([seed, 2])
 
-        def numpy_move(_f: pc.FloorArray, a: pf.FloatArray, b: pf.FloatArray) -> pf.BoolArray:
+        def numpy_move(
+            _f: pc.FloorArray, a: particle.FloatArray, b: particle.FloatArray
+        ) -> particle.BoolArray:
             return valid_moves_reference(plan, a, b)
 
-        def numpy_map(_f: pc.FloorArray, xy: pf.FloatArray) -> pf.FloatArray:
+        def numpy_map(_f: pc.FloorArray, xy: particle.FloatArray) -> particle.FloatArray:
             return _bilinear(grid, xy, "magnitude")
 
         return lambda: [
-            pf.step(
+            particle.step(
                 p,
                 STEP_M,
                 walk.heading_rad,
@@ -177,9 +183,14 @@ def particle_bench(
         ]
 
     n = len(pairs)
-    mc, dtw = _rates([update(pf.mass_centered_update), update(pf.dtw_update)], n, repeat, min_run_s)
+    mc, dtw = _rates(
+        [update(particle.mass_centered_update), update(particle.dtw_update)], n, repeat, min_run_s
+    )
     d_mc, d_dtw = _rates(
-        [distance(kernels.mmse, windows), distance(kernels.dtw, sampled)], n, repeat, min_run_s
+        [distance(particle_kernels.mmse, windows), distance(particle_kernels.dtw, sampled)],
+        n,
+        repeat,
+        min_run_s,
     )
     f_mc, f_dtw, f_np = _rates(
         [filter_step("mass_centered"), filter_step("dtw"), numpy_step()], n, repeat, min_run_s
@@ -247,7 +258,7 @@ def _corridor(seed: int) -> tuple[FloorPlan, MagneticGrid]:
     return plan, grid_from_samples(survey, _field_ut(survey, rng), extent=extent)
 
 
-def _field_ut(xy: pf.FloatArray, rng: np.random.Generator) -> pf.FloatArray:
+def _field_ut(xy: particle.FloatArray, rng: np.random.Generator) -> particle.FloatArray:
     """A corridor-like field: sines along x, a few bumps (cabinets, pillars), some noise."""
     x = xy[:, 0]
     f = 45.0 + 4.0 * np.sin(2 * np.pi * x / 7.3 + 0.4) + 3.0 * np.sin(2 * np.pi * x / 4.1 + 1.3)
@@ -275,7 +286,7 @@ def _record_walk(
     def reading() -> float:
         return float(sample(grid, truth)[0] + phone.normal(0.0, 0.5))
 
-    p = pf.initialise(
+    p = particle.initialise(
         (length / 2, width / 2),
         0,
         rng,
@@ -283,19 +294,19 @@ def _record_walk(
         radius_m=length,
         valid_point=lambda _floor, xy: walkable_at(plan, xy),
     )
-    p = pf.mass_centered_update(p, reading(), sample_map, params)
+    p = particle.mass_centered_update(p, reading(), sample_map, params)
     before, moved, observed = [], [], []
     for k in range(params.window + N_INPUTS):
         truth = truth + np.array([[STEP_M, 0.0]])
-        q = pf.move(p, STEP_M, heading, rng, params, valid_move)
+        q = particle.move(p, STEP_M, heading, rng, params, valid_move)
         o = reading()
         if k >= params.window:
             before.append(p)
             moved.append(q)
             observed.append(o)
-        p = pf.mass_centered_update(q, o, sample_map, params)
-        if pf.effective_sample_size(p) < params.resample_ess_fraction * p.n:
-            p = pf.systematic_resample(p, rng)
+        p = particle.mass_centered_update(q, o, sample_map, params)
+        if particle.effective_sample_size(p) < params.resample_ess_fraction * p.n:
+            p = particle.systematic_resample(p, rng)
     return _Walk(tuple(before), tuple(moved), tuple(observed), heading)
 
 

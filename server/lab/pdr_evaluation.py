@@ -1,6 +1,6 @@
 """PDR alone on ILC 2.0 traces: how far the phone walked, and how far dead reckoning drifts.
 
-Each test trace's raw IMU goes through the step tracker (``server.positioning.step_tracker``)
+Each test trace's raw IMU goes through the step tracker (``server.positioning.motion.step_tracker``)
 in blocks of one second, as a phone would post it. Two things are measured:
 
 * **Walked distance.** The steps between the first and the last waypoint give a walked
@@ -33,11 +33,11 @@ from server.datasets.ilc import read_site
 from server.datasets.ilc_trace import read_trace
 from server.datasets.walk import Walk
 from server.lab.split import split_site
-from server.positioning.pdr import Detector, LengthModel
-from server.positioning.step_tracker import (
+from server.positioning.motion.pdr import Detector, LengthModel
+from server.positioning.motion.step_tracker import (
     TrackerParams,
 )
-from server.positioning.straight_lines import straighten_track
+from server.positioning.motion.straight_lines import straighten_track
 from server.services.traces import anchored_steps
 
 Progress = Callable[[str, int, int], None]

@@ -19,9 +19,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from server.lab.scoring import PathResult, errors_m
-from server.positioning.magnetic import MagneticGrid
+from server.positioning.magnetic.field_grid import MagneticGrid
 from server.positioning.mapping.magnetic_gridding import known_share
-from server.positioning.metrics import error_cdf
+from server.positioning.model.error_metrics import error_cdf
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes

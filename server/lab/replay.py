@@ -19,9 +19,9 @@ from server.datasets.walk import Walk
 from server.lab.progress import Progress
 from server.lab.training_maps import TrainingSurvey
 from server.positioning.engines import get_engine
-from server.positioning.events import Event, Fix, MagEvent, StepEvent
-from server.positioning.sitemaps import SiteMaps
-from server.positioning.step_tracker import TrackerParams
+from server.positioning.model.events import Event, Fix, MagEvent, StepEvent
+from server.positioning.model.site_maps import SiteMaps
+from server.positioning.motion.step_tracker import TrackerParams
 from server.services.traces import walk_steps
 
 # A phone posts about once a second; replay cuts each trace into batches of that span.

@@ -17,11 +17,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from server.datasets.walk import Walk
-from server.positioning.events import Fix
-from server.positioning.magnetic import sample
+from server.positioning.magnetic.field_grid import sample
 from server.positioning.mapping.magnetic_gridding import known_share
-from server.positioning.metrics import error_report
-from server.positioning.sitemaps import SiteMaps
+from server.positioning.model.error_metrics import error_report
+from server.positioning.model.events import Fix
+from server.positioning.model.site_maps import SiteMaps
 
 
 @dataclass(frozen=True)

@@ -26,8 +26,8 @@ from server.api.convert import fix_from_wire, to_wire
 from server.lab.progress import Progress
 from server.lab.replay import Replayer, batches
 from server.lab.training_maps import LabelledField, LabelledScans, TrainingSurvey
-from server.positioning.events import Event, Fix
-from server.positioning.sitemaps import SiteMaps
+from server.positioning.model.events import Event, Fix
+from server.positioning.model.site_maps import SiteMaps
 
 
 def http_replayer(

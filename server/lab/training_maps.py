@@ -22,12 +22,12 @@ from server.datasets.ilc import IlcSite
 from server.datasets.ilc_trace import read_trace
 from server.datasets.walk import Walk
 from server.lab.progress import Progress
-from server.positioning.barometer import PressureWalk
-from server.positioning.events import BleEvent, WifiEvent, radio_key
 from server.positioning.mapping import map_set
 from server.positioning.mapping.labelled import interpolate_track
 from server.positioning.mapping.map_set import FloorField, SiteRecords, SurveyedScans
-from server.positioning.sitemaps import FloorRef, SiteMaps
+from server.positioning.model.events import BleEvent, WifiEvent, radio_key
+from server.positioning.model.site_maps import FloorRef, SiteMaps
+from server.positioning.motion.barometer import PressureWalk
 
 
 def site_floors(site: IlcSite) -> tuple[FloorRef, ...]:

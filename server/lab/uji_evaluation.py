@@ -20,12 +20,8 @@ import numpy as np
 
 from server.datasets.uji import Fingerprints
 from server.lab.progress import Progress
-from server.positioning import fix_error
-from server.positioning.accuracy import calibrated
 from server.positioning.engines.step_ekf import StepEkfParams
 from server.positioning.engines.wknn import WknnParams
-from server.positioning.events import Fix, radio_key
-from server.positioning.fingerprint import MISSING_DBM, RadioMap, WknnFix, scan_vector, wknn
 from server.positioning.mapping.device_offsets import (
     apply_offsets,
     cell_ids,
@@ -33,8 +29,12 @@ from server.positioning.mapping.device_offsets import (
     row_offsets,
     scan_readings,
 )
-from server.positioning.metrics import error_report
-from server.positioning.sitemaps import FloorRef
+from server.positioning.model.accuracy import calibrated
+from server.positioning.model.error_metrics import error_report
+from server.positioning.model.events import Fix, radio_key
+from server.positioning.model.site_maps import FloorRef
+from server.positioning.radio import fix_error
+from server.positioning.radio.fingerprints import MISSING_DBM, RadioMap, WknnFix, scan_vector, wknn
 
 # the floor under the fingerprint variance that the engines use
 MIN_FIX_VAR_M2 = StepEkfParams().min_fix_var_m2

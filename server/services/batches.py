@@ -28,7 +28,7 @@ import numpy as np
 import orjson
 
 from server.positioning.engines import NEEDS_GRAPHS, get_engine
-from server.positioning.events import (
+from server.positioning.model.events import (
     BleEvent,
     Event,
     Fix,
@@ -38,8 +38,8 @@ from server.positioning.events import (
     StepEvent,
     WifiEvent,
 )
-from server.positioning.params import Params
-from server.positioning.sitemaps import SiteMaps
+from server.positioning.model.params import Params
+from server.positioning.model.site_maps import SiteMaps
 from server.services import engine_settings, limits, telemetry, traces
 from server.services.device_offsets import on_common_level
 from server.services.errors import Conflict, Invalid

@@ -20,8 +20,8 @@ import anyio
 import numpy as np
 from sqlalchemy.ext.asyncio import AsyncSession
 
-from server.positioning.events import BleEvent, Event, WifiEvent, radio_key
 from server.positioning.mapping.device_offsets import DeviceOffset, cell_ids, estimate_offsets
+from server.positioning.model.events import BleEvent, Event, WifiEvent, radio_key
 from server.storage.repositories import surveys as survey_repo
 
 SURVEYED = "(surveyed)"  # device of points surveyed through the admin API

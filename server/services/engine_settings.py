@@ -5,7 +5,7 @@ Three layers, later ones winning field by field (``params.merge``): the engine's
 (``PUT /v1/sites/{id}/engines/{name}``, kept in SQL), and the ``params`` of
 ``POST /v1/sessions``. A session keeps the overrides it started with, so a later change
 of the site's settings reaches new sessions only. Every layer is checked against the
-engine's parameter model (``server.positioning.params``): a bad field is a 422 naming it
+engine's parameter model (``server.positioning.model.params``): a bad field is a 422 naming it
 (``params.particles.n``).
 """
 
@@ -21,8 +21,8 @@ import orjson
 from sqlalchemy.ext.asyncio import AsyncSession
 
 from server.positioning.engines import ENGINES, get_engine
-from server.positioning.engines.base import Engine
-from server.positioning.params import ParamError, Params, as_dict, merge
+from server.positioning.engines.spec import Engine
+from server.positioning.model.params import ParamError, Params, as_dict, merge
 from server.services.errors import Invalid, NotFound
 from server.services.sites import get_site
 from server.storage.repositories import engine_settings as repo

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from server.positioning.engines import wknn
-from server.positioning.events import BleEvent, Fix, RadioReading, WifiEvent
+from server.positioning.model.events import BleEvent, Fix, RadioReading, WifiEvent
 from server.services import engine_settings
 from server.services.errors import Invalid, NotFound
 from server.services.maps import site_maps

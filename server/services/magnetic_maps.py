@@ -17,8 +17,7 @@ import anyio
 import numpy as np
 from sqlalchemy.ext.asyncio import AsyncSession
 
-from server.positioning.floorplan_geojson import PLAN_MARGIN_M, Extent, near_extent, plan_extent
-from server.positioning.magnetic import MagneticGrid
+from server.positioning.magnetic.field_grid import MagneticGrid
 from server.positioning.mapping.magnetic_gridding import (
     GridTooLarge,
     MagneticSamples,
@@ -26,6 +25,7 @@ from server.positioning.mapping.magnetic_gridding import (
     merge_grids,
     samples_along_line,
 )
+from server.positioning.plan.geojson_plan import PLAN_MARGIN_M, Extent, near_extent, plan_extent
 from server.services.errors import Invalid, NotFound
 from server.storage.models import MagneticMapVersion
 from server.storage.repositories import maps as map_repo

@@ -22,7 +22,7 @@ Figures
 * Emitters. ``seen``: heard at an RP of this floor in the radio map. ``fixed``:
   ``signatures.identify_fixed_aps`` over the floor's WiFi readings that carry a time.
   ``retired``: seen, but heard by no point created in the ``retired_after_days`` before the
-  floor's newest point. ``positions``: ``pathloss.fit_emitter`` over the floor's readings
+  floor's newest point. ``positions``: ``path_loss.fit_emitter`` over the floor's readings
   of each of the ``max_emitters`` most-read emitters (ties by kind and key).
 
 The numbers are computed in a worker thread (rasterising a plan and fitting emitters take
@@ -41,12 +41,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from sqlalchemy.ext.asyncio import AsyncSession
 
-from server.positioning.fingerprint import MISSING_DBM
-from server.positioning.floorplan import FloorPlan
-from server.positioning.floorplan_geojson import plan_from_geojson
 from server.positioning.mapping.magnetic_gridding import known_share
 from server.positioning.mapping.signatures import identify_fixed_aps
-from server.positioning.pathloss import fit_emitter
+from server.positioning.plan.floor_plan import FloorPlan
+from server.positioning.plan.geojson_plan import plan_from_geojson
+from server.positioning.radio.fingerprints import MISSING_DBM
+from server.positioning.radio.path_loss import fit_emitter
 from server.services.errors import NotFound
 from server.storage.models import MagneticMapVersion
 from server.storage.repositories import maps as map_repo

@@ -14,22 +14,22 @@ import anyio
 import numpy as np
 from sqlalchemy.ext.asyncio import AsyncSession
 
-from server.positioning import fix_error
-from server.positioning.anchors import anchors_from_plan
-from server.positioning.events import radio_key
-from server.positioning.fai import FaiMaps
-from server.positioning.fingerprint import MISSING_DBM, RadioMap, in_place_order
-from server.positioning.fix_error import FixErrorModel
-from server.positioning.floor_graph import FloorGraph, attach, site_graphs
-from server.positioning.floorplan_geojson import plan_extent
-from server.positioning.magnetic import MagneticMap
+from server.positioning.magnetic.field_grid import MagneticMap
 from server.positioning.mapping.device_offsets import DeviceOffset
 from server.positioning.mapping.gridding import build_radio_map, fold_radio_maps
 from server.positioning.mapping.magnetic_gridding import MagneticSamples
 from server.positioning.mapping.map_set import merged_fai, most_learned, parse_plans
 from server.positioning.mapping.matrices import merge_radio_maps, readings_matrix
-from server.positioning.scan_matching import ScanMap, merge_scan_maps
-from server.positioning.sitemaps import FloorRef, SiteMaps
+from server.positioning.model.events import radio_key
+from server.positioning.model.site_maps import FloorRef, SiteMaps
+from server.positioning.plan.anchors import anchors_from_plan
+from server.positioning.plan.geojson_plan import plan_extent
+from server.positioning.plan.navigation_graph import FloorGraph, attach, site_graphs
+from server.positioning.radio import fix_error
+from server.positioning.radio.accuracy_indicators import FaiMaps
+from server.positioning.radio.fingerprints import MISSING_DBM, RadioMap, in_place_order
+from server.positioning.radio.fix_error import FixErrorModel
+from server.positioning.radio.scan_matching import ScanMap, merge_scan_maps
 from server.services.device_offsets import building_offsets
 from server.services.errors import Invalid, NotFound
 from server.services.magnetic_maps import check_on_floor, fold_sources
@@ -252,7 +252,7 @@ GRAPH_CACHE_SIZE = 16  # map sets with graphs kept per process
 async def with_graphs(maps: SiteMaps) -> SiteMaps:
     """The map set with each floor's reference-point graph, for the engines that read
     them: the worker's (moves learned from the walks, ``services.map_builds``) where it
-    has built them, else built here once per map version (``floor_graph``: from the plan,
+    has built them, else built here once per map version (``navigation_graph``: from the plan,
     else over the reference points; moves uniform)."""
     found = _GRAPHS.get(maps.version)
     if (
@@ -300,7 +300,7 @@ async def add_survey(
     """Store labelled fingerprints and build the building's next radio map version from every
     survey point it has (see ``gridding.build_radio_map`` for the gridding rules). Points
     from an upload remember it (``upload_id``). A point on an unknown floor level, or
-    farther than ``floorplan_geojson.PLAN_MARGIN_M`` outside its floor's plan, is refused
+    farther than ``geojson_plan.PLAN_MARGIN_M`` outside its floor's plan, is refused
     naming it (``magnetic_maps.check_on_floor``, as magnetic surveys are checked)."""
     # one rebuild per building at a time: each sees every point the previous one stored
     building = await site_repo.lock_building(s, building_id)

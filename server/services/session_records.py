@@ -29,11 +29,11 @@ from typing import Any
 
 import numpy as np
 
-from server.positioning import state_codec
-from server.positioning.engines.base import Engine
-from server.positioning.events import Event, Fix, ImuEvent
-from server.positioning.sitemaps import SiteMaps
-from server.positioning.state_codec import StateError
+from server.positioning.engines.spec import Engine
+from server.positioning.model import state_codec
+from server.positioning.model.events import Event, Fix, ImuEvent
+from server.positioning.model.site_maps import SiteMaps
+from server.positioning.model.state_codec import StateError
 from server.storage.codec import (
     CodecError,
     array_to_str,

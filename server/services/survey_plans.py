@@ -11,10 +11,10 @@ import numpy as np
 from scipy.spatial import cKDTree
 from sqlalchemy.ext.asyncio import AsyncSession
 
-from server.positioning.fingerprint import MISSING_DBM, RadioMap
-from server.positioning.floor_graph import FloorGraph, free_graph, plan_graph
-from server.positioning.floorplan_geojson import plan_from_geojson
 from server.positioning.mapping.survey_plan import SurveyPlan, survey_plan
+from server.positioning.plan.geojson_plan import plan_from_geojson
+from server.positioning.plan.navigation_graph import FloorGraph, free_graph, plan_graph
+from server.positioning.radio.fingerprints import MISSING_DBM, RadioMap
 from server.services.errors import Invalid, NotFound
 from server.services.maps import stored_radio_map
 from server.storage.repositories import maps as map_repo

@@ -50,7 +50,7 @@ from prometheus_client import multiprocess as prometheus_multiprocess
 from redis.exceptions import RedisError
 from sqlalchemy.exc import DBAPIError, InterfaceError, OperationalError
 
-from server.positioning.events import Event, StepEvent
+from server.positioning.model.events import Event, StepEvent
 
 if TYPE_CHECKING:  # sessions imports this module
     from server.services.batches import BatchResult

@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from server.datasets.walk import Walk
-from server.positioning.events import (
+from server.positioning.model.events import (
     BleEvent,
     Event,
     GnssEvent,
@@ -38,7 +38,7 @@ from server.positioning.events import (
     StepEvent,
     WifiEvent,
 )
-from server.positioning.step_tracker import StepBlock, TrackerParams, initial_tracker, track
+from server.positioning.motion.step_tracker import StepBlock, TrackerParams, initial_tracker, track
 from server.storage.codec import array_to_str, compress_arrays, decompress_arrays, str_to_array
 
 CONTENT_TYPE = "application/vnd.indoorpos.trace"

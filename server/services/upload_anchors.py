@@ -16,11 +16,11 @@ from dataclasses import dataclass, field
 import anyio
 from sqlalchemy.ext.asyncio import AsyncSession
 
-from server.positioning.anchors import anchors_from_plan
-from server.positioning.fingerprint import MISSING_DBM
-from server.positioning.floorplan_geojson import plan_extent
 from server.positioning.mapping.anchors import GeoReference
 from server.positioning.mapping.wifi_anchors import anchor_nodes
+from server.positioning.plan.anchors import anchors_from_plan
+from server.positioning.plan.geojson_plan import plan_extent
+from server.positioning.radio.fingerprints import MISSING_DBM
 from server.services.maps import stored_radio_map
 from server.storage.models import Upload
 from server.storage.repositories import maps as map_repo

@@ -27,14 +27,14 @@ from numpy.typing import NDArray
 
 from server.datasets.ilc import floor_level
 from server.datasets.walk import Walk
-from server.positioning.events import WifiEvent
-from server.positioning.floorplan_geojson import PLAN_MARGIN_M, near_extent
 from server.positioning.mapping.anchors import GeoReference, ble_anchors, gnss_anchors
 from server.positioning.mapping.labelled import interpolate_track
 from server.positioning.mapping.magnetic_gridding import MagneticSamples
 from server.positioning.mapping.placement import place_samples
 from server.positioning.mapping.selection import select_inertial
-from server.positioning.step_tracker import TrackerParams
+from server.positioning.model.events import WifiEvent
+from server.positioning.motion.step_tracker import TrackerParams
+from server.positioning.plan.geojson_plan import PLAN_MARGIN_M, near_extent
 from server.services import traces
 from server.services.errors import Invalid
 from server.services.maps import SurveyPointData

@@ -28,7 +28,7 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from server.positioning.events import (
+from server.positioning.model.events import (
     BleEvent,
     Event,
     GnssEvent,

@@ -20,10 +20,10 @@ from typing import Any
 
 import numpy as np
 
-from server.positioning.fai import FaiMaps
-from server.positioning.fix_error import FixErrorModel
-from server.positioning.floor_graph import FloorGraph
-from server.positioning.scan_matching import ScanMap
+from server.positioning.plan.navigation_graph import FloorGraph
+from server.positioning.radio.accuracy_indicators import FaiMaps
+from server.positioning.radio.fix_error import FixErrorModel
+from server.positioning.radio.scan_matching import ScanMap
 from server.storage.codec import array_to_str, compress_arrays, decompress_arrays, str_to_array
 
 _GRAPH_ARRAYS = ("xy", "kind", "indptr", "indices", "move_p", "stay_p")

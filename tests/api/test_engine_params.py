@@ -9,8 +9,8 @@ from fastapi import FastAPI
 
 from server.positioning.engines import get_engine
 from server.positioning.engines.pf_magnetic import PfMagneticState
-from server.positioning.fix_error import DEFAULT_ERROR_68_M
-from server.positioning.particle_cloud import Particles
+from server.positioning.filters.particle_cloud import Particles
+from server.positioning.radio.fix_error import DEFAULT_ERROR_68_M
 from server.services import batches, engine_settings, sessions
 from server.services.maps import site_maps
 from server.services.session_records import SessionState

@@ -23,7 +23,7 @@ from server.api.schemas.events import ImuIn
 from server.api.schemas.sessions import MAX_IMU_ROWS_PER_BATCH, LiveBatch
 from server.datasets.ilc_trace import read_trace
 from server.lab.replay import batches
-from server.positioning.events import ImuEvent
+from server.positioning.model.events import ImuEvent
 from tests.api.toy_site import WIDTH_M, ToySite, build_toy_site, rssi_at
 from tests.conftest import ADMIN_KEY
 from tests.datasets.conftest import dataset_dir

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from fastapi import FastAPI
 
-from server.positioning.magnetic import sample
+from server.positioning.magnetic.field_grid import sample
 from server.services.maps import site_maps
 from tests.api.toy_site import build_toy_site, toy_plan
 

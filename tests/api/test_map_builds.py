@@ -18,11 +18,8 @@ from fastapi import FastAPI
 from sqlalchemy import select, update
 
 from server import worker
-from server.positioning import fix_error
 from server.positioning.engines import get_engine
 from server.positioning.engines.wknn import WknnParams
-from server.positioning.events import RadioReading, WifiEvent, radio_key
-from server.positioning.fix_error import FixErrorModel
 from server.positioning.mapping.map_set import (
     FAI,
     FIX_ERROR,
@@ -31,7 +28,10 @@ from server.positioning.mapping.map_set import (
     SurveyedScans,
     build_map_set,
 )
-from server.positioning.sitemaps import SiteMaps
+from server.positioning.model.events import RadioReading, WifiEvent, radio_key
+from server.positioning.model.site_maps import SiteMaps
+from server.positioning.radio import fix_error
+from server.positioning.radio.fix_error import FixErrorModel
 from server.services import map_builds
 from server.services.maps import MapCache, site_maps
 from server.services.runtime import Runtime

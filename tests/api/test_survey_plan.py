@@ -6,8 +6,8 @@ from __future__ import annotations
 import httpx
 import numpy as np
 
-from server.positioning.floorplan import walkable_at
-from server.positioning.floorplan_geojson import plan_from_geojson
+from server.positioning.plan.floor_plan import walkable_at
+from server.positioning.plan.geojson_plan import plan_from_geojson
 from tests.api.test_map_quality import PLAN, _site, surveyed
 
 __all__ = ["surveyed"]  # the fixture, used by name

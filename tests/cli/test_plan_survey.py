@@ -11,8 +11,8 @@ from typer.testing import CliRunner
 
 from server.cli import app
 from server.datasets.ilc import read_site
-from server.positioning.floorplan import walkable_at
-from server.positioning.floorplan_geojson import plan_from_geojson
+from server.positioning.plan.floor_plan import walkable_at
+from server.positioning.plan.geojson_plan import plan_from_geojson
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
 SITE2 = DATA / "ilc20-sample" / "site2"

@@ -13,8 +13,8 @@ from client_sim.building import Floor, SyntheticBuilding, count_crossings, synth
 from client_sim.seeding import sequence
 from client_sim.walker import Walker
 from client_sim.world import synthesize_world
-from server.positioning.floorplan import valid_moves
-from server.positioning.floorplan_geojson import plan_from_geojson
+from server.positioning.plan.floor_plan import valid_moves
+from server.positioning.plan.geojson_plan import plan_from_geojson
 
 
 def build(seed: int = 0, width_m: float = 60.0, depth_m: float = 30.0) -> SyntheticBuilding:

@@ -12,7 +12,7 @@ from numpy.typing import NDArray
 
 from server.datasets.ilc_trace import read_trace
 from server.datasets.walk import Walk
-from server.positioning.events import ImuEvent, RadioReading, WifiEvent
+from server.positioning.model.events import ImuEvent, RadioReading, WifiEvent
 
 
 def streams_of(trace: Walk) -> dict[str, NDArray[np.float64]]:

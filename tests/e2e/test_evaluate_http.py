@@ -10,7 +10,7 @@ import pytest
 from typer.testing import CliRunner
 
 from server.cli import app
-from server.positioning.fix_error import DEFAULT_ERROR_68_M
+from server.positioning.radio.fix_error import DEFAULT_ERROR_68_M
 from tests.conftest import ADMIN_KEY
 
 # each comparison runs once in `make test`: those through the api in the production shape

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from server.lab import ilc_evaluation
-from server.positioning.events import Event, Fix, ImuEvent
+from server.positioning.model.events import Event, Fix, ImuEvent
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
 SITE2 = DATA / "ilc20-sample" / "site2"

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from server.lab.particle_bench import particle_bench
-from server.positioning import state_codec
-from server.positioning.particle_cloud import from_points
+from server.positioning.filters.particle_cloud import from_points
+from server.positioning.model import state_codec
 from server.storage.codec import encode_arrays
 
 RATES = (

@@ -7,7 +7,7 @@ import numpy as np
 
 from server.datasets.ilc_trace import read_trace
 from server.lab.pdr_evaluation import TraceSteps, dead_reckon, trace_steps, with_detector
-from server.positioning.step_tracker import TrackerParams
+from server.positioning.motion.step_tracker import TrackerParams
 from tests.datasets.conftest import dataset_dir
 
 T0 = 1_700_000_000_000

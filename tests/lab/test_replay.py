@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from server.lab import replay
-from server.positioning.events import ImuEvent, RadioReading, StepEvent, WifiEvent
+from server.positioning.model.events import ImuEvent, RadioReading, StepEvent, WifiEvent
 from tests.lab.fakes import ilc_trace
 
 

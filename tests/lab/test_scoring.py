@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from server.lab import scoring
-from server.positioning.events import Fix
-from server.positioning.floorplan_geojson import plan_from_geojson
-from server.positioning.magnetic import MagneticMap
+from server.positioning.magnetic.field_grid import MagneticMap
 from server.positioning.mapping.magnetic_gridding import grid_from_samples, known_share
-from server.positioning.sitemaps import FloorRef, SiteMaps
+from server.positioning.model.events import Fix
+from server.positioning.model.site_maps import FloorRef, SiteMaps
+from server.positioning.plan.geojson_plan import plan_from_geojson
 from tests.lab.fakes import ilc_trace
 
 

@@ -12,7 +12,7 @@ import numpy as np
 from server.api.schemas.maps import MagneticSurveyIn, SurveyIn
 from server.lab import service_replay
 from server.lab.training_maps import LabelledField, LabelledScans
-from server.positioning.events import BleEvent, RadioReading, WifiEvent
+from server.positioning.model.events import BleEvent, RadioReading, WifiEvent
 from server.services.traces import trace_from_events
 
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from server.lab import training_maps
-from server.positioning.events import RadioReading, WifiEvent
+from server.positioning.model.events import RadioReading, WifiEvent
 
 
 def test_walks_along_one_route_share_a_cross_validation_group() -> None:

@@ -8,8 +8,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from server.positioning.floorplan import FloorPlan
-from server.positioning.floorplan_geojson import plan_from_geojson
+from server.positioning.plan.floor_plan import FloorPlan
+from server.positioning.plan.geojson_plan import plan_from_geojson
 
 
 def feature(kind: str, geometry_type: str, coordinates: Any) -> dict[str, Any]:

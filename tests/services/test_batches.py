@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from server.positioning.events import StepEvent
+from server.positioning.model.events import StepEvent
 from server.services.batches import check_event_times
 from server.services.errors import Invalid
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from server.positioning.events import BleEvent, RadioReading, StepEvent, WifiEvent
+from server.positioning.model.events import BleEvent, RadioReading, StepEvent, WifiEvent
 from server.services.device_offsets import on_common_level
 
 

@@ -12,7 +12,7 @@ from fastapi import FastAPI
 
 from server.api.convert import to_events
 from server.api.schemas.sessions import BatchIn
-from server.positioning.events import Event
+from server.positioning.model.events import Event
 from server.services import batches, session_records, sessions
 from server.services.maps import MapCache
 from server.services.runtime import Runtime

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from server.positioning import fix_error
-from server.positioning.fingerprint import RadioMap
-from server.positioning.scan_matching import build_scan_map
-from server.positioning.sitemaps import FloorRef
+from server.positioning.model.site_maps import FloorRef
+from server.positioning.radio import fix_error
+from server.positioning.radio.fingerprints import RadioMap
+from server.positioning.radio.scan_matching import build_scan_map
 from server.services.maps import _learned
 from server.storage.map_artefacts import encode_artefacts, fix_error_to_json
 from server.storage.models import RadioMapVersion

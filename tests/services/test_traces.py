@@ -9,7 +9,7 @@ import pytest
 
 from server.datasets.ilc_trace import parse_trace_text
 from server.datasets.walk import Walk
-from server.positioning.events import (
+from server.positioning.model.events import (
     BleEvent,
     ImuEvent,
     MagEvent,

@@ -11,7 +11,7 @@ from typing import Any
 
 import pytest
 
-from server.positioning.events import Event, MagEvent, RadioReading, StepEvent, WifiEvent
+from server.positioning.model.events import Event, MagEvent, RadioReading, StepEvent, WifiEvent
 from server.services import traces
 from server.services.upload_contribution import contribution
 from server.storage.models import Upload
@@ -70,7 +70,7 @@ def test_a_pass_by_an_anchor_ap_becomes_one_more_anchor() -> None:
 
 
 def test_samples_placed_far_outside_the_floor_plan_are_not_used() -> None:
-    from server.positioning.floorplan_geojson import PLAN_MARGIN_M
+    from server.positioning.plan.geojson_plan import PLAN_MARGIN_M
     from server.services.upload_anchors import AnchorContext
 
     everything = contribution(_upload())

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from server.positioning.events import (
+from server.positioning.model.events import (
     BleEvent,
     Event,
     GnssEvent,

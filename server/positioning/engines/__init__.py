@@ -16,7 +16,7 @@ from server.positioning.engines import (
     two_stage_ekf,
     wknn,
 )
-from server.positioning.engines.base import Engine
+from server.positioning.engines.spec import Engine
 
 ENGINES: dict[str, Engine] = {
     spec.name: spec

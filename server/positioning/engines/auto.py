@@ -36,14 +36,14 @@ from typing import Any
 
 import numpy as np
 
-from server.positioning import state_codec
-from server.positioning.accuracy import EngineParams
 from server.positioning.engines import everywhere_ekf, step_ekf, wknn
-from server.positioning.engines.base import Arrays, EngineSpec
-from server.positioning.events import BleEvent, Event, Fix, ImuEvent, StepEvent, WifiEvent
-from server.positioning.params import Params, build
-from server.positioning.sitemaps import SiteMaps
-from server.positioning.state_codec import StateError
+from server.positioning.engines.spec import Arrays, EngineSpec
+from server.positioning.model import state_codec
+from server.positioning.model.accuracy import EngineParams
+from server.positioning.model.events import BleEvent, Event, Fix, ImuEvent, StepEvent, WifiEvent
+from server.positioning.model.params import Params, build
+from server.positioning.model.site_maps import SiteMaps
+from server.positioning.model.state_codec import StateError
 
 CANDIDATES: tuple[EngineSpec, ...] = (wknn.SPEC, step_ekf.SPEC, everywhere_ekf.SPEC)  # type: ignore[type-arg]
 WKNN, STEPS, SAMPLES = 0, 1, 2

@@ -1,6 +1,6 @@
 """``everywhere_ekf``: the online positioning of Mansour et al.'s *Everywhere* framework.
 
-PDR (``papers/003_*`` section III, ``server.positioning.pdr``): peak/valley step detection
+PDR (``papers/003_*`` section III, ``server.positioning.motion.pdr``): peak/valley step detection
 on the vertical acceleration, step lengths from eq 1, the heading from gyro integration
 fused with the compass during quasi-static magnetic field periods, and the turn /
 straight-walk labels from ``Δh_max`` with ``λ_l``, ``λ_h``.
@@ -31,8 +31,8 @@ the heading after the step's turn)::
 with the transition matrix of eq 16. Writing the filter on the full state rather than on
 the error state ``[δE, δN, δs, δh]`` gives the same estimates (the error-state form is its
 linearisation about the PDR solution) and lets the engine share the EKF steps of
-``server.positioning.kalman``. A fingerprint position updates ``x, y`` with the variance
-its evidence is worth on the map (``radio_fusion.match``; eq 17's spread is not a
+``server.positioning.filters.kalman``. A fingerprint position updates ``x, y`` with the variance
+its evidence is worth on the map (``scan_fixes.match``; eq 17's spread is not a
 variance), unless it falls outside the innovation gate.
 
 The heading starts from the phone's north-referenced heading (its rotation vector, or the
@@ -57,16 +57,16 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from server.positioning.accuracy import AccuracyParams
-from server.positioning.engines import pdr_fusion as pf
-from server.positioning.engines import radio_fusion as rf
-from server.positioning.events import BleEvent, Fix, radio_key
-from server.positioning.fingerprint import WknnFix
-from server.positioning.kalman import update, wrap_angle
-from server.positioning.params import AtLeastOne, NonNegative, Positive
-from server.positioning.sitemaps import Anchor, SiteMaps
-from server.positioning.state_codec import shape
-from server.positioning.step_tracker import Scan, Step, TrackerParams, initial_tracker
+from server.positioning.filters import pdr_kalman
+from server.positioning.filters.kalman import update, wrap_angle
+from server.positioning.model.accuracy import AccuracyParams
+from server.positioning.model.events import BleEvent, Fix, radio_key
+from server.positioning.model.params import AtLeastOne, NonNegative, Positive
+from server.positioning.model.site_maps import Anchor, SiteMaps
+from server.positioning.model.state_codec import shape
+from server.positioning.motion.step_tracker import Scan, Step, TrackerParams, initial_tracker
+from server.positioning.radio import scan_fixes
+from server.positioning.radio.fingerprints import WknnFix
 
 FloatArray = NDArray[np.float64]
 
@@ -75,7 +75,7 @@ _H_HEADING = np.array([[0.0, 0.0, 0.0, 1.0]])
 
 
 @dataclass(frozen=True)
-class EverywhereParams(pf.StepFusionParams):
+class EverywhereParams(pdr_kalman.StepFusionParams):
     """Parameters of ``everywhere_ekf``; the position noise per step (0.1 m² rather than
     papers/002_* eq 22's 0.01) and the restart after 3 gated fixes in a row rather than 6
     are ``KalmanParams``'s, chosen on both development venues."""
@@ -103,7 +103,7 @@ class EverywhereParams(pf.StepFusionParams):
 
 
 @dataclass(frozen=True, kw_only=True)
-class EverywhereState(pf.FilterState):
+class EverywhereState(pdr_kalman.FilterState):
     """``FilterState`` with ``x = [x_m, y_m, scale_correction, heading_rad]``, and what
     the aided selection and the anchor calibration need."""
 
@@ -155,7 +155,7 @@ def step_motion(x: FloatArray, length_m: float, turn_rad: float) -> tuple[FloatA
 def _on_step(
     state: EverywhereState, step: Step, maps: SiteMaps, params: EverywhereParams
 ) -> tuple[EverywhereState, Fix | None]:
-    state, turn = pf.turn_of(state, step)
+    state, turn = pdr_kalman.turn_of(state, step)
     state = replace(
         state,
         walked_m=state.walked_m + step.length_m * (1.0 + float(state.x[2])),
@@ -167,7 +167,7 @@ def _on_step(
     if not state.initialized:
         return state, None
     d = step.length_m
-    new = pf.predict_step(
+    new = pdr_kalman.predict_step(
         state,
         step,
         turn,
@@ -178,7 +178,9 @@ def _on_step(
         params.process_noise,
     )
     x = new.x
-    return new, pf.state_fix(new, step.t_ms, "step", {"step_length_m": float((1.0 + x[2]) * d)})
+    return new, pdr_kalman.state_fix(
+        new, step.t_ms, "step", {"step_length_m": float((1.0 + x[2]) * d)}
+    )
 
 
 def aiding_penalty(
@@ -212,25 +214,27 @@ def _on_scan(
         state, anchor_fix = _on_anchor(state, event, maps, params)
         if anchor_fix is not None:
             return state, anchor_fix
-    start = pf.begin_scan(maps, event, state, params)
+    start = pdr_kalman.begin_scan(maps, event, state, params)
     if start is None or maps.radio is None:
         return state, None
     m, diagnostics, state = start.matched, start.diagnostics, start.state
     if start.restart:
         new = _remember_fp(state, *_xy(m.whole))
-        return new, pf.state_fix(new, m.t_ms, m.kind, diagnostics)
+        return new, pdr_kalman.state_fix(new, m.t_ms, m.kind, diagnostics)
 
     used = m
     aided = state.straight and state.walked_m > 0.0 and not np.isnan(state.fp).any()
     if aided:
-        penalty = aiding_penalty(rf.reference_xy(maps), state.fp, state.walked_m, params)
-        used = rf.constrained(maps, m, params, penalty_db=penalty)
+        penalty = aiding_penalty(scan_fixes.reference_xy(maps), state.fp, state.walked_m, params)
+        used = scan_fixes.constrained(maps, m, params, penalty_db=penalty)
         diagnostics["aided"] = 1.0
-    state, accepted = pf.update_position(state, used, start.rejects, params.gate_chi2, diagnostics)
+    state, accepted = pdr_kalman.update_position(
+        state, used, start.rejects, params.gate_chi2, diagnostics
+    )
     if not accepted:
         return state, None
     state = _remember_fp(state, *_xy(used.whole))
-    return state, pf.state_fix(state, m.t_ms, m.kind, diagnostics)
+    return state, pdr_kalman.state_fix(state, m.t_ms, m.kind, diagnostics)
 
 
 def _xy(found: WknnFix) -> tuple[float, float]:
@@ -296,7 +300,7 @@ def _on_anchor(
             x,
             P,
             z=[anchor.x_m, anchor.y_m],
-            H=rf.H_POSITION,
+            H=scan_fixes.H_POSITION,
             R=params.anchor_var_m2 * np.eye(2),
         )
         x, P = u.x, u.P
@@ -317,9 +321,9 @@ def _on_anchor(
         anchor_walked_m=0.0,
         anchor_straight=True,
     )
-    return new, pf.state_fix(new, event.t_ms, "anchor", diagnostics)
+    return new, pdr_kalman.state_fix(new, event.t_ms, "anchor", diagnostics)
 
 
-FUSION = pf.StepFusion(_on_step, _on_scan)
+FUSION = pdr_kalman.StepFusion(_on_step, _on_scan)
 apply = FUSION.apply
 SPEC = FUSION.spec("everywhere_ekf", EverywhereParams, EverywhereState, initial_state)

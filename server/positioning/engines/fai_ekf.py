@@ -7,7 +7,7 @@ prediction and update); what changes is the noise of each WiFi/BLE position upda
 strategy (eq 31, ``FaiParams.strategy``):
 
 * ``ct``: a constant, ``ct_m`` (6 m, section IV-C), the paper's baseline;
-* ``ss``, ``sd``, ``wd``: one indicator (``server.positioning.fai``: signal strength,
+* ``ss``, ``sd``, ``wd``: one indicator (``radio.accuracy_indicators``: signal strength,
   emitter geometry, weighted DSF), ``mc`` their linear combination (eq 26), ``mcm``
   (default) the largest of them (eq 27).
 
@@ -24,7 +24,7 @@ magnitude measured between two steps is that step's, placed at the step's middle
 dead-reckoned track (the filter's step length and heading). Every ``mag_steps`` steps
 (10, the paper's short-term trajectory) the profile is matched inside a circle around
 the last wireless fix carried along by dead reckoning, of ``mag_circle`` (3) times that
-fix's predicted error (``server.positioning.magnetic_matching``), and the match updates
+fix's predicted error (``server.positioning.magnetic.profile_matching``), and the match updates
 the position with ``eta`` from ``strategy_mag`` (default MCM, CT 5 m) over the magnetic
 SS and WD (SD needs field components a magnitude profile lacks), gated as the wireless
 fixes. The profile then starts again (profiles do not overlap, so no two updates share a
@@ -45,17 +45,17 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from server.positioning import fai, magnetic_matching
-from server.positioning.accuracy import AccuracyParams
-from server.positioning.barometer import FloorChange
-from server.positioning.engines import dispatch, step_ekf
-from server.positioning.engines import radio_fusion as rf
-from server.positioning.engines.base import EngineSpec
-from server.positioning.events import BleEvent, Event, Fix, MagEvent, StepEvent, WifiEvent
-from server.positioning.fai import FaiParams
-from server.positioning.kalman import update
-from server.positioning.sitemaps import SiteMaps
-from server.positioning.state_codec import shape
+from server.positioning.engines import driver, step_ekf
+from server.positioning.engines.spec import EngineSpec
+from server.positioning.filters.kalman import update
+from server.positioning.magnetic import profile_matching
+from server.positioning.model.accuracy import AccuracyParams
+from server.positioning.model.events import BleEvent, Event, Fix, MagEvent, StepEvent, WifiEvent
+from server.positioning.model.site_maps import SiteMaps
+from server.positioning.model.state_codec import shape
+from server.positioning.motion.barometer import FloorChange
+from server.positioning.radio import accuracy_indicators, scan_fixes
+from server.positioning.radio.accuracy_indicators import FaiParams
 
 FloatArray = NDArray[np.float64]
 
@@ -71,14 +71,14 @@ class FaiEkfParams(step_ekf.StepEkfParams):
 
 
 def fai_variance(
-    m: rf.Matched, maps: SiteMaps, params: FaiEkfParams
+    m: scan_fixes.Matched, maps: SiteMaps, params: FaiEkfParams
 ) -> tuple[float, dict[str, float]]:
     """``eta^2`` of the scan's fix (module docstring) and the indicators as diagnostics."""
     p = params.fai
     eta, reported = p.ct_m, {}
-    found = rf.on_cells(maps, m, params) if p.strategy != "ct" else None
+    found = scan_fixes.on_cells(maps, m, params) if p.strategy != "ct" else None
     if found is not None and maps.fai is not None:
-        ind = fai.indicators(
+        ind = accuracy_indicators.indicators(
             maps.fai, m.scan, (found.x_m, found.y_m), found.neighbours, found.weights, p
         )
         chosen = ind.pick(p.strategy, p.ct_m)
@@ -139,9 +139,9 @@ def _cleared(state: FaiEkfState) -> FaiEkfState:
 def _on_floor_change(
     state: FaiEkfState, change: FloorChange, maps: SiteMaps
 ) -> tuple[FaiEkfState, Fix | None]:
-    """A barometric floor change (``radio_fusion.moved_by``); on another floor the
+    """A barometric floor change (``scan_fixes.moved_by``); on another floor the
     magnetic profile starts afresh, as after a scan's floor change."""
-    new, _ = rf.moved_by(maps)(state, change)
+    new, _ = scan_fixes.moved_by(maps)(state, change)
     return (_cleared(new) if new.floor != state.floor else new), None
 
 
@@ -159,10 +159,10 @@ def _on_scan(
 ) -> tuple[FaiEkfState, Fix | None]:
     """``step_ekf``'s scan update with the FAI noise; the fix (before fusion) and its
     predicted error become the magnetic search circle."""
-    used: list[tuple[rf.Matched, float]] = []
+    used: list[tuple[scan_fixes.Matched, float]] = []
 
     def variance(
-        m: rf.Matched, maps: SiteMaps, params: FaiEkfParams
+        m: scan_fixes.Matched, maps: SiteMaps, params: FaiEkfParams
     ) -> tuple[float, dict[str, float]]:
         var, reported = fai_variance(m, maps, params)
         used.append((m, reported["fai_eta_m"]))
@@ -220,7 +220,7 @@ def _magnetic_update(
     if grid is None or not math.isfinite(state.radio_eta_m):
         return state, None
     centre = state.dr_xy + state.radio_offset
-    found = magnetic_matching.match(
+    found = profile_matching.match(
         grid,
         state.profile_xy - state.profile_xy[-1],
         state.profile_ut,
@@ -233,7 +233,7 @@ def _magnetic_update(
     )
     if found is None:
         return state, None
-    ind = fai.combine(found.ss_m, math.nan, found.wd_m, p)
+    ind = accuracy_indicators.combine(found.ss_m, math.nan, found.wd_m, p)
     eta = ind.pick(p.strategy_mag, p.ct_mag_m)
     if not math.isfinite(eta):
         eta = p.ct_mag_m
@@ -276,13 +276,13 @@ def run(
         return lambda st, e: _on_scan(st, e, kind, maps, params)
 
     routes = [
-        dispatch.on(StepEvent, lambda st, e: _on_step(st, e, maps, params)),
-        dispatch.on(WifiEvent, scan("wifi")),
-        dispatch.on(BleEvent, scan("ble")),
-        dispatch.on(MagEvent, _on_mag),
-        dispatch.on(FloorChange, lambda st, e: _on_floor_change(st, e, maps)),
+        driver.on(StepEvent, lambda st, e: _on_step(st, e, maps, params)),
+        driver.on(WifiEvent, scan("wifi")),
+        driver.on(BleEvent, scan("ble")),
+        driver.on(MagEvent, _on_mag),
+        driver.on(FloorChange, lambda st, e: _on_floor_change(st, e, maps)),
     ]
-    return rf.walk_with_floor_changes(state, events, maps, params, routes)
+    return scan_fixes.walk_with_floor_changes(state, events, maps, params, routes)
 
 
 SPEC = EngineSpec(

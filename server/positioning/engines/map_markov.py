@@ -3,10 +3,10 @@ a constant-velocity Kalman filter and the phone's steps (Wang et al., ``papers/0
 
 Per WiFi/BLE scan (Algorithm 3, "Integration track"):
 
-1. the scan is matched on the whole map (``radio_fusion.match``: strongest signals,
+1. the scan is matched on the whole map (``scan_fixes.match``: strongest signals,
    floor filter, WKNN; eq 4-6 with the floor chosen as every engine here chooses it);
    a session starts there, and restarts there on a floor change or when lost;
-2. prediction. The belief over the floor graph's vertices (``floor_graph``,
+2. prediction. The belief over the floor graph's vertices (``navigation_graph``,
    ``markov_chain``) moves by as many hops as the walker can have gone since the last
    scan: the steps' length (times the personal scale) plus ``slack_m``, or
    ``max_speed_mps`` times the time without steps, in the steps' direction weighted by
@@ -19,7 +19,7 @@ Per WiFi/BLE scan (Algorithm 3, "Integration track"):
    reached; each is weighed by the belief and the scan's likelihood (eq 14, ``sigma_db``),
    and S' is the weighted mean of the ``k`` most probable (the kNN of eq 5-6 over Ω);
    where the map has its surveyed scans, S' is the scan's match among those whose
-   nearest vertex is in Ω (``radio_fusion.constrained``). When the best signal distance
+   nearest vertex is in Ω (``scan_fixes.constrained``). When the best signal distance
    in Ω is ``gate_db`` worse than the whole map's best (on the scans: ``scan_gate_db``,
    their distance of ``scan_matching``), or Ω is empty, the scan is not used;
    ``max_rejects`` such scans in a row restart the session at the whole-map fix (the
@@ -29,7 +29,7 @@ Per WiFi/BLE scan (Algorithm 3, "Integration track"):
    eq 16: ``(1 - θ) A S + θ A U``, ``U`` the state with the steps' mean velocity; S'' is
    the position the steps alone give (the last estimate plus their displacement), and
    the filter is corrected with ``(1 - θ) S' + θ S''`` (Algorithm 3) at the scan's
-   learned variance (``radio_fusion.match``).
+   learned variance (``scan_fixes.match``).
 
 Per step: the step moves the estimate by its length times the personal scale along its
 heading (turned into the building frame); a fix per step. At a turn (the heading leaves
@@ -61,19 +61,19 @@ import numpy as np
 from annotated_types import Ge, Le
 from numpy.typing import NDArray
 
-from server.positioning import markov_chain as mc
-from server.positioning.accuracy import AccuracyParams
-from server.positioning.barometer import BaroState, FloorChange, initial_barometer
-from server.positioning.engines import dispatch
-from server.positioning.engines import radio_fusion as rf
-from server.positioning.engines.base import EngineSpec
-from server.positioning.events import BleEvent, Event, Fix, StepEvent, WifiEvent
-from server.positioning.fingerprint import signal_distances
-from server.positioning.floor_graph import CORRIDOR, FloorGraph
-from server.positioning.kalman import update, wrap_angle
-from server.positioning.params import AtLeastOne, NonNegative, Positive
-from server.positioning.sitemaps import SiteMaps
-from server.positioning.state_codec import shape
+from server.positioning.engines import driver
+from server.positioning.engines.spec import EngineSpec
+from server.positioning.filters import markov_chain as mc
+from server.positioning.filters.kalman import update, wrap_angle
+from server.positioning.model.accuracy import AccuracyParams
+from server.positioning.model.events import BleEvent, Event, Fix, StepEvent, WifiEvent
+from server.positioning.model.params import AtLeastOne, NonNegative, Positive
+from server.positioning.model.site_maps import SiteMaps
+from server.positioning.model.state_codec import shape
+from server.positioning.motion.barometer import BaroState, FloorChange, initial_barometer
+from server.positioning.plan.navigation_graph import CORRIDOR, FloorGraph
+from server.positioning.radio import scan_fixes
+from server.positioning.radio.fingerprints import signal_distances
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -84,7 +84,7 @@ Reliability = Annotated[float, Ge(0.0), Le(1.0)]
 
 
 @dataclass(frozen=True)
-class MapMarkovParams(rf.RadioParams):
+class MapMarkovParams(scan_fixes.RadioParams):
     """Parameters of the ``map_markov`` engine (Wang's where the paper gives one)."""
 
     # the radii that hold 68 % and 95 % of the errors (accuracy.py), chosen on the inner
@@ -137,7 +137,7 @@ class MapMarkovState:
     steps_since: int = 0  # steps since kf_t_ms
     steps_seen: bool = False
     belief_vertex: IntArray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
-    belief_p: FloatArray = field(default_factory=lambda: rf.EMPTY)
+    belief_p: FloatArray = field(default_factory=lambda: scan_fixes.EMPTY)
     rejects: int = 0
     step_scale: float = 1.0
     segment_heading: float = math.nan  # building-frame heading of the straight segment
@@ -146,7 +146,7 @@ class MapMarkovState:
     segment_start: FloatArray = field(default_factory=lambda: np.zeros(2), metadata=shape(2))
     segment_scans: int = 0  # scans that corrected the estimate during the segment
     graph_key: int = 0  # FloorGraph.fingerprint of the graph the belief's ids are on
-    floor_logp: FloatArray = field(default_factory=lambda: rf.EMPTY)
+    floor_logp: FloatArray = field(default_factory=lambda: scan_fixes.EMPTY)
     floor_t_ms: int = 0
     baro: BaroState = field(default_factory=initial_barometer)  # floor changes by pressure
 
@@ -199,7 +199,7 @@ def _fix(state: MapMarkovState, t_ms: int, source: str, diag: dict[str, float]) 
     heading_known = not math.isnan(state.segment_heading)
     if heading_known:
         x[3] = state.segment_heading
-    return rf.to_fix(x, P, state.floor, heading_known, t_ms, source, diag, state.floor_logp)
+    return scan_fixes.to_fix(x, P, state.floor, heading_known, t_ms, source, diag, state.floor_logp)
 
 
 def _graph(maps: SiteMaps, floor: int) -> FloorGraph | None:
@@ -207,7 +207,7 @@ def _graph(maps: SiteMaps, floor: int) -> FloorGraph | None:
 
 
 def _start(
-    state: MapMarkovState, m: rf.Matched, maps: SiteMaps, params: MapMarkovParams
+    state: MapMarkovState, m: scan_fixes.Matched, maps: SiteMaps, params: MapMarkovParams
 ) -> MapMarkovState:
     found = m.whole
     graph = _graph(maps, found.floor)
@@ -225,7 +225,7 @@ def _start(
         dr_m=0.0,
         steps_since=0,
         belief_vertex=belief.vertex if belief else np.zeros(0, dtype=np.int64),
-        belief_p=belief.p if belief else rf.EMPTY,
+        belief_p=belief.p if belief else scan_fixes.EMPTY,
         graph_key=graph.fingerprint if graph else 0,
         rejects=0,
         segment_heading=math.nan,
@@ -243,7 +243,7 @@ def on_step(
         return replace(state, last_t_ms=event.t_ms), None
     if not state.initialized:
         return replace(state, last_t_ms=event.t_ms, steps_seen=True), None
-    heading = rf.in_building_frame(maps, state.floor, event.heading_rad)
+    heading = scan_fixes.in_building_frame(maps, state.floor, event.heading_rad)
     here = _position(state)
     diag: dict[str, float] = {}
     x = state.x
@@ -340,7 +340,7 @@ def on_scan(
     maps: SiteMaps,
     params: MapMarkovParams,
 ) -> tuple[MapMarkovState, Fix | None]:
-    m = rf.match(maps, event, params, state.floor_logp, state.floor_t_ms, state.baro)
+    m = scan_fixes.match(maps, event, params, state.floor_logp, state.floor_t_ms, state.baro)
     if m is None:
         return replace(state, last_t_ms=event.t_ms), None
     found = m.whole
@@ -366,7 +366,7 @@ def on_scan(
 
     graph = _graph(maps, state.floor)
     radio = maps.radio
-    assert radio is not None  # rf.match found a fix
+    assert radio is not None  # scan_fixes.match found a fix
     belief: mc.Belief | None = None
     if graph is not None and graph.rp_vertex.shape[0] == radio.rp_xy.shape[0]:
         if state.graph_key != graph.fingerprint:  # a new map: the old vertex ids mean nothing
@@ -393,7 +393,7 @@ def on_scan(
                 used = gap <= params.scan_gate_db
             else:
                 omega = None
-                cells = rf.on_cells(maps, m, params)
+                cells = scan_fixes.on_cells(maps, m, params)
                 best = float(cells.distances_db.min()) if cells is not None else float(dist.min())
                 diag["omega_gap_db"] = float(dist.min()) - best
                 used = dist.min() - best <= params.gate_db
@@ -424,7 +424,7 @@ def on_scan(
         return replace(state, last_t_ms=event.t_ms, rejects=rejects), None
 
     z = blend(theta, wifi, inertial)  # Algorithm 3: S = (1 - θ) S' + θ S''
-    u = update(x_pred, P_pred, z=z, H=rf.H_POSITION, R=m.var_m2 * np.eye(2))
+    u = update(x_pred, P_pred, z=z, H=scan_fixes.H_POSITION, R=m.var_m2 * np.eye(2))
     x_new = np.concatenate([u.x[:2], _at_most(u.x[2:], params.max_speed_mps)])
     new = replace(
         state,
@@ -445,11 +445,11 @@ def on_scan(
 
 def _in_omega(
     maps: SiteMaps,
-    m: rf.Matched,
+    m: scan_fixes.Matched,
     graph: FloorGraph,
     omega: NDArray[np.int64],
     params: MapMarkovParams,
-) -> rf.Matched | None:
+) -> scan_fixes.Matched | None:
     """The scan matched among the map's reference scans whose nearest vertex is in Ω;
     None when Ω holds none."""
     assert maps.scans is not None
@@ -457,7 +457,7 @@ def _in_omega(
     vertex = graph.tree.query(maps.scans.xy_m[on_floor])[1]
     near = np.zeros(len(maps.scans), dtype=bool)
     near[on_floor[np.isin(vertex, omega)]] = True
-    used = rf.constrained(maps, m, params, near=near)
+    used = scan_fixes.constrained(maps, m, params, near=near)
     return None if used is m else used
 
 
@@ -483,16 +483,16 @@ def run(
 
     def moved(st: MapMarkovState, change: FloorChange) -> tuple[MapMarkovState, Fix | None]:
         # the estimate itself moves with the next scan: the belief lives on one floor's graph
-        logp, _ = rf.floor_moved(maps, st.floor_logp, st.floor, change)
+        logp, _ = scan_fixes.floor_moved(maps, st.floor_logp, st.floor, change)
         return replace(st, floor_logp=logp), None
 
     routes = [
-        dispatch.on(StepEvent, step),
-        dispatch.on(WifiEvent, wifi),
-        dispatch.on(BleEvent, ble),
-        dispatch.on(FloorChange, moved),
+        driver.on(StepEvent, step),
+        driver.on(WifiEvent, wifi),
+        driver.on(BleEvent, ble),
+        driver.on(FloorChange, moved),
     ]
-    return rf.walk_with_floor_changes(state, events, maps, params, routes)
+    return scan_fixes.walk_with_floor_changes(state, events, maps, params, routes)
 
 
 SPEC = EngineSpec(

@@ -3,12 +3,12 @@ mass-centered magnetic weight update (``papers/001_*`` sections II-IV).
 
 * **Start** (section II): the first WiFi/BLE fix (WKNN, ``papers/002_*`` eq 1-3) seeds
   ``N`` particles uniformly on a disc of ``init_radius_m`` around it, on its floor, on
-  walkable ground only (``server.positioning.particle.initialise``).
+  walkable ground only (``server.positioning.filters.particle.initialise``).
 * **Steps** (Algorithm 1, line 8): each step moves every particle by its length + δ along
   its heading + Δ; a particle whose move crosses a wall or ends outside walkable space is
-  killed (``server.positioning.floorplan``). Steps come from the phone (``step`` events,
+  killed (``server.positioning.plan.floor_plan``). Steps come from the phone (``step`` events,
   heading clockwise from north) or from raw samples found by the server's PDR
-  (``server.positioning.step_tracker``: its north-referenced heading); the heading is
+  (``server.positioning.motion.step_tracker``: its north-referenced heading); the heading is
   turned into the building frame by the building's rotation (magnetic declination is not
   corrected). A step without a known north heading does not move the cloud.
 * **Weights** (eq a-c): the magnetic field strength at the step (``mag`` events, or the
@@ -16,9 +16,9 @@ mass-centered magnetic weight update (``papers/001_*`` sections II-IV).
   last ``W + 1`` steps, with the mass-centered MMSE (``weighting="mass_centered"``) or the
   Magicol-style DTW baseline (``weighting="dtw"``); systematic resampling when the
   effective sample size falls below half of ``N``
-  (``server.positioning.particle.step``). Without a magnetic map the weights only come
+  (``server.positioning.filters.particle.step``). Without a magnetic map the weights only come
   from the walls.
-* **Floors**: the floor filter's floor after each scan (``radio_fusion.match``) takes
+* **Floors**: the floor filter's floor after each scan (``scan_fixes.match``) takes
   the cloud there with the particles' positions kept (floors stack; particles on no
   walkable ground there die), as the EKF engines carry their position across a floor
   change. The paper does not change floors.
@@ -46,17 +46,17 @@ import numpy as np
 from annotated_types import Ge, Lt
 from numpy.typing import NDArray
 
-from server.positioning import floorplan, magnetic, particle
-from server.positioning import particle_cloud as pc
-from server.positioning.accuracy import AccuracyParams
-from server.positioning.barometer import BaroState, FloorChange, initial_barometer
-from server.positioning.engines import dispatch
-from server.positioning.engines import radio_fusion as rf
-from server.positioning.engines.base import EngineSpec
-from server.positioning.events import BleEvent, Event, Fix, MagEvent, StepEvent, WifiEvent
-from server.positioning.params import AtLeastOne, NonNegative, OpenShare, Positive
-from server.positioning.sitemaps import SiteMaps
-from server.positioning.step_tracker import (
+from server.positioning.engines import driver
+from server.positioning.engines.spec import EngineSpec
+from server.positioning.filters import particle
+from server.positioning.filters import particle_cloud as pc
+from server.positioning.magnetic import field_grid
+from server.positioning.model.accuracy import AccuracyParams
+from server.positioning.model.events import BleEvent, Event, Fix, MagEvent, StepEvent, WifiEvent
+from server.positioning.model.params import AtLeastOne, NonNegative, OpenShare, Positive
+from server.positioning.model.site_maps import SiteMaps
+from server.positioning.motion.barometer import BaroState, FloorChange, initial_barometer
+from server.positioning.motion.step_tracker import (
     Scan,
     Step,
     TrackerParams,
@@ -64,6 +64,8 @@ from server.positioning.step_tracker import (
     initial_tracker,
     timeline,
 )
+from server.positioning.plan import floor_plan
+from server.positioning.radio import scan_fixes
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -72,7 +74,7 @@ MAG_MAX_AGE_MS = 1000  # a mag event this much older than a step does not belong
 
 
 @dataclass(frozen=True)
-class PfMagneticParams(rf.RadioParams):
+class PfMagneticParams(scan_fixes.RadioParams):
     # the radii that hold 68 % and 95 % of the errors (accuracy.py), chosen on the inner
     # validation splits of ILC site2 and the IPIN logs (bench/accuracy.md)
     accuracy: AccuracyParams = field(default_factory=lambda: AccuracyParams(0.70, 1.60, 0.70, 5.20))
@@ -111,7 +113,7 @@ class PfMagneticState:
     mag_ut: float  # its field strength
     heading_rad: float  # map-frame heading of the last step (NaN: none)
     # the floor filter after its last scan (empty: none yet)
-    floor_logp: FloatArray = field(default_factory=lambda: rf.EMPTY)
+    floor_logp: FloatArray = field(default_factory=lambda: scan_fixes.EMPTY)
     floor_t_ms: int = 0  # time of that scan
     baro: BaroState = field(default_factory=initial_barometer)  # floor changes by pressure
 
@@ -139,7 +141,7 @@ def _one_floor(floors: NDArray[np.int16]) -> int | None:
 
 
 def _valid_move(maps: SiteMaps) -> pc.MoveCheck:
-    def plan_of(f: int) -> floorplan.FloorPlan | None:
+    def plan_of(f: int) -> floor_plan.FloorPlan | None:
         return maps.plans[f] if 0 <= f < len(maps.plans) else None
 
     def check(floors: NDArray[np.int16], a: FloatArray, b: FloatArray) -> BoolArray:
@@ -148,32 +150,32 @@ def _valid_move(maps: SiteMaps) -> pc.MoveCheck:
         if one is not None:
             plan = plan_of(one)
             # valid_moves is False for a non-finite b
-            return ok if plan is None else floorplan.valid_moves(plan, a, b)
+            return ok if plan is None else floor_plan.valid_moves(plan, a, b)
         for f in np.unique(floors):
             plan = plan_of(int(f))
             if plan is not None:
                 rows = np.flatnonzero(floors == f)
-                ok[rows] &= floorplan.valid_moves(plan, a[rows], b[rows])
+                ok[rows] &= floor_plan.valid_moves(plan, a[rows], b[rows])
         return ok
 
     return check
 
 
 def _valid_point(maps: SiteMaps) -> pc.PointCheck:
-    def plan_of(f: int) -> floorplan.FloorPlan | None:
+    def plan_of(f: int) -> floor_plan.FloorPlan | None:
         return maps.plans[f] if 0 <= f < len(maps.plans) else None
 
     def check(floors: NDArray[np.int16], xy: FloatArray) -> BoolArray:
         one = _one_floor(floors)
         if one is not None and (plan := plan_of(one)) is not None:
             # walkable_at is False for a non-finite point
-            return floorplan.walkable_at(plan, xy)
+            return floor_plan.walkable_at(plan, xy)
         ok: BoolArray = np.asarray(np.isfinite(xy).all(axis=1), dtype=bool)
         for f in np.unique(floors):
             plan = plan_of(int(f))
             if plan is not None:
                 rows = floors == f
-                ok[rows] &= floorplan.walkable_at(plan, xy[rows])
+                ok[rows] &= floor_plan.walkable_at(plan, xy[rows])
         return ok
 
     return check
@@ -182,7 +184,7 @@ def _valid_point(maps: SiteMaps) -> pc.PointCheck:
 def _sample_map(maps: SiteMaps) -> pc.MapSampler:
     grids = maps.magnetic.grids if maps.magnetic is not None else ()
 
-    def grid_of(f: int) -> magnetic.MagneticGrid | None:
+    def grid_of(f: int) -> field_grid.MagneticGrid | None:
         return grids[f] if 0 <= f < len(grids) else None
 
     def sample(floors: NDArray[np.int16], xy: FloatArray) -> FloatArray:
@@ -190,12 +192,12 @@ def _sample_map(maps: SiteMaps) -> pc.MapSampler:
         one = _one_floor(floors)
         if one is not None:
             grid = grid_of(one)
-            return out if grid is None else magnetic.sample(grid, xy)
+            return out if grid is None else field_grid.sample(grid, xy)
         for f in np.unique(floors):
             grid = grid_of(int(f))
             if grid is not None:
                 rows = np.flatnonzero(floors == f)
-                out[rows] = magnetic.sample(grid, xy[rows])
+                out[rows] = field_grid.sample(grid, xy[rows])
         return out
 
     return sample
@@ -241,7 +243,7 @@ def _on_step(
         return state, None
     one = _one_floor(cloud.floor)
     floor = particle.position(cloud)[1] if one is None else one
-    heading = rf.in_building_frame(maps, floor, north_rad)
+    heading = scan_fixes.in_building_frame(maps, floor, north_rad)
     use_field = math.isfinite(magnitude_ut) and params.weighting != "none"
     observed = magnitude_ut if use_field else None
     if one is not None and params.weighting != "dtw":
@@ -282,7 +284,7 @@ def _on_scan(
     params: PfMagneticParams,
     rng: np.random.Generator,
 ) -> tuple[PfMagneticState, Fix | None]:
-    m = rf.match(maps, event, params, state.floor_logp, state.floor_t_ms, state.baro)
+    m = scan_fixes.match(maps, event, params, state.floor_logp, state.floor_t_ms, state.baro)
     if m is None:
         return state, None
     kind, found = m.kind, m.whole
@@ -333,7 +335,7 @@ def _to_floor(cloud: pc.Particles, floor: int, maps: SiteMaps) -> pc.Particles:
 
 def _radio_weights(
     cloud: pc.Particles,
-    m: rf.Matched,
+    m: scan_fixes.Matched,
     params: PfMagneticParams,
     rng: np.random.Generator,
 ) -> pc.Particles:
@@ -364,7 +366,7 @@ def _radio_weights(
 
 def _recover(
     cloud: pc.Particles,
-    m: rf.Matched,
+    m: scan_fixes.Matched,
     share: float,
     maps: SiteMaps,
     rng: np.random.Generator,
@@ -421,24 +423,24 @@ def run(
     """Process a batch: raw IMU blocks become steps; phone steps, mag events and scans
     are taken as they come, all in time order."""
     tracker, items = timeline(state.tracker, events, params.tracker)
-    baro, changes = rf.floor_changes(state.baro, events, maps, params)
+    baro, changes = scan_fixes.floor_changes(state.baro, events, maps, params)
     others = [e for e in events if isinstance(e, StepEvent | MagEvent)]
     # at equal times: the field first, then the step it belongs to, then the scan
     timed: list[Step | Scan | StepEvent | MagEvent | FloorChange] = [*items, *others, *changes]
-    ordered = dispatch.in_time_order(timed, rank=_rank)
+    ordered = driver.in_time_order(timed, rank=_rank)
 
     def on_step(st: PfMagneticState, step: Step) -> tuple[PfMagneticState, Fix | None]:
         return _on_step(st, step, maps, params, rng)
 
     routes = [
-        dispatch.on(MagEvent, _on_mag),
-        dispatch.on(StepEvent, lambda st, e: on_step(st, _phone_step(st, e))),
-        dispatch.on(Step, on_step),
-        dispatch.on(WifiEvent, lambda st, e: _on_scan(st, e, maps, params, rng)),
-        dispatch.on(BleEvent, lambda st, e: _on_scan(st, e, maps, params, rng)),
-        dispatch.on(FloorChange, lambda st, e: _on_floor_change(st, e, maps)),
+        driver.on(MagEvent, _on_mag),
+        driver.on(StepEvent, lambda st, e: on_step(st, _phone_step(st, e))),
+        driver.on(Step, on_step),
+        driver.on(WifiEvent, lambda st, e: _on_scan(st, e, maps, params, rng)),
+        driver.on(BleEvent, lambda st, e: _on_scan(st, e, maps, params, rng)),
+        driver.on(FloorChange, lambda st, e: _on_floor_change(st, e, maps)),
     ]
-    return dispatch.walk(replace(state, tracker=tracker, baro=baro), ordered, routes)
+    return driver.walk(replace(state, tracker=tracker, baro=baro), ordered, routes)
 
 
 def _on_floor_change(
@@ -450,7 +452,7 @@ def _on_floor_change(
         floor = particle.position(state.cloud)[1]
     else:  # the cloud died: the next scan starts it again, on the shifted filter's floor
         floor = int(np.argmax(state.floor_logp)) if state.floor_logp.size else -1
-    logp, floor = rf.floor_moved(maps, state.floor_logp, floor, change)
+    logp, floor = scan_fixes.floor_moved(maps, state.floor_logp, floor, change)
     state = replace(state, floor_logp=logp)
     if state.cloud is None:
         return state, None

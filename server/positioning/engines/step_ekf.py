@@ -30,15 +30,15 @@ Measurements (``papers/002_*`` eq 23-24, ``C = B + u``, split by source):
 * every step: its length and heading measure ``S`` and ``psi`` (``H`` selects S and psi;
   the heading innovation is wrapped to (-pi, pi]);
 * every WiFi/BLE scan: the WKNN position (``papers/002_*`` eq 1-3, see
-  ``server.positioning.fingerprint``, floor from the floor filter) measures ``x, y``
-  with ``R = var * I``, ``var`` the fix's learned variance (``radio_fusion.match``).
+  ``server.positioning.radio.fingerprints``, floor from the floor filter) measures ``x, y``
+  with ``R = var * I``, ``var`` the fix's learned variance (``scan_fixes.match``).
 
 Cui's measurement covariance ``R2 = diag(1000, 1000, 10, 100)`` (``papers/002_*`` eq 25)
 is on a scale that does not fit metres and radians (a 1000 m^2 position variance would
 make WiFi useless; a 100 rad^2 heading variance is more than a uniform heading), so it is
 not used. Instead the step length and phone heading get their own variances
 (``r_step_m2``, ``r_heading_rad2``) and each WiFi/BLE fix the variance its evidence is
-worth on the map (eq 17 has the units of metres and shrinks with K: ``fingerprint``).
+worth on the map (eq 17 has the units of metres and shrinks with K: ``fingerprints``).
 
 Robustness: a WiFi/BLE position whose squared Mahalanobis distance exceeds ``gate_chi2``
 (chi-square, 2 dof) is rejected; after ``max_rejects`` consecutive rejections the filter
@@ -59,18 +59,18 @@ from typing import TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
-from server.positioning.accuracy import AccuracyParams
-from server.positioning.barometer import BaroState, FloorChange, initial_barometer
-from server.positioning.engines import dispatch
-from server.positioning.engines import pdr_fusion as pf
-from server.positioning.engines import radio_fusion as rf
-from server.positioning.engines.base import EngineSpec
-from server.positioning.events import BleEvent, Event, Fix, StepEvent, WifiEvent
-from server.positioning.fingerprint import WknnFix
-from server.positioning.kalman import predict_ekf, update, wrap_angle
-from server.positioning.params import NonNegative, Positive
-from server.positioning.sitemaps import SiteMaps
-from server.positioning.state_codec import shape
+from server.positioning.engines import driver
+from server.positioning.engines.spec import EngineSpec
+from server.positioning.filters import pdr_kalman
+from server.positioning.filters.kalman import predict_ekf, update, wrap_angle
+from server.positioning.model.accuracy import AccuracyParams
+from server.positioning.model.events import BleEvent, Event, Fix, StepEvent, WifiEvent
+from server.positioning.model.params import NonNegative, Positive
+from server.positioning.model.site_maps import SiteMaps
+from server.positioning.model.state_codec import shape
+from server.positioning.motion.barometer import BaroState, FloorChange, initial_barometer
+from server.positioning.radio import scan_fixes
+from server.positioning.radio.fingerprints import WknnFix
 
 FloatArray = NDArray[np.float64]
 
@@ -79,7 +79,7 @@ _H_STEP = np.array([[0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
 
 
 @dataclass(frozen=True)
-class StepEkfParams(pf.KalmanParams):
+class StepEkfParams(pdr_kalman.KalmanParams):
     """Parameters of the ``step_ekf`` engine (paper defaults where the paper gives one);
     the position noise, gate and restart are ``KalmanParams``'s (as in two_stage_ekf:
     inner validation IPIN P75 14.7 against 16.7 m with 0.1 m² rather than 0.01, ILC site2
@@ -134,7 +134,7 @@ class StepEkfState:
     last_step_heading_rad: float
     rejects: int
     # the floor filter after its last scan (empty: none yet)
-    floor_logp: FloatArray = field(default_factory=lambda: rf.EMPTY)
+    floor_logp: FloatArray = field(default_factory=lambda: scan_fixes.EMPTY)
     floor_t_ms: int = 0  # time of that scan
     baro: BaroState = field(default_factory=initial_barometer)  # floor changes by pressure
 
@@ -167,7 +167,7 @@ def _step_residual(z: FloatArray, z_pred: FloatArray) -> FloatArray:
 
 def state_fix(state: StepEkfState, t_ms: int, source: str, diagnostics: dict[str, float]) -> Fix:
     heading_known = not math.isnan(state.last_step_heading_rad)
-    return rf.to_fix(
+    return scan_fixes.to_fix(
         state.x, state.P, state.floor, heading_known, t_ms, source, diagnostics, state.floor_logp
     )
 
@@ -219,7 +219,7 @@ def on_step(
     else:
         turn = float(wrap_angle(heading - state.last_step_heading_rad))
 
-    x_pred, F = pf.step_motion(x, turn)
+    x_pred, F = pdr_kalman.step_motion(x, turn)
     x, P = predict_ekf(x_pred, P, F, params.process_noise)
 
     u = update(
@@ -238,13 +238,13 @@ def on_step(
 
 P = TypeVar("P", bound=StepEkfParams)
 # the variance of a scan's position fix, and what to report of how it was found
-FixVariance = Callable[[rf.Matched, SiteMaps, P], tuple[float, dict[str, float]]]
+FixVariance = Callable[[scan_fixes.Matched, SiteMaps, P], tuple[float, dict[str, float]]]
 
 
 def learned_variance(
-    m: rf.Matched, maps: SiteMaps, params: StepEkfParams
+    m: scan_fixes.Matched, maps: SiteMaps, params: StepEkfParams
 ) -> tuple[float, dict[str, float]]:
-    """What a fix of this kind and evidence is worth on the map (``radio_fusion.match``)."""
+    """What a fix of this kind and evidence is worth on the map (``scan_fixes.match``)."""
     del maps, params
     return m.var_m2, {}
 
@@ -257,7 +257,7 @@ def on_scan(
     params: P,
     variance: FixVariance[P],
 ) -> tuple[StepEkfState, Fix | None]:
-    m = rf.match(maps, event, params, state.floor_logp, state.floor_t_ms, state.baro)
+    m = scan_fixes.match(maps, event, params, state.floor_logp, state.floor_t_ms, state.baro)
     if m is None:
         return replace(state, last_t_ms=event.t_ms), None
     found = m.whole
@@ -312,12 +312,12 @@ def runner(
             return lambda st, e: on_scan(st, e, kind, maps, params, variance)
 
         routes = [
-            dispatch.on(StepEvent, lambda st, e: on_step(st, e, params)),
-            dispatch.on(WifiEvent, scan("wifi")),
-            dispatch.on(BleEvent, scan("ble")),
-            dispatch.on(FloorChange, rf.moved_by(maps)),
+            driver.on(StepEvent, lambda st, e: on_step(st, e, params)),
+            driver.on(WifiEvent, scan("wifi")),
+            driver.on(BleEvent, scan("ble")),
+            driver.on(FloorChange, scan_fixes.moved_by(maps)),
         ]
-        return rf.walk_with_floor_changes(state, events, maps, params, routes)
+        return scan_fixes.walk_with_floor_changes(state, events, maps, params, routes)
 
     return run
 

@@ -1,9 +1,9 @@
 """``two_stage_ekf``: Cui et al.'s WiFi/MEMS integration from raw phone sensors.
 
 Stage one (``papers/002_*`` section 6.1, eq 9-17) is the attitude-determination EKF
-of ``server.positioning.sensors.attitude_ekf``: gyro-driven Euler angles corrected by
+of ``server.positioning.motion.attitude_ekf``: gyro-driven Euler angles corrected by
 gravity, whose yaw gives the phone heading. Steps come from the smoothed-magnitude peak detector
-(``papers/002_*`` eq 5-7) with Weinberg step lengths (eq 8), see ``server.positioning.pdr``.
+(``papers/002_*`` eq 5-7) with Weinberg step lengths (eq 8), see ``server.positioning.motion.pdr``.
 
 Stage two is the position-tracking EKF on ``B = [x, y, S, psi]`` (eq 18): position,
 step length and heading in the map frame (clockwise from the map's north, the y axis).
@@ -25,7 +25,7 @@ lost (``max_rejects`` scans in a row whose whole-map fix fails the innovation ga
 The WiFi heading (section 4.2): a least-squares line through the last four WKNN
 positions, pointing from the oldest to the newest, measures ``psi`` when no step since the
 oldest of them was part of a turn (the gyro turn detection of section 4.2, here the
-turn labels of ``server.positioning.turns``) and the four positions span at least
+turn labels of ``server.positioning.motion.turns``) and the four positions span at least
 ``min_heading_span_m``. Where the phone knows north (its compass or rotation vector),
 ``psi`` starts from that heading turned into the building frame (magnetic declination is
 not corrected: a few degrees in most places); otherwise it waits for the first WiFi
@@ -37,7 +37,7 @@ Where the phone sends a rotation vector, its heading replaces the attitude EKF's
 (``_cui_tracker``; the attitude EKF is used without one).
 
 Cui's ``R_2 = diag(1000, 1000, 10, 100)`` (eq 25) does not fit metres and radians, so the
-measurement variances are our own (each fix's learned variance, ``radio_fusion``); the
+measurement variances are our own (each fix's learned variance, ``scan_fixes``); the
 initial ``S = 0.6 m`` is the paper's, the position noise ``Q_2`` ten times the paper's
 (chosen on both development venues, see ``TwoStageParams``). Fixes outside the
 innovation gate are not used; ``max_rejects`` of them in a row restart the filter.
@@ -53,15 +53,15 @@ import numpy as np
 from annotated_types import Ge, Le
 from numpy.typing import NDArray
 
-from server.positioning import pdr
-from server.positioning.accuracy import AccuracyParams
-from server.positioning.engines import pdr_fusion as pf
-from server.positioning.engines import radio_fusion as rf
-from server.positioning.events import Fix
-from server.positioning.kalman import update, wrap_angle
-from server.positioning.params import NonNegative, Positive
-from server.positioning.sitemaps import SiteMaps
-from server.positioning.step_tracker import Scan, Step, TrackerParams, initial_tracker
+from server.positioning.filters import pdr_kalman
+from server.positioning.filters.kalman import update, wrap_angle
+from server.positioning.model.accuracy import AccuracyParams
+from server.positioning.model.events import Fix
+from server.positioning.model.params import NonNegative, Positive
+from server.positioning.model.site_maps import SiteMaps
+from server.positioning.motion import pdr
+from server.positioning.motion.step_tracker import Scan, Step, TrackerParams, initial_tracker
+from server.positioning.radio import scan_fixes
 
 FloatArray = NDArray[np.float64]
 
@@ -81,7 +81,7 @@ def _cui_tracker() -> TrackerParams:
 
 
 @dataclass(frozen=True)
-class TwoStageParams(pf.StepFusionParams):
+class TwoStageParams(pdr_kalman.StepFusionParams):
     """Parameters of ``two_stage_ekf``; the position noise per step is 0.1 m² rather than
     papers/002_* eq 22's 0.01, and 3 gated fixes in a row restart rather than 6
     (``KalmanParams``, chosen on both development venues)."""
@@ -110,7 +110,7 @@ class TwoStageParams(pf.StepFusionParams):
 
 
 @dataclass(frozen=True, kw_only=True)
-class TwoStageState(pf.FilterState):
+class TwoStageState(pdr_kalman.FilterState):
     """``FilterState`` with ``x = [x_m, y_m, step_m, heading_rad]``, and what the WiFi
     heading needs."""
 
@@ -131,18 +131,18 @@ def initial_state(params: TwoStageParams) -> TwoStageState:
 def _on_step(
     state: TwoStageState, step: Step, maps: SiteMaps, params: TwoStageParams
 ) -> tuple[TwoStageState, Fix | None]:
-    state, turn = pf.turn_of(state, step)
+    state, turn = pdr_kalman.turn_of(state, step)
     if not step.straight:
         state = replace(state, turn_t_ms=float(step.t_ms))
     if not state.initialized:
         return state, None
     length = float(state.x[2])
-    state = pf.predict_step(
-        state, step, turn, maps, params, length, pf.step_motion, params.process_noise
+    state = pdr_kalman.predict_step(
+        state, step, turn, maps, params, length, pdr_kalman.step_motion, params.process_noise
     )
     u = update(state.x, state.P, z=[step.length_m], H=_H_STEP, R=np.array([[params.r_step_m2]]))
     new = replace(state, x=u.x, P=u.P)
-    return new, pf.state_fix(new, step.t_ms, "step", {"step_length_m": float(u.x[2])})
+    return new, pdr_kalman.state_fix(new, step.t_ms, "step", {"step_length_m": float(u.x[2])})
 
 
 def _partition(rp: FloatArray, x: FloatArray, radius_m: float) -> NDArray[np.bool_]:
@@ -177,18 +177,20 @@ def _remember(state: TwoStageState, t_ms: int, x_m: float, y_m: float) -> TwoSta
 def _on_scan(
     state: TwoStageState, event: Scan, maps: SiteMaps, params: TwoStageParams
 ) -> tuple[TwoStageState, Fix | None]:
-    start = pf.begin_scan(maps, event, state, params)
+    start = pdr_kalman.begin_scan(maps, event, state, params)
     if start is None or maps.radio is None:
         return state, None
     m, diagnostics, state = start.matched, start.diagnostics, start.state
     if start.restart:
         new = _remember(state, m.t_ms, m.whole.x_m, m.whole.y_m)
-        return new, pf.state_fix(new, m.t_ms, m.kind, diagnostics)
+        return new, pdr_kalman.state_fix(new, m.t_ms, m.kind, diagnostics)
 
-    near = _partition(rf.reference_xy(maps), state.x, params.partition_radius_m)
-    used = rf.constrained(maps, m, params, near=near)
+    near = _partition(scan_fixes.reference_xy(maps), state.x, params.partition_radius_m)
+    used = scan_fixes.constrained(maps, m, params, near=near)
     diagnostics["partition"] = 1.0 if used is not m else 0.0
-    state, accepted = pf.update_position(state, used, start.rejects, params.gate_chi2, diagnostics)
+    state, accepted = pdr_kalman.update_position(
+        state, used, start.rejects, params.gate_chi2, diagnostics
+    )
     if not accepted:
         return state, None
     state = _remember(state, m.t_ms, m.whole.x_m, m.whole.y_m)
@@ -197,7 +199,7 @@ def _on_scan(
     if heading is not None:
         diagnostics["wifi_heading_rad"] = heading
         if not state.heading_known:
-            x, P = pf.set_heading(state.x, state.P, heading, params.r_wifi_heading_rad2)
+            x, P = pdr_kalman.set_heading(state.x, state.P, heading, params.r_wifi_heading_rad2)
             state = replace(state, x=x, P=P, heading_known=True)
         elif params.wifi_heading_update:
             h = update(
@@ -211,9 +213,9 @@ def _on_scan(
             x = h.x
             x[3] = wrap_angle(x[3])
             state = replace(state, x=x, P=h.P)
-    return state, pf.state_fix(state, m.t_ms, m.kind, diagnostics)
+    return state, pdr_kalman.state_fix(state, m.t_ms, m.kind, diagnostics)
 
 
-FUSION = pf.StepFusion(_on_step, _on_scan)
+FUSION = pdr_kalman.StepFusion(_on_step, _on_scan)
 apply = FUSION.apply
 SPEC = FUSION.spec("two_stage_ekf", TwoStageParams, TwoStageState, initial_state)

@@ -2,17 +2,17 @@
 
 The baseline every fusion engine has to beat. Each WiFi scan (and each BLE scan, when the
 map has BLE columns) that heard at least ``min_matched`` map emitters is matched on its
-own against the radio map (``server.positioning.fingerprint.wknn``, ``papers/002_*``
+own against the radio map (``server.positioning.radio.fingerprints.wknn``, ``papers/002_*``
 section 4.1):
 
 * signal distance to each reference point, ``papers/002_*`` eq 1;
-* floor by the floor filter (``floor_filter``): the scan's likelihood of each floor
+* floor by the floor filter (``floor_hmm``): the scan's likelihood of each floor
   times the filter's prediction, so the floor has a memory even without motion;
 * position as the 1/D-weighted mean of the K nearest reference points of that floor
   (every RP tied with the K-th taking part), ``papers/002_*`` eq 3.
 
 The fix's covariance is ``var * I`` with ``var`` what a fix of its kind and matched
-emitters is worth on this map (``SiteMaps.fix_error``; ``radio_fusion.match``). The
+emitters is worth on this map (``SiteMaps.fix_error``; ``scan_fixes.match``). The
 WKNN spread of ``papers/003_*`` eq 17 is reported as ``wknn_var_m2`` only. Steps and
 magnetometer events are ignored, so fixes carry no heading.
 """
@@ -25,17 +25,17 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from server.positioning.accuracy import AccuracyParams
-from server.positioning.barometer import BaroState, FloorChange, initial_barometer
-from server.positioning.engines import dispatch
-from server.positioning.engines import radio_fusion as rf
-from server.positioning.engines.base import EngineSpec
-from server.positioning.events import BleEvent, Event, Fix, WifiEvent
-from server.positioning.sitemaps import SiteMaps
+from server.positioning.engines import driver
+from server.positioning.engines.spec import EngineSpec
+from server.positioning.model.accuracy import AccuracyParams
+from server.positioning.model.events import BleEvent, Event, Fix, WifiEvent
+from server.positioning.model.site_maps import SiteMaps
+from server.positioning.motion.barometer import BaroState, FloorChange, initial_barometer
+from server.positioning.radio import scan_fixes
 
 
 @dataclass(frozen=True)
-class WknnParams(rf.RadioParams):
+class WknnParams(scan_fixes.RadioParams):
     """Parameters of the ``wknn`` engine: those every scan-matching engine shares."""
 
     # the radii that hold 68 % and 95 % of the errors (accuracy.py), chosen on the inner
@@ -60,7 +60,9 @@ class WknnState:
     floor: int = -1
     n_fixes: int = 0
     last_t_ms: int = 0
-    floor_logp: NDArray[np.float64] = field(default_factory=lambda: rf.EMPTY)  # floor filter
+    floor_logp: NDArray[np.float64] = field(
+        default_factory=lambda: scan_fixes.EMPTY
+    )  # floor filter
     floor_t_ms: int = 0  # time of that scan
     baro: BaroState = field(default_factory=initial_barometer)  # floor changes by pressure
 
@@ -74,7 +76,7 @@ def initial_state(params: WknnParams) -> WknnState:
 def _locate(
     event: WifiEvent | BleEvent, state: WknnState, maps: SiteMaps, params: WknnParams
 ) -> tuple[WknnState, Fix | None]:
-    m = rf.match(maps, event, params, state.floor_logp, state.floor_t_ms, state.baro)
+    m = scan_fixes.match(maps, event, params, state.floor_logp, state.floor_t_ms, state.baro)
     if m is None:
         return replace(state, last_t_ms=event.t_ms), None
     found = m.whole
@@ -136,11 +138,11 @@ def run(
         return _locate(event, st, maps, params)
 
     routes = [
-        dispatch.on(WifiEvent, locate),
-        dispatch.on(BleEvent, locate),
-        dispatch.on(FloorChange, rf.moved_by(maps)),
+        driver.on(WifiEvent, locate),
+        driver.on(BleEvent, locate),
+        driver.on(FloorChange, scan_fixes.moved_by(maps)),
     ]
-    return rf.walk_with_floor_changes(state, events, maps, params, routes)
+    return scan_fixes.walk_with_floor_changes(state, events, maps, params, routes)
 
 
 SPEC = EngineSpec(

@@ -38,7 +38,7 @@ known beacon, over its readings ``(t_i, r_i)`` in time order:
   paper's 300 ms BLE scan interval, VI-A);
 * peaks: ``scipy.signal.find_peaks`` on ``r̄`` with ``height = threshold_dbm`` (the
   "certain threshold"; the paper gives no number, we use the -65 dBm of floor-plan
-  anchors, ``server.positioning.anchors.DEFAULT_RSSI_DBM``) and a prominence of
+  anchors, ``server.positioning.plan.anchors.DEFAULT_RSSI_DBM``) and a prominence of
   ``min_prominence_db`` against noise wiggles on a plateau;
 * sliding window: of peaks closer than ``peak_window_ms`` in time only the highest is
   kept, so one pass by the beacon gives one anchor;
@@ -59,7 +59,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.signal import find_peaks
 
-from server.positioning.anchors import DEFAULT_RSSI_DBM
+from server.positioning.plan.anchors import DEFAULT_RSSI_DBM
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]

@@ -1,17 +1,17 @@
 """What the fingerprinting accuracy indicators need of a radio map, built with the map
 (``papers/000_*`` eq 15-18 and 23): each column's emitter fitted by the log-distance
 path-loss model to the mean RSS of the reference points that heard it
-(``pathloss.fit_emitter``, on the floor where most of them are), and each reference point's
-DSF (``fai.spreads``).
+(``path_loss.fit_emitter``, on the floor where most of them are), and each reference point's
+DSF (``accuracy_indicators.spreads``).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from server.positioning.fai import FaiMaps, FaiParams, spreads
-from server.positioning.fingerprint import MISSING_DBM, RadioMap
-from server.positioning.pathloss import fit_emitter
+from server.positioning.radio.accuracy_indicators import FaiMaps, FaiParams, spreads
+from server.positioning.radio.fingerprints import MISSING_DBM, RadioMap
+from server.positioning.radio.path_loss import fit_emitter
 
 MIN_POINTS = 8  # reference points that heard an emitter before its model is fitted
 

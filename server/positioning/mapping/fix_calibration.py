@@ -18,9 +18,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from server.positioning.events import RadioReading
-from server.positioning.fix_error import FixErrorModel, fit
-from server.positioning.scan_matching import MatchParams, build_scan_map, locate, query
+from server.positioning.model.events import RadioReading
+from server.positioning.radio.fix_error import FixErrorModel, fit
+from server.positioning.radio.scan_matching import MatchParams, build_scan_map, locate, query
 
 DEFAULT_MATCH = MatchParams()
 

@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from server.positioning.fingerprint import MISSING_DBM, RadioMap
+from server.positioning.radio.fingerprints import MISSING_DBM, RadioMap
 
 
 def build_radio_map(

@@ -51,8 +51,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from server.positioning.floorplan import FloorPlan, walkable_at
-from server.positioning.magnetic import CELL_M, MagneticGrid
+from server.positioning.magnetic.field_grid import CELL_M, MagneticGrid
+from server.positioning.plan.floor_plan import FloorPlan, walkable_at
 
 FloatArray = NDArray[np.float64]
 
@@ -393,7 +393,7 @@ def merge_grids(a: MagneticGrid, b: MagneticGrid, max_cells: int = MAX_GRID_CELL
 def known_share(grid: MagneticGrid | None, plan: FloorPlan | None) -> float | None:
     """Share of a floor's walkable cells whose magnitude is known (the map's coverage).
 
-    A cell counts as walkable when its centre is (``floorplan.walkable_at``); with a plan
+    A cell counts as walkable when its centre is (``floor_plan.walkable_at``); with a plan
     the grid is first widened, on its own lattice, to the plan's extent, so walkable cells
     the grid does not reach count as unknown. Without a plan every cell of the grid
     counts. No grid: nothing is known (0). None when no cell counts at all.

@@ -14,7 +14,7 @@ placed on each floor, and each floor's plan (GeoJSON). What comes out is a ``Sit
    never locate themselves, and walks repeated along one route are held out together;
 3. **FAI maps** (``fai_maps.build_fai_maps``, ``papers/000_*`` eq 15-18 and 23);
 4. **magnetic grids**: per floor over its extent (``magnetic_gridding.grid_from_samples``);
-5. **floor graphs** (``floor_graph.site_graphs``): from each floor's plan, else over its
+5. **floor graphs** (``navigation_graph.site_graphs``): from each floor's plan, else over its
    reference points, with the chain's moves learned from the walks (``papers/004_*``
    eq 15): each walk is its scans' positions in time order, cut where it changes floor.
 
@@ -32,21 +32,22 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from server.positioning import barometer, fix_error
-from server.positioning.anchors import anchors_from_plan
-from server.positioning.fai import FaiMaps, FaiParams, spreads
-from server.positioning.fingerprint import RadioMap, in_place_order
-from server.positioning.floor_graph import site_graphs
-from server.positioning.floorplan import FloorPlan
-from server.positioning.floorplan_geojson import plan_from_geojson
-from server.positioning.magnetic import MagneticGrid, MagneticMap
+from server.positioning.magnetic.field_grid import MagneticGrid, MagneticMap
 from server.positioning.mapping.fai_maps import build_fai_maps
 from server.positioning.mapping.fix_calibration import learn_fix_error
 from server.positioning.mapping.gridding import build_radio_map
 from server.positioning.mapping.magnetic_gridding import grid_from_samples
 from server.positioning.mapping.matrices import readings_matrix
-from server.positioning.scan_matching import ScanMap, build_scan_map
-from server.positioning.sitemaps import FloorRef, SiteMaps
+from server.positioning.model.site_maps import FloorRef, SiteMaps
+from server.positioning.motion import barometer
+from server.positioning.plan.anchors import anchors_from_plan
+from server.positioning.plan.floor_plan import FloorPlan
+from server.positioning.plan.geojson_plan import plan_from_geojson
+from server.positioning.plan.navigation_graph import site_graphs
+from server.positioning.radio import fix_error
+from server.positioning.radio.accuracy_indicators import FaiMaps, FaiParams, spreads
+from server.positioning.radio.fingerprints import RadioMap, in_place_order
+from server.positioning.radio.scan_matching import ScanMap, build_scan_map
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -252,7 +253,7 @@ def merged_fai(
     """A site's FAI maps from its buildings' (each with the column keys its arrays
     follow): every emitter's fit by its key in ``radio``'s column order (NaN where none
     was fitted), and the DSF given (a one-building site's, as its build made it on the
-    same map) or computed over ``radio`` (``fai.spreads``); None without any fit."""
+    same map) or computed over ``radio`` (``accuracy_indicators.spreads``); None without any fit."""
     if not any(len(keys) for keys, _ in parts):
         return None
     fits: dict[str, tuple[FloatArray, float, float]] = {}

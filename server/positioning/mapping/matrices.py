@@ -15,7 +15,7 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from server.positioning.fingerprint import MISSING_DBM, RadioMap
+from server.positioning.radio.fingerprints import MISSING_DBM, RadioMap
 
 
 def readings_matrix(

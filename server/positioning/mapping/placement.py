@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from server.positioning.alignment import (
+from server.positioning.mapping.alignment import (
     MAX_ENDPOINT_MISMATCH_M,
     DeadReckoningNoise,
     similarity_transform,

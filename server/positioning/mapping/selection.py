@@ -74,7 +74,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.ndimage import uniform_filter1d
 from scipy.signal import lfilter
 
-from server.positioning.pdr import PdrParams, detect_steps, initial_detector
+from server.positioning.motion.pdr import PdrParams, detect_steps, initial_detector
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]

@@ -3,7 +3,7 @@ placement theory of Wang et al. (``papers/004_*``, section "Reference points pla
 theory", Definitions 1-2, Theorem 1, Algorithm 1).
 
 Noise distance. With RSS noise ``δ`` (dB) and the log-distance model ``P(d) = P0 - 10 γ
-log10 d`` (``pathloss``), two places at distances ``d0 < d`` from an AP are told apart by
+log10 d`` (``path_loss``), two places at distances ``d0 < d`` from an AP are told apart by
 it when ``10 γ log10(d / d0) ≥ δ``; the noise distance at ``d0`` is the least such
 ``d - d0``::
 
@@ -14,7 +14,7 @@ easier to tell apart, so this is the longer, safe spacing). It grows with the di
 from the AP: RPs can be dense near an AP and must be sparse far from it. Theorem 1: RPs
 closer than that add no accuracy.
 
-Algorithm 1 (``plan``), on the floor graph's grid (``floor_graph``, gap ``g``):
+Algorithm 1 (``plan``), on the floor graph's grid (``navigation_graph``, gap ``g``):
 
 1. for each located AP and each of the four directions along the grid lines through its
    grid point (for an AP outside the floor, the nearest grid point of the floor's box:
@@ -30,7 +30,7 @@ Algorithm 1 (``plan``), on the floor graph's grid (``floor_graph``, gap ``g``):
 
 ``δ`` is the map's own noise: the median RSS standard deviation over the floor's
 reference points x emitters read at least twice (``noise_from_map``). APs are located by
-``pathloss.fit_emitter`` over the floor's RPs, the WiFi emitters heard at the most RPs
+``path_loss.fit_emitter`` over the floor's RPs, the WiFi emitters heard at the most RPs
 first. With ``noise_distance_m`` given, Δ is that constant instead (the toy case of the
 theory: marks every Δ along each line).
 
@@ -46,9 +46,9 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from server.positioning.fingerprint import MISSING_DBM, RadioMap
-from server.positioning.floor_graph import FloorGraph
-from server.positioning.pathloss import fit_emitter
+from server.positioning.plan.navigation_graph import FloorGraph
+from server.positioning.radio.fingerprints import MISSING_DBM, RadioMap
+from server.positioning.radio.path_loss import fit_emitter
 
 FloatArray = NDArray[np.float64]
 

@@ -11,7 +11,7 @@ one floor of the map:
    ``sigma <= max_std_db`` (8 dB) -- number more than ``min_rps`` (50);
 2. it is heard strongly there: the strongest of those RPs' mean RSS is above
    ``min_mean_dbm`` (-55 dBm), so the AP is on this floor;
-3. the path-loss model (eq 8-10, ``pathloss.fit_emitter``) fitted to those RPs' mean RSS
+3. the path-loss model (eq 8-10, ``path_loss.fit_emitter``) fitted to those RPs' mean RSS
    at their positions converges.
 
 Its position, RSS at 1 m (``P0``) and exponent come from the fit. A walk passes the anchor
@@ -29,8 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from server.positioning.fingerprint import RadioMap
-from server.positioning.pathloss import EmitterFit, fit_emitter
+from server.positioning.radio.fingerprints import RadioMap
+from server.positioning.radio.path_loss import EmitterFit, fit_emitter
 
 
 @dataclass(frozen=True)

@@ -13,8 +13,8 @@ from numpy.typing import NDArray
 from sqlalchemy import func, insert, select
 from sqlalchemy.ext.asyncio import AsyncSession
 
-from server.positioning.fingerprint import RadioMap
-from server.positioning.magnetic import MagneticGrid
+from server.positioning.magnetic.field_grid import MagneticGrid
+from server.positioning.radio.fingerprints import RadioMap
 from server.storage.codec import array_to_str, compress_arrays, decompress_arrays, str_to_array
 from server.storage.models import (
     Emitter,

@@ -18,8 +18,8 @@ from server.positioning.engines.auto import (
     AutoState,
     choose,
 )
-from server.positioning.events import Event, Fix, ImuEvent, StepEvent, WifiEvent
-from server.positioning.state_codec import StateError
+from server.positioning.model.events import Event, Fix, ImuEvent, StepEvent, WifiEvent
+from server.positioning.model.state_codec import StateError
 from tests.positioning.engines.test_step_ekf import MAPS, loop_walk
 
 SPEC = get_engine("auto")

@@ -12,9 +12,8 @@ import numpy as np
 import pytest
 
 from client_sim.imu import T0_MS, Block, Sensors, blocks, synthesize_walk
-from server.positioning.barometer import FloorChange
 from server.positioning.engines import fai_ekf, get_engine, pf_magnetic
-from server.positioning.events import (
+from server.positioning.model.events import (
     Event,
     Fix,
     ImuEvent,
@@ -23,8 +22,9 @@ from server.positioning.events import (
     WifiEvent,
     radio_key,
 )
-from server.positioning.fingerprint import RadioMap
-from server.positioning.sitemaps import FloorRef, SiteMaps
+from server.positioning.model.site_maps import FloorRef, SiteMaps
+from server.positioning.motion.barometer import FloorChange
+from server.positioning.radio.fingerprints import RadioMap
 
 FLOORS = (FloorRef("b", "ground", 0), FloorRef("b", "first", 1))
 AP_XY = np.array([[x, y] for x in (0.0, 13.0, 26.0, 40.0) for y in (0.0, 6.0)])

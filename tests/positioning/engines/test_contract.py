@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from client_sim.imu import blocks, synthesize_walk
-from server.positioning import state_codec
 from server.positioning.engines import ENGINES, get_engine
-from server.positioning.engines.base import Engine
-from server.positioning.events import Event, Fix, ImuEvent
-from server.positioning.params import ParamError, as_dict
+from server.positioning.engines.spec import Engine
+from server.positioning.model import state_codec
+from server.positioning.model.events import Event, Fix, ImuEvent
+from server.positioning.model.params import ParamError, as_dict
 from server.storage.codec import decode_arrays, encode_arrays
 from tests.positioning.engines.test_pf_magnetic import T0, scan, site_maps, walk
 

@@ -8,14 +8,21 @@ from dataclasses import replace
 import numpy as np
 
 from server.positioning.engines import fai_ekf, step_ekf
-from server.positioning.events import Event, MagEvent, RadioReading, StepEvent, WifiEvent, radio_key
-from server.positioning.fai import FaiParams
-from server.positioning.fingerprint import RadioMap
-from server.positioning.fix_error import EDGES, FixErrorModel
-from server.positioning.magnetic import MagneticMap
+from server.positioning.magnetic.field_grid import MagneticMap
 from server.positioning.mapping.fai_maps import build_fai_maps
 from server.positioning.mapping.magnetic_gridding import grid_from_samples
-from server.positioning.sitemaps import SiteMaps
+from server.positioning.model.events import (
+    Event,
+    MagEvent,
+    RadioReading,
+    StepEvent,
+    WifiEvent,
+    radio_key,
+)
+from server.positioning.model.site_maps import SiteMaps
+from server.positioning.radio.accuracy_indicators import FaiParams
+from server.positioning.radio.fingerprints import RadioMap
+from server.positioning.radio.fix_error import EDGES, FixErrorModel
 from tests.positioning.engines.test_contract import batches
 from tests.positioning.engines.test_pf_magnetic import LENGTH_M, T0, WIDTH_M, rssi, site_maps
 

@@ -13,16 +13,16 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from server.positioning import state_codec
 from server.positioning.engines import everywhere_ekf as ev
 from server.positioning.engines import get_engine
 from server.positioning.engines import two_stage_ekf as ts
-from server.positioning.engines.pdr_fusion import FilterState, step_motion
-from server.positioning.events import BleEvent, Fix, RadioReading, WifiEvent, radio_key
-from server.positioning.fingerprint import RadioMap
-from server.positioning.kalman import predict
-from server.positioning.sitemaps import Anchor, FloorRef, SiteMaps
-from server.positioning.step_tracker import Scan, Step
+from server.positioning.filters.kalman import predict
+from server.positioning.filters.pdr_kalman import FilterState, step_motion
+from server.positioning.model import state_codec
+from server.positioning.model.events import BleEvent, Fix, RadioReading, WifiEvent, radio_key
+from server.positioning.model.site_maps import Anchor, FloorRef, SiteMaps
+from server.positioning.motion.step_tracker import Scan, Step
+from server.positioning.radio.fingerprints import RadioMap
 
 T0 = 1_700_000_000_000
 FLOORS = (FloorRef("b", "f0", 0),)

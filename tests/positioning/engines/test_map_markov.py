@@ -8,7 +8,6 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from server.positioning import state_codec
 from server.positioning.engines import get_engine
 from server.positioning.engines.map_markov import (
     MapMarkovParams,
@@ -17,9 +16,10 @@ from server.positioning.engines.map_markov import (
     initial_state,
     run,
 )
-from server.positioning.events import Event, Fix, StepEvent, WifiEvent
-from server.positioning.floor_graph import site_graphs
-from server.positioning.sitemaps import SiteMaps
+from server.positioning.model import state_codec
+from server.positioning.model.events import Event, Fix, StepEvent, WifiEvent
+from server.positioning.model.site_maps import SiteMaps
+from server.positioning.plan.navigation_graph import site_graphs
 from tests.positioning.engines.test_step_ekf import (
     MAPS,
     N_FLOORS,

@@ -9,14 +9,21 @@ import math
 
 import numpy as np
 
-from server.positioning import state_codec
-from server.positioning.engines import pf_magnetic as pf
-from server.positioning.events import Event, MagEvent, RadioReading, StepEvent, WifiEvent, radio_key
-from server.positioning.fingerprint import RadioMap
-from server.positioning.floorplan_geojson import plan_from_geojson
-from server.positioning.magnetic import MagneticMap
+from server.positioning.engines import pf_magnetic
+from server.positioning.magnetic.field_grid import MagneticMap
 from server.positioning.mapping.magnetic_gridding import grid_from_samples
-from server.positioning.sitemaps import FloorRef, SiteMaps
+from server.positioning.model import state_codec
+from server.positioning.model.events import (
+    Event,
+    MagEvent,
+    RadioReading,
+    StepEvent,
+    WifiEvent,
+    radio_key,
+)
+from server.positioning.model.site_maps import FloorRef, SiteMaps
+from server.positioning.plan.geojson_plan import plan_from_geojson
+from server.positioning.radio.fingerprints import RadioMap
 
 T0 = 1_700_000_000_000
 LENGTH_M, WIDTH_M = 60.0, 3.0
@@ -95,12 +102,14 @@ def walk(start_x: float, n: int, rng: np.random.Generator, t0: int = T0) -> list
 
 def test_a_wrong_wifi_start_converges_on_the_magnetic_field() -> None:
     maps = site_maps()
-    params = pf.PfMagneticParams()
+    params = pf_magnetic.PfMagneticParams()
     rng = np.random.default_rng(7)
     # WiFi places the phone 8 m ahead of where it is
-    state, fixes = pf.run(pf.initial_state(params), [scan(T0, 18.0, 1.5)], maps, params, rng)
+    state, fixes = pf_magnetic.run(
+        pf_magnetic.initial_state(params), [scan(T0, 18.0, 1.5)], maps, params, rng
+    )
     assert fixes[0].x_m > 14.0
-    state, fixes = pf.run(state, walk(10.0, 30, rng), maps, params, rng)
+    state, fixes = pf_magnetic.run(state, walk(10.0, 30, rng), maps, params, rng)
     steps = [f for f in fixes if f.source == "step"]
     assert len(steps) == 30
     errors = [abs(f.x_m - (10.0 + 0.7 * (i + 1))) for i, f in enumerate(steps)]
@@ -112,10 +121,12 @@ def test_without_the_field_the_wrong_start_stays_wrong() -> None:
     """The ablation ``weighting="none"``: the same walk, only walls weigh the particles,
     and nothing pulls the cloud back from the 8 m WiFi error."""
     maps = site_maps()
-    params = pf.PfMagneticParams(weighting="none")
+    params = pf_magnetic.PfMagneticParams(weighting="none")
     rng = np.random.default_rng(7)
-    state, _ = pf.run(pf.initial_state(params), [scan(T0, 18.0, 1.5)], maps, params, rng)
-    _, fixes = pf.run(state, walk(10.0, 30, rng), maps, params, rng)
+    state, _ = pf_magnetic.run(
+        pf_magnetic.initial_state(params), [scan(T0, 18.0, 1.5)], maps, params, rng
+    )
+    _, fixes = pf_magnetic.run(state, walk(10.0, 30, rng), maps, params, rng)
     steps = [f for f in fixes if f.source == "step"]
     errors = [abs(f.x_m - (10.0 + 0.7 * (i + 1))) for i, f in enumerate(steps)]
     assert np.mean(errors[-5:]) > 3.0, errors
@@ -123,14 +134,18 @@ def test_without_the_field_the_wrong_start_stays_wrong() -> None:
 
 def test_state_round_trip_continues_identically() -> None:
     maps = site_maps()
-    params = pf.PfMagneticParams()
+    params = pf_magnetic.PfMagneticParams()
     events = walk(10.0, 12, np.random.default_rng(1))
-    first = pf.run(
-        pf.initial_state(params), [scan(T0, 12.0, 1.5)], maps, params, np.random.default_rng(2)
+    first = pf_magnetic.run(
+        pf_magnetic.initial_state(params),
+        [scan(T0, 12.0, 1.5)],
+        maps,
+        params,
+        np.random.default_rng(2),
     )[0]
-    direct, a = pf.run(first, events, maps, params, np.random.default_rng(3))
-    again = state_codec.from_arrays(pf.PfMagneticState, state_codec.to_arrays(first))
-    _, b = pf.run(again, events, maps, params, np.random.default_rng(3))
+    direct, a = pf_magnetic.run(first, events, maps, params, np.random.default_rng(3))
+    again = state_codec.from_arrays(pf_magnetic.PfMagneticState, state_codec.to_arrays(first))
+    _, b = pf_magnetic.run(again, events, maps, params, np.random.default_rng(3))
     assert [(f.x_m, f.y_m, f.cov) for f in a] == [(f.x_m, f.y_m, f.cov) for f in b]
     size = sum(v.nbytes for v in state_codec.to_arrays(direct).values())
     assert size < 120_000  # 3000 particles as float32 plus the step tracker
@@ -138,23 +153,27 @@ def test_state_round_trip_continues_identically() -> None:
 
 def test_wifi_that_keeps_disagreeing_restarts_the_cloud() -> None:
     maps = site_maps()
-    params = pf.PfMagneticParams()
+    params = pf_magnetic.PfMagneticParams()
     rng = np.random.default_rng(4)
-    state, _ = pf.run(pf.initial_state(params), [scan(T0, 10.0, 1.5)], maps, params, rng)
+    state, _ = pf_magnetic.run(
+        pf_magnetic.initial_state(params), [scan(T0, 10.0, 1.5)], maps, params, rng
+    )
     far = [scan(T0 + 1000 * i, 50.0, 1.5) for i in range(1, 4)]
-    state, fixes = pf.run(state, far, maps, params, rng)
+    state, fixes = pf_magnetic.run(state, far, maps, params, rng)
     assert [("reinitialised" in f.diagnostics) for f in fixes] == [False, False, True]
     assert abs(fixes[-1].x_m - 50.0) < 6.0
 
 
 def test_steps_before_any_fix_are_ignored_and_no_map_still_works() -> None:
     maps = SiteMaps((FloorRef("b", "f0", 0),), site_maps().radio, "v")  # no plan, no field
-    params = pf.PfMagneticParams()
+    params = pf_magnetic.PfMagneticParams()
     rng = np.random.default_rng(5)
-    state, fixes = pf.run(pf.initial_state(params), walk(10.0, 3, rng), maps, params, rng)
+    state, fixes = pf_magnetic.run(
+        pf_magnetic.initial_state(params), walk(10.0, 3, rng), maps, params, rng
+    )
     assert fixes == []
     assert state.cloud is None
-    state, fixes = pf.run(
+    state, fixes = pf_magnetic.run(
         state, [scan(T0 + 5000, 20.0, 1.5), *walk(20.0, 5, rng, t0=T0 + 5000)], maps, params, rng
     )
     assert len(fixes) == 6
@@ -182,15 +201,17 @@ def test_a_scan_on_another_floor_moves_the_cloud_there_in_place() -> None:
     maps = SiteMaps(
         (FloorRef("b", "f0", 0), FloorRef("b", "f1", 1)), radio, "v", plans=one.plans * 2
     )
-    params = pf.PfMagneticParams()
+    params = pf_magnetic.PfMagneticParams()
     rng = np.random.default_rng(6)
-    state, fixes = pf.run(pf.initial_state(params), [scan(T0, 30.0, 1.5)], maps, params, rng)
+    state, fixes = pf_magnetic.run(
+        pf_magnetic.initial_state(params), [scan(T0, 30.0, 1.5)], maps, params, rng
+    )
     assert fixes[0].floor == 0
     upstairs = WifiEvent(
         T0 + 1000,
         tuple(RadioReading(f"bp{i}", float(round(v))) for i, v in enumerate(rssi(31.0, 1.5))),
     )
-    state, fixes = pf.run(state, [upstairs], maps, params, rng)
+    state, fixes = pf_magnetic.run(state, [upstairs], maps, params, rng)
     assert fixes[0].floor == 1
     assert "reinitialised" not in fixes[0].diagnostics
     assert abs(fixes[0].x_m - 30.0) < 3.0

@@ -21,7 +21,6 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from numpy.typing import NDArray
 
-from server.positioning import state_codec
 from server.positioning.engines import ENGINES, get_engine
 from server.positioning.engines.step_ekf import (
     SPEC,
@@ -30,7 +29,10 @@ from server.positioning.engines.step_ekf import (
     initial_state,
     run,
 )
-from server.positioning.events import (
+from server.positioning.filters.kalman import wrap_angle
+from server.positioning.mapping.gridding import build_radio_map
+from server.positioning.model import state_codec
+from server.positioning.model.events import (
     BleEvent,
     Event,
     Fix,
@@ -39,10 +41,8 @@ from server.positioning.events import (
     StepEvent,
     WifiEvent,
 )
-from server.positioning.fingerprint import scan_vector, wknn
-from server.positioning.kalman import wrap_angle
-from server.positioning.mapping.gridding import build_radio_map
-from server.positioning.sitemaps import FloorRef, SiteMaps
+from server.positioning.model.site_maps import FloorRef, SiteMaps
+from server.positioning.radio.fingerprints import scan_vector, wknn
 
 FloatArray = NDArray[np.float64]
 

@@ -13,11 +13,11 @@ from typing import Any
 import numpy as np
 import pytest
 
-from server.positioning import fix_error, state_codec
 from server.positioning.engines import ENGINES, get_engine
 from server.positioning.engines.step_ekf import StepEkfParams
 from server.positioning.engines.wknn import SPEC, WknnParams, WknnState, initial_state, run
-from server.positioning.events import (
+from server.positioning.model import state_codec
+from server.positioning.model.events import (
     BleEvent,
     Event,
     Fix,
@@ -26,8 +26,9 @@ from server.positioning.events import (
     StepEvent,
     WifiEvent,
 )
-from server.positioning.fingerprint import MISSING_DBM, RadioMap, scan_vector, wknn
-from server.positioning.sitemaps import FloorRef, SiteMaps
+from server.positioning.model.site_maps import FloorRef, SiteMaps
+from server.positioning.radio import fix_error
+from server.positioning.radio.fingerprints import MISSING_DBM, RadioMap, scan_vector, wknn
 
 GRID = np.array([(x, y) for y in (0.0, 2.0, 4.0) for x in (0.0, 2.0, 4.0)])
 # (key, x, y, floor) of each emitter

@@ -9,7 +9,6 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from server.positioning.anchors import DEFAULT_RSSI_DBM
 from server.positioning.mapping.anchors import (
     EARTH_RADIUS_M,
     GeoReference,
@@ -17,6 +16,7 @@ from server.positioning.mapping.anchors import (
     geo_to_local,
     gnss_anchors,
 )
+from server.positioning.plan.anchors import DEFAULT_RSSI_DBM
 
 T0 = 1_700_000_000_000
 M_PER_MILLIDEG = EARTH_RADIUS_M * math.pi / 180 * 0.001  # 111.195 m

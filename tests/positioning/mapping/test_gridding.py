@@ -8,8 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from numpy.typing import NDArray
 
-from server.positioning.fingerprint import MISSING_DBM, RadioMap
 from server.positioning.mapping.gridding import build_radio_map, fold_radio_maps
+from server.positioning.radio.fingerprints import MISSING_DBM, RadioMap
 
 NAN = float("nan")
 EMITTERS = ("wifi:a", "wifi:b", "wifi:c", "ble:never")

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from server.positioning.magnetic import MagneticGrid
+from server.positioning.magnetic.field_grid import MagneticGrid
 from server.positioning.mapping.magnetic_gridding import (
     MagneticSamples,
     grid_from_samples,

@@ -12,8 +12,6 @@ from hypothesis import given
 from hypothesis import strategies as st
 from numpy.typing import NDArray
 
-from server.positioning import fix_error
-from server.positioning.floor_graph import FloorGraph, learn
 from server.positioning.mapping.map_set import (
     FAI,
     FIX_ERROR,
@@ -27,7 +25,9 @@ from server.positioning.mapping.map_set import (
     build_map_set,
     grid_scans,
 )
-from server.positioning.sitemaps import FloorRef
+from server.positioning.model.site_maps import FloorRef
+from server.positioning.plan.navigation_graph import FloorGraph, learn
+from server.positioning.radio import fix_error
 
 # ---------------------------------------------------------------- a synthetic site
 
@@ -344,8 +344,8 @@ def test_magnetic_grids_cover_the_floors_with_samples(records: SiteRecords) -> N
 def test_buildings_fai_fits_are_merged_by_emitter_key(records: SiteRecords) -> None:
     from dataclasses import replace as with_
 
-    from server.positioning.fai import FaiParams, spreads
     from server.positioning.mapping.map_set import merged_fai
+    from server.positioning.radio.accuracy_indicators import FaiParams, spreads
 
     maps = build_map_set(records, parts={FAI})
     assert maps.radio is not None

@@ -25,7 +25,7 @@ from server.positioning.mapping.selection import (
     SelectionParams,
     select_inertial,
 )
-from server.positioning.pdr import G, PdrParams
+from server.positioning.motion.pdr import G, PdrParams
 
 T0 = 1_700_000_000_000
 F_HZ = 1.0 / 1.3  # two periods per 2.6 s window

@@ -7,9 +7,6 @@ import itertools
 import numpy as np
 import pytest
 
-from server.positioning.fingerprint import RadioMap
-from server.positioning.floor_graph import DECISION, FloorGraph, grid_graph, grid_pairs, plan_graph
-from server.positioning.floorplan import walkable_at
 from server.positioning.mapping.survey_plan import (
     AccessPoint,
     noise_distance,
@@ -17,6 +14,15 @@ from server.positioning.mapping.survey_plan import (
     plan,
     survey_plan,
 )
+from server.positioning.plan.floor_plan import walkable_at
+from server.positioning.plan.navigation_graph import (
+    DECISION,
+    FloorGraph,
+    grid_graph,
+    grid_pairs,
+    plan_graph,
+)
+from server.positioning.radio.fingerprints import RadioMap
 from tests.positioning.toy_plans import ROOM, room
 
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from server.positioning.fingerprint import RadioMap
 from server.positioning.mapping.wifi_anchors import AnchorNodeParams, anchor_nodes
+from server.positioning.radio.fingerprints import RadioMap
 
 AP = np.array([12.0, 7.0])
 

@@ -1,0 +1,3 @@
+"""The magnetic field as evidence: a floor's field map (``field_grid``), distances between
+a walk's magnitudes and the map's (``sequence_distance``), and wireless-aided profile
+matching (``profile_matching``, ``papers/000_*``)."""

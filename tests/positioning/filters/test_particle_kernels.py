@@ -1,0 +1,221 @@
+"""The compiled kernels against their numpy references, on random inputs."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from numpy.typing import NDArray
+
+from server.positioning.filters import particle_kernels
+from server.positioning.filters.particle import (
+    mass_centered_update,
+    mass_centered_update_reference,
+    move_ends_reference,
+    step,
+    step_on_floor,
+)
+from server.positioning.filters.particle_cloud import ParticleParams, from_points
+from server.positioning.magnetic.field_grid import MIN_CORNER_WEIGHT, MagneticGrid, _bilinear
+from server.positioning.magnetic.sequence_distance import dtw_distance, mmse
+from server.positioning.plan.floor_plan import valid_moves, valid_moves_reference
+from server.positioning.plan.wall_index import moves_cross
+from tests.positioning.toy_plans import room
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), reach=st.sampled_from([0.3, 1.0, 4.0]))
+def test_moves_cross_matches_the_numpy_index(seed: int, reach: float) -> None:
+    """Random moves over the toy room, short and long, some ending exactly on walls."""
+    rng = np.random.default_rng(seed)
+    index = room()._index
+    n = 400
+    a = rng.uniform([-2, -2], [22, 12], (n, 2))
+    b = a + rng.normal(0, reach, (n, 2))
+    b[:20, 0] = 10.0  # onto the thin wall at x = 10
+    b[20:40] = a[20:40]  # no move at all
+    expected = moves_cross(index, a, b)
+    got = particle_kernels.moves_cross(a, b, *index.kernel_args())
+    np.testing.assert_array_equal(got, expected)
+    assert expected.any()
+    assert not expected.all()
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1))
+def test_bilinear_matches_the_numpy_sampling(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    ny, nx = rng.integers(1, 12, 2)
+    field = rng.uniform(20, 60, (ny, nx))
+    field[rng.random((ny, nx)) < 0.3] = np.nan  # unknown cells
+    grid = MagneticGrid(
+        origin_m=(1.0, -2.0),
+        cell_m=0.5,
+        magnitude=field.astype(np.float32),
+        var=np.zeros((ny, nx), np.float32),
+        count=np.ones((ny, nx), np.int32),
+        horizontal=None,
+        vertical=None,
+    )
+    pts = rng.uniform([0, -3], [1 + 0.5 * nx + 1, -2 + 0.5 * ny + 1], (300, 2))
+    filled, known = grid.sampling_arrays("magnitude")
+    got = particle_kernels.bilinear(
+        pts, 1.0, -2.0, 0.5, int(nx), int(ny), filled, known, MIN_CORNER_WEIGHT
+    )
+    np.testing.assert_allclose(got, _bilinear(grid, pts, "magnitude"), rtol=0, atol=1e-12)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), w=st.integers(2, 6))
+def test_mmse_matches_eq_b(seed: int, w: int) -> None:
+    rng = np.random.default_rng(seed)
+    obs = rng.uniform(30, 60, w)
+    cand = rng.uniform(30, 60, (200, w))
+    cand[rng.random((200, w)) < 0.05] = np.nan
+    np.testing.assert_allclose(particle_kernels.mmse(obs, cand), mmse(obs, cand), rtol=1e-12)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), w=st.integers(1, 12), m=st.integers(1, 12))
+def test_dtw_matches_the_numpy_distance(seed: int, w: int, m: int) -> None:
+    rng = np.random.default_rng(seed)
+    obs = rng.uniform(30, 60, w)
+    cand = rng.uniform(30, 60, (100, m))
+    cand[rng.random((100, m)) < 0.02] = np.nan
+    np.testing.assert_allclose(particle_kernels.dtw(obs, cand), dtw_distance(obs, cand), rtol=1e-12)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), reach=st.sampled_from([0.2, 0.7, 3.0]))
+def test_valid_moves_matches_the_numpy_reference(seed: int, reach: float) -> None:
+    rng = np.random.default_rng(seed)
+    n = 500
+    a = rng.uniform([-1, -1], [21, 11], (n, 2))
+    b = a + rng.normal(0, reach, (n, 2))
+    a[:5, 0] = np.nan  # non-finite starts and ends
+    b[5:10, 1] = np.inf
+    got = valid_moves(room(), a, b)
+    np.testing.assert_array_equal(got, valid_moves_reference(room(), a, b))
+    assert got.any()
+    assert not got.all()
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1))
+def test_step_ends_match_the_numpy_move(seed: int) -> None:
+    """Same float64 arithmetic; sin and cos may differ in the last bit between numpy and
+    the compiled math library, so the float32 ends agree to one float32 step."""
+    rng = np.random.default_rng(seed)
+    a = rng.uniform(-500, 500, (1000, 2)).astype(np.float32).astype(np.float64)
+    noise = rng.standard_normal((2, 1000))
+    params = ParticleParams()
+    got = particle_kernels.step_ends(a, noise, 0.7, 1.3, params.step_sd_m, params.heading_sd_rad)
+    expected = move_ends_reference(a, noise, 0.7, 1.3, params)
+    assert got.dtype == expected.dtype == np.float32
+    np.testing.assert_array_max_ulp(got, expected, maxulp=1)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), dead=st.sampled_from([0.0, 0.1]), count=st.integers(0, 4))
+def test_mass_centered_weights_match_the_numpy_update(seed: int, dead: float, count: int) -> None:
+    """Random clouds with dead particles and unknown map cells, windows filling up."""
+    rng = np.random.default_rng(seed)
+    params = ParticleParams(n=500, window=3)
+    cloud = from_points(rng.uniform(0, 20, (500, 2)), 0, params.window)
+    log_w = rng.normal(0, 1, 500)
+    log_w[rng.random(500) < dead] = -np.inf
+    mags = rng.uniform(30, 60, cloud.mags.shape).astype(np.float32)
+    mags[rng.random(mags.shape) < 0.05] = np.nan
+    cloud = replace(
+        cloud,
+        log_w=log_w.astype(np.float32),
+        mags=mags,
+        observed=rng.uniform(30, 60, 4).astype(np.float32),
+        count=count,
+    )
+
+    def sample_map(_floor: object, xy: NDArray[np.float64]) -> NDArray[np.float64]:
+        m: NDArray[np.float64] = 40 + np.sin(xy[:, 0]) * 5
+        m[xy[:, 1] > 18] = np.nan
+        return m
+
+    got = mass_centered_update(cloud, 44.0, sample_map, params)
+    expected = mass_centered_update_reference(cloud, 44.0, sample_map, params)
+    np.testing.assert_array_equal(got.mags, expected.mags)
+    np.testing.assert_array_equal(got.observed, expected.observed)
+    assert got.count == expected.count
+    np.testing.assert_array_max_ulp(got.log_w, expected.log_w, maxulp=2)
+
+
+def _grid(rng: np.random.Generator, unknown: float) -> MagneticGrid:
+    """A field over the toy room (and a little beyond), some cells unknown."""
+    ny, nx = 24, 44
+    field = rng.uniform(30, 60, (ny, nx))
+    field[rng.random((ny, nx)) < unknown] = np.nan
+    return MagneticGrid(
+        origin_m=(-1.0, -1.0),
+        cell_m=0.5,
+        magnitude=field.astype(np.float32),
+        var=np.zeros((ny, nx), np.float32),
+        count=np.ones((ny, nx), np.int32),
+        horizontal=None,
+        vertical=None,
+    )
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    dead=st.sampled_from([0.0, 0.1, 1.0]),
+    count=st.integers(0, 4),
+    weigh=st.booleans(),
+    maps=st.sampled_from(["both", "plan", "grid", "none"]),
+    ess_fraction=st.sampled_from([0.5, 1.0]),
+)
+def test_step_on_floor_matches_the_numpy_filter_step(
+    seed: int, dead: float, count: int, weigh: bool, maps: str, ess_fraction: float
+) -> None:
+    """The fused step against ``step`` with every part in numpy: random clouds in the toy
+    room (dead particles, unknown map cells), steps long enough to meet the walls, with
+    and without a plan, a map and a measured field, resampling or not."""
+    rng = np.random.default_rng(seed)
+    params = ParticleParams(n=600, window=3, resample_ess_fraction=ess_fraction)
+    plan = room() if maps in ("both", "plan") else None
+    grid = _grid(rng, 0.1) if maps in ("both", "grid") else None
+    cloud = from_points(rng.uniform([0.2, 0.2], [19.8, 9.8], (600, 2)), 0, params.window)
+    log_w = rng.normal(0, 1, 600)
+    log_w[rng.random(600) < dead] = -np.inf
+    mags = rng.uniform(30, 60, cloud.mags.shape).astype(np.float32)
+    cloud = replace(
+        cloud,
+        log_w=log_w.astype(np.float32),
+        mags=mags,
+        observed=rng.uniform(30, 60, 4).astype(np.float32),
+        count=count,
+    )
+    length, heading = float(rng.uniform(0.3, 2.5)), float(rng.uniform(-4, 4))
+    observed = 44.0 if weigh else None
+
+    def valid_move(_f: object, a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.bool_]:
+        if plan is None:
+            return np.asarray(np.isfinite(b).all(axis=1), dtype=np.bool_)
+        return valid_moves_reference(plan, a, b)
+
+    def sample_map(_f: object, xy: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.full(len(xy), np.nan) if grid is None else _bilinear(grid, xy, "magnitude")
+
+    expected = step(
+        cloud, length, heading, observed, np.random.default_rng([seed, 1]), params,
+        valid_move, sample_map, compiled=False,
+    )  # fmt: skip
+    got = step_on_floor(
+        cloud, length, heading, observed, np.random.default_rng([seed, 1]), params, plan, grid
+    )
+    np.testing.assert_array_equal(got.xy, expected.xy)
+    np.testing.assert_array_equal(got.floor, expected.floor)
+    np.testing.assert_array_equal(got.mags, expected.mags)
+    np.testing.assert_array_equal(got.observed, expected.observed)
+    assert got.count == expected.count
+    np.testing.assert_array_max_ulp(got.log_w, expected.log_w, maxulp=2)
