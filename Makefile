@@ -10,10 +10,11 @@ ARGS ?=
 
 .PHONY: demo test test-embedded test-production lint openapi clean
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml lab/pyproject.toml client_sim/pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[dev]'
+	# the service, its simulator and its research harness: three distributions
+	$(BIN)/pip install --quiet -e '.[dev]' -e ./client_sim -e './lab[plots]'
 	touch $(STAMP)
 
 demo: $(STAMP)
@@ -24,12 +25,12 @@ test: test-embedded test-production
 test-embedded: $(STAMP)
 	env -u INDOORPOS_DATABASE_URL -u INDOORPOS_REDIS_URL $(BIN)/pytest -q
 
-# the core's own tests (tests/positioning, tests/datasets) touch no store: they run once,
+# the core's own tests (tests/positioning, tests/lab/datasets) touch no store: they run once,
 # in the embedded pass
 test-production: $(STAMP)
 	INDOORPOS_DATABASE_URL=$(PG_URL) INDOORPOS_REDIS_URL=$(REDIS_URL) \
 	INDOORPOS_TEST_REQUIRE_REDIS=1 $(BIN)/pytest -q \
-	--ignore=tests/positioning --ignore=tests/datasets
+	--ignore=tests/positioning --ignore=tests/lab/datasets
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

@@ -15,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-from server.datasets.ilc import read_trace
+from lab.datasets.ilc import read_trace
 from server.positioning.motion.attitude_ekf import AttitudeParams, attitude_ekf, initial_attitude
-from tests.positioning.motion.test_attitude_ekf import generic_attitude_ekf
+from tests.support.attitude_reference import generic_attitude_ekf
 
 TRACE = Path("../shared/data/ilc20-sample/site2/F1/path_data_files/5dd365f944333f00067aa11a.txt.xz")
 

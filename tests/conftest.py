@@ -1,9 +1,11 @@
-"""Shared fixtures: settings for the mode under test, a migrated database, the app in-process.
+"""Shared fixtures: settings for the mode under test, a migrated database, the app in-process,
+the app on a real port, a Redis Cluster, and the ILC sample trace of the recorded datasets.
 
 The suite runs twice (see the README): on the embedded defaults (SQLite file, in-memory
 session store) and on the production shape when ``INDOORPOS_DATABASE_URL`` and
 ``INDOORPOS_REDIS_URL`` are set (real PostgreSQL and Redis); the core's tests, which touch
-no store, run in the first only (the Makefile).
+no store, run in the first only (the Makefile). The helpers behind these fixtures are in
+``tests.support``.
 """
 
 from __future__ import annotations
@@ -21,9 +23,11 @@ from pydantic import SecretStr
 from server.app import create_app
 from server.config import Settings
 from server.storage import db
-from tests.redis_cluster import start_cluster
-
-ADMIN_KEY = "test-admin-key"
+from server.storage.ilc_trace_format import IlcWalk, read_trace
+from tests.support.admin_key import ADMIN_KEY
+from tests.support.datasets import SAMPLE_ID, dataset_dir
+from tests.support.live_server import serve
+from tests.support.redis_cluster import start_cluster
 
 
 def _reset_postgres(url: str) -> None:
@@ -84,5 +88,35 @@ def admin() -> dict[str, str]:
 
 @pytest.fixture(scope="session")
 def redis_cluster_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
-    """A 3-node Redis Cluster for the run (``tests.redis_cluster``); its URL."""
+    """A 3-node Redis Cluster for the run (``tests.support.redis_cluster``); its URL."""
     yield from start_cluster(tmp_path_factory)
+
+
+@pytest.fixture(scope="session")
+def live_url(settings: Settings) -> Iterator[str]:
+    """The app of ``settings`` on a loopback port, for WebSocket and simulator tests."""
+    yield from serve(settings)
+
+
+# the ILC sample trace, which the dataset readers', the walks' and the trace format's
+# tests share (the UJI and IPIN fixtures: tests/lab/datasets/conftest.py)
+
+
+@pytest.fixture(scope="session")
+def ilc_dir() -> Path:
+    return dataset_dir("ilc20-sample")
+
+
+@pytest.fixture(scope="module")
+def raw_path(ilc_dir: Path) -> Path:
+    return ilc_dir / "sample_raw" / f"{SAMPLE_ID}.txt"
+
+
+@pytest.fixture(scope="module")
+def raw_lines(raw_path: Path) -> list[str]:
+    return raw_path.read_text(encoding="utf-8").splitlines()
+
+
+@pytest.fixture(scope="module")
+def raw_trace(raw_path: Path) -> IlcWalk:
+    return read_trace(raw_path)

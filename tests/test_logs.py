@@ -16,9 +16,8 @@ from websockets.asyncio.client import connect
 
 from server import logs
 from server.services import batches as batch_service
-from tests.api.toy_site import build_toy_site
-from tests.conftest import ADMIN_KEY
-from tests.e2e.conftest import live_url  # noqa: F401  (the real server the socket test needs)
+from tests.support.admin_key import ADMIN_KEY
+from tests.support.toy_site import build_toy_site
 
 
 @pytest.fixture
@@ -143,7 +142,7 @@ def test_an_answered_batch_is_logged_at_debug_only(
 
 
 async def test_a_failed_batch_on_the_live_socket_is_logged_with_its_session(
-    live_url: str,  # noqa: F811
+    live_url: str,
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     out = io.StringIO()

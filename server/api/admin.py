@@ -44,6 +44,7 @@ from server.api.schemas.sites import (
     SiteList,
     SiteRead,
 )
+from server.positioning.mapping.survey_points import SurveyPointData
 from server.services import device_offsets, magnetic_maps, maps, sites
 
 VersionPath = Annotated[int, Path(ge=1, le=2**31 - 1, description="map version number")]
@@ -188,7 +189,7 @@ async def get_floor_plan(floor_id: IdPath, s: SqlDep) -> FloorPlan:
 )
 async def post_survey(building_id: IdPath, body: SurveyIn, s: SqlDep) -> RadioMapRead:
     points = [
-        maps.SurveyPointData(
+        SurveyPointData(
             x_m=p.x_m,
             y_m=p.y_m,
             floor_level=p.floor,

@@ -10,6 +10,7 @@ from fastapi import APIRouter, Query
 from server.api.deps import IdPath, SqlDep, ViewerDep
 from server.api.gated_route import GatedRoute
 from server.api.schemas.map_quality import MapQualityRead, SurveyPlanRead
+from server.positioning.mapping.map_quality import QualityParams
 from server.services import map_quality, survey_plans
 
 router = APIRouter(prefix="/v1", tags=["admin"], dependencies=[ViewerDep], route_class=GatedRoute)
@@ -34,9 +35,7 @@ async def get_map_quality(
 ) -> MapQualityRead:
     """Coverage, cell sampling, freshness and emitters of the floor's current radio and
     magnetic maps. A floor without maps answers with nulls and zeros."""
-    params = map_quality.QualityParams(
-        max_emitters=max_emitters, retired_after_days=retired_after_days
-    )
+    params = QualityParams(max_emitters=max_emitters, retired_after_days=retired_after_days)
     quality = await map_quality.floor_map_quality(s, floor_id, params)
     return MapQualityRead.model_validate(quality, from_attributes=True)
 

@@ -35,9 +35,11 @@ from server.api.gated_route import GatedRoute
 from server.api.schemas.common import ID_PATTERN, DeviceModel
 from server.api.schemas.pages import CREATED, encode_cursor
 from server.api.schemas.uploads import UploadList, UploadRead, UploadStatus, UploadTraceIn
-from server.services import limits, traces, uploads
+from server.positioning.model.walk import trace_from_events
+from server.services import limits, uploads
 from server.services.errors import Invalid, TooLarge, not_found
 from server.services.upload_payloads import ILC_TEXT
+from server.storage import trace_codec
 
 router = APIRouter(prefix="/v1", tags=["uploads"], route_class=GatedRoute)
 log = logging.getLogger("indoorpos.api.uploads")
@@ -80,13 +82,13 @@ def _decompress(data: bytes, limit: int) -> bytes:
 
 def _events_trace(payload: bytes) -> bytes:
     """A JSON walk (``UploadTraceIn``), validated (422 naming the field) and stored in the
-    shape the map builder reads (``services.traces``)."""
+    shape the map builder reads (``storage.trace_codec``)."""
     try:
         walk = UploadTraceIn.model_validate_json(payload)
     except ValidationError as exc:
         raise RequestValidationError(exc.errors()) from None
     anchors = [(a.t, a.x_m, a.y_m) for a in walk.anchors]
-    return traces.encode_trace(traces.trace_from_events(to_events(walk.events), anchors))
+    return trace_codec.encode_trace(trace_from_events(to_events(walk.events), anchors))
 
 
 @router.post(
@@ -123,7 +125,7 @@ async def create_upload(
     await limits.check(rt, "uploads", client_address(request), principal.key_id)
     limit = rt.settings.upload_max_bytes
     media = content_type.split(";", 1)[0].strip().lower()
-    if media == traces.CONTENT_TYPE:  # our stored shape: made here from validated input only
+    if media == trace_codec.CONTENT_TYPE:  # our stored shape: made here from validated input only
         raise Invalid(
             f"{media} is internal: send application/json, text/plain or application/x-xz",
             field="content-type",
@@ -134,7 +136,7 @@ async def create_upload(
         media = ILC_TEXT if media in XZ_TYPES else media
     if media == "application/json":
         payload = await anyio.to_thread.run_sync(_events_trace, payload)
-        media = traces.CONTENT_TYPE
+        media = trace_codec.CONTENT_TYPE
     new = uploads.NewUpload(
         site_id=site_id,
         building_id=building_id,

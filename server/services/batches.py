@@ -28,6 +28,7 @@ import numpy as np
 import orjson
 
 from server.positioning.engines import NEEDS_GRAPHS, get_engine
+from server.positioning.engines.shared.site_maps import SiteMaps
 from server.positioning.model.events import (
     BleEvent,
     Event,
@@ -39,8 +40,8 @@ from server.positioning.model.events import (
     WifiEvent,
 )
 from server.positioning.model.params import Params
-from server.positioning.model.site_maps import SiteMaps
-from server.services import engine_settings, limits, telemetry, traces
+from server.positioning.model.walk import trace_from_events
+from server.services import engine_settings, limits, telemetry
 from server.services.device_offsets import on_common_level
 from server.services.errors import Conflict, Invalid
 from server.services.maps import site_maps, with_graphs
@@ -53,6 +54,7 @@ from server.services.session_records import (
     fix_to_wire,
 )
 from server.services.sessions import load_state, no_session, now_ms, token_digest
+from server.storage import trace_codec
 from server.storage.repositories import sessions as repo
 from server.storage.session_store import BucketEmpty
 
@@ -178,7 +180,7 @@ async def _attempt(
     if maps is None or meta.contribute:
         if meta.contribute:  # CPU work (compression): off the event loop
             walk = await anyio.to_thread.run_sync(
-                lambda: traces.encode_trace(traces.trace_from_events(events))
+                lambda: trace_codec.encode_trace(trace_from_events(events))
             )
         async with rt.transaction() as s:
             maps = await site_maps(s, rt.maps, meta.site_id)

@@ -24,10 +24,10 @@ from typing import Any
 from sqlalchemy import delete, select, update
 from sqlalchemy.ext.asyncio import AsyncSession
 
+from server.positioning.engines.shared.site_maps import FloorRef
 from server.positioning.mapping import map_set
 from server.positioning.mapping.map_set import SiteRecords, SurveyedScans
 from server.positioning.model.events import radio_key
-from server.positioning.model.site_maps import FloorRef
 from server.positioning.plan.navigation_graph import FloorGraph
 from server.positioning.radio.fingerprints import MISSING_DBM, RadioMap, in_place_order
 from server.services.maps import BUILT, FAILED, PENDING, SUPERSEDED, owe_build, stored_radio_map

@@ -14,14 +14,15 @@ import anyio
 import numpy as np
 from sqlalchemy.ext.asyncio import AsyncSession
 
+from server.positioning.engines.shared.site_maps import FloorRef, SiteMaps
 from server.positioning.magnetic.field_grid import MagneticMap
 from server.positioning.mapping.device_offsets import DeviceOffset
 from server.positioning.mapping.gridding import build_radio_map, fold_radio_maps
 from server.positioning.mapping.magnetic_gridding import MagneticSamples
 from server.positioning.mapping.map_set import merged_fai, most_learned, parse_plans
 from server.positioning.mapping.matrices import merge_radio_maps, readings_matrix
+from server.positioning.mapping.survey_points import SurveyPointData
 from server.positioning.model.events import radio_key
-from server.positioning.model.site_maps import FloorRef, SiteMaps
 from server.positioning.plan.anchors import anchors_from_plan
 from server.positioning.plan.geojson_plan import plan_extent
 from server.positioning.plan.navigation_graph import FloorGraph, attach, site_graphs
@@ -50,22 +51,6 @@ PENDING = "pending"
 BUILT = "built"
 FAILED = "failed"
 SUPERSEDED = "superseded"
-
-
-@dataclass(frozen=True)
-class SurveyPointData:
-    x_m: float
-    y_m: float
-    floor_level: int
-    t_ms: int | None
-    wifi: Sequence[tuple[str, float]]
-    ble: Sequence[tuple[str, float]]
-    mag_ut: tuple[float, float, float] | None
-    walk: str | None = None  # the recorded walk the point was taken on
-    route: str | None = None  # walks along one route share it
-    # each reading's age in ms, parallel to ``wifi`` / ``ble`` (empty or None: fresh)
-    wifi_age_ms: Sequence[float | None] = ()
-    ble_age_ms: Sequence[float | None] = ()
 
 
 def stored_readings(

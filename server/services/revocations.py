@@ -28,23 +28,36 @@ import asyncio
 import contextvars
 import logging
 from collections.abc import AsyncIterator, Iterable
-from contextlib import asynccontextmanager
+from contextlib import AbstractAsyncContextManager, asynccontextmanager
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import anyio
+from sqlalchemy.ext.asyncio import AsyncSession
 
+from server.config import Settings
 from server.services import auth, telemetry
 from server.storage.models import ApiKey
 from server.storage.repositories import api_keys as key_repo
-
-if TYPE_CHECKING:
-    from server.services.runtime import Runtime
+from server.storage.session_store import SessionStore
 
 SWEEP_S = 5.0  # how often a process looks up the keys it watches, whatever the channel says
 RETRY_S = (0.5, 10.0)  # first and longest wait before subscribing again after a failure
 STOP_WAIT_S = 5.0  # how long the last watch to leave waits for the listener to stop
 logger = logging.getLogger(__name__)
+
+
+class Runtime(Protocol):
+    """What watching keys needs of the process's runtime (``runtime.Runtime``, which holds
+    this module's ``KeyWatches``): SQL sessions, the session store (its key channel), the
+    settings and the watches."""
+
+    settings: Settings
+    store: SessionStore
+    key_watches: KeyWatches
+
+    def read(self) -> AbstractAsyncContextManager[AsyncSession]: ...
+    def transaction(self) -> AbstractAsyncContextManager[AsyncSession]: ...
 
 
 @dataclass(eq=False)

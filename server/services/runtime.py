@@ -16,8 +16,11 @@ from server.services.maps import MapCache
 from server.services.revocations import KeyWatches
 from server.services.session_cache import AnySessionCache, SessionCache
 from server.storage import db
+from server.storage.memory_session_store import MemorySessionStore
 from server.storage.rate_limits import RateLimiter, make_rate_limiter
-from server.storage.session_store import SessionStore, make_session_store
+from server.storage.redis_client import redis_client
+from server.storage.redis_session_store import RedisSessionStore
+from server.storage.session_store import SessionStore
 from server.storage.upload_queue import UploadQueue, make_upload_queue
 
 
@@ -100,3 +103,11 @@ async def check_ready(rt: Runtime) -> None:
     """Raise when the database or the session store does not answer."""
     await db.ping(rt.engine)
     await rt.store.ping()
+
+
+def make_session_store(redis_url: str | None) -> SessionStore:
+    """Redis when a URL is given (production shape; ``redis_client``: one server or a
+    cluster), otherwise in memory (embedded)."""
+    if not redis_url:
+        return MemorySessionStore()
+    return RedisSessionStore(redis_client(redis_url))

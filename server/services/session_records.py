@@ -29,10 +29,10 @@ from typing import Any
 
 import numpy as np
 
-from server.positioning.engines.spec import Engine
+from server.positioning.engines.shared.site_maps import SiteMaps
+from server.positioning.engines.shared.spec import Engine
 from server.positioning.model import state_codec
 from server.positioning.model.events import Event, Fix, ImuEvent
-from server.positioning.model.site_maps import SiteMaps
 from server.positioning.model.state_codec import StateError
 from server.storage.codec import (
     CodecError,

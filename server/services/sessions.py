@@ -45,7 +45,8 @@ import anyio
 import orjson
 
 from server.positioning.engines import get_engine
-from server.services import auth, engine_settings, traces, uploads
+from server.positioning.model.walk import join_traces
+from server.services import auth, engine_settings, uploads
 from server.services.errors import Forbidden, Invalid, NotFound
 from server.services.maps import site_maps
 from server.services.runtime import Runtime
@@ -57,6 +58,7 @@ from server.services.session_records import (
     StaleEngineState,
     active_since,
 )
+from server.storage import trace_codec
 from server.storage.codec import CodecError
 from server.storage.models import SessionRecord, utcnow
 from server.storage.repositories import sessions as repo
@@ -404,14 +406,16 @@ async def _offer_walk(
         if not kept:
             return None
         payload = await anyio.to_thread.run_sync(
-            lambda: traces.encode_trace(traces.join_traces([traces.decode_trace(b) for b in kept]))
+            lambda: trace_codec.encode_trace(
+                join_traces([trace_codec.decode_trace(b) for b in kept])
+            )
         )
         new = uploads.NewUpload(
             site_id=meta.site_id,
             building_id=last_fix.get("building_id"),
             floor_level=last_fix.get("floor"),
             device_model=meta.device_model or None,
-            content_type=traces.CONTENT_TYPE,
+            content_type=trace_codec.CONTENT_TYPE,
             payload=payload,
             idempotency_key=f"session:{session_id}",
         )

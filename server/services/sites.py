@@ -13,7 +13,8 @@ from typing import Any
 import anyio
 from sqlalchemy.ext.asyncio import AsyncSession
 
-from server.positioning.plan.geojson_plan import PlanError, validate_plan
+from server.positioning.plan.geojson_format import PlanError
+from server.positioning.plan.geojson_validation import validate_plan
 from server.services.errors import Conflict, Invalid, NotFound
 from server.services.maps import PENDING, owe_build
 from server.services.session_records import active_since
@@ -85,7 +86,7 @@ async def get_floor(s: AsyncSession, floor_id: str) -> Floor:
 
 
 async def put_floor_plan(s: AsyncSession, floor_id: str, plan: dict[str, Any]) -> Floor:
-    """Store a floor's plan once it passes ``geojson_plan.validate_plan`` (with the
+    """Store a floor's plan once it passes ``geojson_validation.validate_plan`` (with the
     building's geo-reference, if any, to tell degrees from metres); Invalid naming the
     feature and the property otherwise. IMDF-style features are stored with the kind
     they map to. The building's current radio map version is built again by the worker

@@ -35,7 +35,7 @@ import threading
 import time
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, Literal, ParamSpec, TypeVar
+from typing import Literal, ParamSpec, Protocol, TypeVar
 
 from prometheus_client import (
     CONTENT_TYPE_LATEST,
@@ -52,8 +52,15 @@ from sqlalchemy.exc import DBAPIError, InterfaceError, OperationalError
 
 from server.positioning.model.events import Event, StepEvent
 
-if TYPE_CHECKING:  # sessions imports this module
-    from server.services.batches import BatchResult
+
+class Answered(Protocol):
+    """What counting needs of an answered batch (``batches.BatchResult``)."""
+
+    @property
+    def replayed(self) -> bool: ...
+    @property
+    def made(self) -> int: ...
+
 
 P = ParamSpec("P")
 R = TypeVar("R")
@@ -158,7 +165,7 @@ def active_sessions() -> int:
 def count_batch(
     transport: Transport,
     events: Sequence[Event],
-    result: BatchResult,
+    result: Answered,
     *,
     session_id: str,
     idle_s: float,

@@ -10,13 +10,12 @@ from __future__ import annotations
 
 import time
 from collections import OrderedDict
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
 
 import anyio
 from sqlalchemy.ext.asyncio import AsyncSession
 
 from server.positioning.mapping.anchors import GeoReference
+from server.positioning.mapping.walk_contribution import AnchorContext, Beacon
 from server.positioning.mapping.wifi_anchors import anchor_nodes
 from server.positioning.plan.anchors import anchors_from_plan
 from server.positioning.plan.geojson_plan import plan_extent
@@ -25,32 +24,6 @@ from server.services.maps import stored_radio_map
 from server.storage.models import Upload
 from server.storage.repositories import maps as map_repo
 from server.storage.repositories import sites as site_repo
-
-
-@dataclass(frozen=True)
-class Beacon:
-    """An emitter at a known place: a BLE beacon a floor plan marks (an entrance, an
-    elevator; ``papers/003_*`` IV-B), or one of the floor's own WiFi APs located from the
-    radio map (IV-E2). A walk passes it where its smoothed RSS peaks at or above
-    ``threshold_dbm`` (None: ``mapping.anchors``' default for beacons)."""
-
-    emitter: str  # lower-case id, as scans carry it
-    xy_m: tuple[float, float]
-    level: int
-    kind: str = "ble"  # or "wifi"
-    threshold_dbm: float | None = None
-
-
-@dataclass(frozen=True)
-class AnchorContext:
-    """What an upload's building offers to anchor a walk: beacons and anchor APs, and
-    the geo-reference that turns satellite fixes into building coordinates."""
-
-    beacons: Sequence[Beacon] = ()
-    geo: GeoReference | None = None
-    # per floor level, the plan's extent: samples placed farther out than PLAN_MARGIN_M
-    # are not used (a wrong anchor must not stretch a floor's maps across a city)
-    extents: Mapping[int, tuple[float, float, float, float]] = field(default_factory=dict)
 
 
 async def upload_building_id(s: AsyncSession, upload: Upload) -> str | None:

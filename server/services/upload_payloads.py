@@ -1,27 +1,27 @@
 """What an upload may carry, and the walk read from it.
 
 An ILC 2.0 path file (``text/plain``; the API decompresses ``application/x-xz`` first),
-read strictly (``ilc_trace.parse_trace_text``): the first record that cannot be read is
+read strictly (``ilc_trace_format.parse_trace_text``): the first record that cannot be read is
 refused with its line number, so the sender hears what is wrong. Or our own stored shape
-(``traces.CONTENT_TYPE``), which the API makes from validated events only.
+(``trace_codec.CONTENT_TYPE``), which the API makes from validated events only.
 """
 
 from __future__ import annotations
 
-from server.datasets.ilc_trace import TraceFormatError, parse_trace_text
-from server.datasets.walk import Walk
-from server.services import traces
+from server.positioning.model.walk import Walk
 from server.services.errors import Invalid
 from server.storage.codec import CodecError
+from server.storage.ilc_trace_format import TraceFormatError, parse_trace_text
+from server.storage.trace_codec import CONTENT_TYPE, decode_trace
 
 ILC_TEXT = "text/plain"
 
 
 def parse_payload(content_type: str, payload: bytes, path_id: str) -> Walk:
     """The trace an upload carries; :class:`Invalid` naming the line when it cannot be read."""
-    if content_type == traces.CONTENT_TYPE:
+    if content_type == CONTENT_TYPE:
         try:
-            return traces.decode_trace(payload, path_id)
+            return decode_trace(payload, path_id)
         except (CodecError, KeyError) as exc:
             raise Invalid(f"not a stored trace: {exc}", field="body") from None
     if content_type != ILC_TEXT:

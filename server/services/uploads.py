@@ -29,11 +29,11 @@ from datetime import UTC, datetime, timedelta
 import anyio
 from sqlalchemy.ext.asyncio import AsyncSession
 
+from server.positioning.mapping.walk_contribution import Contribution
 from server.services.errors import Conflict, Invalid, NotFound, not_found
 from server.services.magnetic_maps import fold_sources
 from server.services.maps import add_survey
 from server.services.upload_anchors import upload_building_id
-from server.services.upload_contribution import Contribution
 from server.services.upload_payloads import parse_payload
 from server.storage.models import Floor, Upload
 from server.storage.repositories import sites as site_repo

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
@@ -12,7 +13,14 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.ext.asyncio import AsyncEngine, AsyncSession, async_sessionmaker
 from sqlalchemy.ext.asyncio import create_async_engine as _create_async_engine
 
-MIGRATIONS_DIR = Path(__file__).resolve().parents[2] / "migrations"
+# the alembic scripts: the checkout's migrations/ (a source or editable install), else where
+# the service's wheel puts them (<prefix>/share/indoorpos/migrations)
+_CHECKOUT_MIGRATIONS = Path(__file__).resolve().parents[2] / "migrations"
+MIGRATIONS_DIR = (
+    _CHECKOUT_MIGRATIONS
+    if _CHECKOUT_MIGRATIONS.is_dir()
+    else Path(sys.prefix) / "share" / "indoorpos" / "migrations"
+)
 
 
 def async_url(url: str) -> str:

@@ -190,17 +190,3 @@ async def key_ids(messages: AsyncIterator[bytes]) -> AsyncIterator[str]:
     """The API key ids of the revoked channel's messages."""
     async for message in messages:
         yield message.decode()
-
-
-def make_session_store(redis_url: str | None) -> SessionStore:
-    """Redis when a URL is given (production shape; ``redis_client``: one server or a
-    cluster), otherwise in memory (embedded)."""
-    # imported here: each implementation imports this module's types
-    if not redis_url:
-        from server.storage.memory_session_store import MemorySessionStore
-
-        return MemorySessionStore()
-    from server.storage.redis_client import redis_client
-    from server.storage.redis_session_store import RedisSessionStore
-
-    return RedisSessionStore(redis_client(redis_url))

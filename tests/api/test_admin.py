@@ -5,7 +5,7 @@ from __future__ import annotations
 import httpx
 import pytest
 
-from tests.api.toy_site import build_toy_site, rssi_at, toy_plan
+from tests.support.toy_site import build_toy_site, rssi_at, toy_plan
 
 
 @pytest.mark.parametrize(

@@ -24,8 +24,13 @@ from server.storage.models import (
     Upload,
     utcnow,
 )
-from tests.api.test_admin_lists import _walk
-from tests.api.toy_site import ToySite, build_toy_site, device_headers, rssi_at
+from tests.support.toy_site import (
+    ToySite,
+    build_toy_site,
+    device_headers,
+    rssi_at,
+    walk_upload,
+)
 
 T0 = 1_700_000_000_000
 
@@ -90,7 +95,7 @@ async def test_deleting_a_site_removes_all_it_holds(
 ) -> None:
     await _surveyed_magnetic(client, admin, site.floor_ids[0])
     r = await client.post(
-        "/v1/uploads", params={"site_id": site.site_id}, json=_walk(2.0), headers=admin
+        "/v1/uploads", params={"site_id": site.site_id}, json=walk_upload(2.0), headers=admin
     )
     assert r.status_code == 202, r.text
     upload_id = r.json()["id"]
@@ -151,11 +156,11 @@ async def test_deleting_a_building_keeps_its_site(
     named = await client.post(
         "/v1/uploads",
         params={"site_id": site.site_id, "building_id": site.building_id},
-        json=_walk(2.0),
+        json=walk_upload(2.0),
         headers=admin,
     )
     unnamed = await client.post(
-        "/v1/uploads", params={"site_id": site.site_id}, json=_walk(3.0), headers=admin
+        "/v1/uploads", params={"site_id": site.site_id}, json=walk_upload(3.0), headers=admin
     )
     assert named.status_code == unnamed.status_code == 202
     site_admin = await device_headers(client, admin, ("admin",), site.site_id)

@@ -8,9 +8,7 @@ from typing import Any
 import httpx
 import pytest
 
-from tests.api.toy_site import ToySite, build_toy_site, device_headers, rssi_at
-
-T0 = 1_700_000_000_000
+from tests.support.toy_site import ToySite, build_toy_site, device_headers, walk_upload
 
 
 async def walk(
@@ -150,22 +148,16 @@ async def test_sessions_list_by_site_and_activity(
     assert (await client.get(url, headers=site.device)).status_code == 403
 
 
-def _walk(x0: float) -> dict[str, Any]:
-    """A short walk of our own events with two anchors: an upload the service accepts."""
-    events = [
-        {"type": "wifi", "t": T0 + 1000 * k, "readings": rssi_at(x0 + k, 5, 0)} for k in range(4)
-    ]
-    anchors = [{"t": T0, "x_m": x0, "y_m": 5.0}, {"t": T0 + 3000, "x_m": x0 + 3, "y_m": 5.0}]
-    return {"events": events, "anchors": anchors}
-
-
 async def test_uploads_list_by_site_newest_first(
     client: httpx.AsyncClient, admin: dict[str, str], site: ToySite
 ) -> None:
     made = []
     for i in range(3):
         r = await client.post(
-            "/v1/uploads", params={"site_id": site.site_id}, json=_walk(2.0 + i), headers=admin
+            "/v1/uploads",
+            params={"site_id": site.site_id},
+            json=walk_upload(2.0 + i),
+            headers=admin,
         )
         assert r.status_code == 202, r.text
         made.append(r.json()["id"])

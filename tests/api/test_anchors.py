@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import httpx
 
-from tests.api.toy_site import ToySite, build_toy_site
+from tests.support.toy_site import ToySite, build_toy_site
 
 T0 = 1_700_000_000_000
 

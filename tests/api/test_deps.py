@@ -10,7 +10,7 @@ import httpx
 import pytest
 from fastapi import FastAPI
 
-from tests.api.toy_site import ToySite, build_toy_site, device_headers
+from tests.support.toy_site import ToySite, build_toy_site, device_headers
 
 T0 = 1_700_000_000_000
 MISSING = "0123456789abcdef" * 2

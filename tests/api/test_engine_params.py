@@ -15,8 +15,8 @@ from server.services import batches, engine_settings, sessions
 from server.services.maps import site_maps
 from server.services.session_records import SessionState
 from server.storage.repositories.engine_settings import put_engine_setting
-from tests.api.test_session_rebuild import lose_the_store
-from tests.api.toy_site import ToySite, build_toy_site, rssi_at
+from tests.support.sessions import lose_the_store
+from tests.support.toy_site import ToySite, build_toy_site, rssi_at
 
 T0 = 1_700_000_000_000
 

@@ -8,8 +8,8 @@ from typing import Any
 import httpx
 import pytest
 
-from tests.api.test_sessions import open_session, step
-from tests.api.toy_site import ToySite, build_toy_site, device_headers
+from tests.support.sessions import open_session, step
+from tests.support.toy_site import ToySite, build_toy_site, device_headers
 
 T0 = 1_700_000_000_000
 JSON = {"content-type": "application/json"}

@@ -18,16 +18,15 @@ from hypothesis import strategies as st
 from websockets.asyncio.client import connect
 
 from client_sim.imu import Gait, blocks, synthesize_walk
+from lab.replay import batches
 from server.api import convert
 from server.api.schemas.events import ImuIn
 from server.api.schemas.sessions import MAX_IMU_ROWS_PER_BATCH, LiveBatch
-from server.datasets.ilc_trace import read_trace
-from server.lab.replay import batches
 from server.positioning.model.events import ImuEvent
-from tests.api.toy_site import WIDTH_M, ToySite, build_toy_site, rssi_at
-from tests.conftest import ADMIN_KEY
-from tests.datasets.conftest import dataset_dir
-from tests.e2e.conftest import live_url  # noqa: F401  (the real server the socket test needs)
+from server.storage.ilc_trace_format import read_trace
+from tests.support.admin_key import ADMIN_KEY
+from tests.support.datasets import dataset_dir
+from tests.support.toy_site import WIDTH_M, ToySite, build_toy_site, rssi_at
 
 T0 = 1_700_000_000_000
 G_MS2 = 9.80665
@@ -376,7 +375,7 @@ async def test_raw_imu_in_fixes_out_over_http(client: httpx.AsyncClient, site: T
     check_walk_fixes(fixes)
 
 
-async def test_raw_imu_in_fixes_out_over_the_websocket(live_url: str) -> None:  # noqa: F811
+async def test_raw_imu_in_fixes_out_over_the_websocket(live_url: str) -> None:
     admin = {"Authorization": f"Bearer {ADMIN_KEY}"}
     async with httpx.AsyncClient(base_url=live_url) as client:
         site = await build_toy_site(client, admin)

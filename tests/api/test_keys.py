@@ -6,7 +6,7 @@ from __future__ import annotations
 import httpx
 import pytest
 
-from tests.api.toy_site import ToySite, build_toy_site, device_headers, rssi_at
+from tests.support.toy_site import ToySite, build_toy_site, device_headers, rssi_at
 
 
 @pytest.fixture

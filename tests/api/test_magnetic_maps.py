@@ -13,7 +13,7 @@ from fastapi import FastAPI
 
 from server.positioning.magnetic.field_grid import sample
 from server.services.maps import site_maps
-from tests.api.toy_site import build_toy_site, toy_plan
+from tests.support.toy_site import build_toy_site, toy_plan
 
 T0 = 1_700_000_000_000
 

@@ -19,6 +19,7 @@ from sqlalchemy import select, update
 
 from server import worker
 from server.positioning.engines import get_engine
+from server.positioning.engines.shared.site_maps import SiteMaps
 from server.positioning.engines.wknn import WknnParams
 from server.positioning.mapping.map_set import (
     FAI,
@@ -29,14 +30,13 @@ from server.positioning.mapping.map_set import (
     build_map_set,
 )
 from server.positioning.model.events import RadioReading, WifiEvent, radio_key
-from server.positioning.model.site_maps import SiteMaps
 from server.positioning.radio import fix_error
 from server.positioning.radio.fix_error import FixErrorModel
 from server.services import map_builds
 from server.services.maps import MapCache, site_maps
 from server.services.runtime import Runtime
 from server.storage.models import RadioMapVersion, SurveyPoint
-from tests.api.toy_site import DEPTH_M, LEVELS, WIDTH_M, device_headers, rssi_at
+from tests.support.toy_site import DEPTH_M, LEVELS, WIDTH_M, device_headers, rssi_at
 
 T0 = 1_700_000_000_000
 BUILD_TIMEOUT_S = 20.0

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import httpx
 
-from tests.api.toy_site import build_toy_site, rssi_at
+from tests.support.toy_site import build_toy_site, rssi_at
 
 
 async def test_radio_map_rollback(client: httpx.AsyncClient, admin: dict[str, str]) -> None:

@@ -27,9 +27,8 @@ from server.services import telemetry
 from server.storage.rate_limits import RedisRateLimiter
 from server.storage.redis_session_store import RedisSessionStore
 from server.storage.upload_queue import RedisUploadQueue
-from tests.api.toy_site import ToySite, build_toy_site, rssi_at
-from tests.conftest import ADMIN_KEY
-from tests.e2e.conftest import live_url  # noqa: F401  (the real server the socket test needs)
+from tests.support.admin_key import ADMIN_KEY
+from tests.support.toy_site import ToySite, build_toy_site, rssi_at
 
 T0 = 1_700_000_000_000
 BATCH_ROUTE = "/v1/sessions/{session_id}/batches"
@@ -253,7 +252,7 @@ def _refuse() -> None:
 
 
 async def test_batches_over_the_socket_count_as_ws(
-    live_url: str,  # noqa: F811
+    live_url: str,
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     admin = {"Authorization": f"Bearer {ADMIN_KEY}"}

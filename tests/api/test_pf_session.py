@@ -7,7 +7,7 @@ import math
 
 import httpx
 
-from tests.api.toy_site import build_toy_site, rssi_at
+from tests.support.toy_site import build_toy_site, rssi_at
 
 T0 = 1_700_000_000_000
 

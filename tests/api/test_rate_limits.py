@@ -15,7 +15,7 @@ from fastapi import FastAPI
 from server.app import create_app
 from server.config import Settings
 from server.storage.rate_limits import MemoryRateLimiter
-from tests.api.toy_site import ToySite, build_toy_site, rssi_at
+from tests.support.toy_site import ToySite, build_toy_site, rssi_at
 
 LIMIT = 5
 

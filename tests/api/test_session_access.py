@@ -11,7 +11,7 @@ import httpx
 import pytest
 
 from server.config import Settings
-from tests.api.toy_site import ToySite, build_toy_site, device_headers, rssi_at
+from tests.support.toy_site import ToySite, build_toy_site, device_headers, rssi_at
 
 T0 = 1_700_000_000_000
 TRACK_LEN = 5

@@ -19,7 +19,7 @@ from server.services import batches, engine_settings, sessions
 from server.services.maps import site_maps
 from server.services.runtime import Runtime
 from server.services.session_records import LogEntry, SessionMeta
-from tests.api.toy_site import ToySite, build_toy_site, walk_batch
+from tests.support.toy_site import ToySite, build_toy_site, walk_batch
 
 BATCHES = 2 * batches.SNAPSHOT_EVERY + 3  # two snapshots and a log behind the last one
 ENGINES = ("pf_magnetic", "step_ekf")  # a cloud drawn from the random stream; a Kalman filter

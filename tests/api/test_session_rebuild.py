@@ -3,7 +3,6 @@ it) is rebuilt from SQL at its next call and says so; one that expired or ended 
 
 from __future__ import annotations
 
-import uuid
 from datetime import UTC, datetime, timedelta
 
 import httpx
@@ -11,11 +10,9 @@ import pytest
 from fastapi import FastAPI
 from sqlalchemy import update
 
-from server.services.runtime import Runtime
 from server.storage.models import SessionRecord
-from server.storage.redis_session_store import RedisSessionStore
-from tests.api.test_sessions import open_session, scan, step
-from tests.api.toy_site import ToySite, build_toy_site
+from tests.support.sessions import lose_the_store, open_session, scan, step
+from tests.support.toy_site import ToySite, build_toy_site
 
 T0 = 1_700_000_000_000
 
@@ -23,19 +20,6 @@ T0 = 1_700_000_000_000
 @pytest.fixture
 async def site(client: httpx.AsyncClient, admin: dict[str, str]) -> ToySite:
     return await build_toy_site(client, admin)
-
-
-async def lose_the_store(rt: Runtime, session_id: str, new_epoch: bool = True) -> None:
-    """What a store restarted without its data looks like to this session: its record is
-    gone and (``new_epoch``) the store's epoch marker with it."""
-    rt.states.drop(session_id)
-    await rt.store.delete(session_id)
-    if not new_epoch:
-        return
-    if isinstance(rt.store, RedisSessionStore):
-        await rt.store._client.delete(rt.store.epoch_key())
-    else:
-        rt.store._epoch = uuid.uuid4().hex  # type: ignore[attr-defined]
 
 
 async def _batch(

@@ -11,7 +11,8 @@ import httpx
 import pytest
 
 from server.api.schemas.sessions import BatchOut
-from tests.api.toy_site import ToySite, build_toy_site, rssi_at
+from tests.support.sessions import open_session, scan, step
+from tests.support.toy_site import ToySite, build_toy_site
 
 T0 = 1_700_000_000_000
 
@@ -19,25 +20,6 @@ T0 = 1_700_000_000_000
 @pytest.fixture
 async def site(client: httpx.AsyncClient, admin: dict[str, str]) -> ToySite:
     return await build_toy_site(client, admin)
-
-
-async def open_session(client: httpx.AsyncClient, site: ToySite) -> tuple[str, dict[str, str]]:
-    r = await client.post(
-        "/v1/sessions",
-        json={"site_id": site.site_id, "engine": "step_ekf"},
-        headers=site.device,
-    )
-    assert r.status_code == 201, r.text
-    body = r.json()
-    return body["id"], {"Authorization": f"Bearer {body['token']}"}
-
-
-def scan(t: int, x: float, y: float, level: int = 0) -> dict[str, Any]:
-    return {"type": "wifi", "t": t, "readings": rssi_at(x, y, level)}
-
-
-def step(t: int, heading_rad: float = math.pi / 2, length_m: float = 0.7) -> dict[str, Any]:
-    return {"type": "step", "t": t, "length_m": length_m, "heading_rad": heading_rad}
 
 
 async def test_first_batch_gives_a_fix_near_the_truth(

@@ -8,9 +8,7 @@ import numpy as np
 
 from server.positioning.plan.floor_plan import walkable_at
 from server.positioning.plan.geojson_plan import plan_from_geojson
-from tests.api.test_map_quality import PLAN, _site, surveyed
-
-__all__ = ["surveyed"]  # the fixture, used by name
+from tests.support.quality_floor import PLAN, new_site
 
 
 async def test_plan_of_a_surveyed_floor(
@@ -66,7 +64,7 @@ async def test_a_given_noise_distance_and_bad_input(
 async def test_a_floor_without_a_plan_is_planned_over_its_reference_points(
     client: httpx.AsyncClient, admin: dict[str, str]
 ) -> None:
-    _, building, floors = await _site(client, admin)
+    _, building, floors = await new_site(client, admin)
     points = [
         {
             "x_m": x + 0.5,

@@ -18,8 +18,8 @@ from sqlalchemy import func, select
 
 from server import worker
 from server.storage.models import SurveyPoint, Upload
-from tests.api.toy_site import device_headers
-from tests.datasets.conftest import DATA_DIR
+from tests.support.datasets import DATA_DIR
+from tests.support.toy_site import device_headers
 
 TRACES = DATA_DIR / "ilc20-sample" / "site2" / "F4" / "path_data_files"
 needs_data = pytest.mark.skipif(not TRACES.is_dir(), reason="../shared/data is not beside us")
@@ -262,7 +262,7 @@ def _walk_events() -> list[dict[str, Any]]:
     """A phone walking east along y = 5 m from x = 2 m (raw IMU, ``client_sim.imu``), a
     WiFi scan every 2 s and a BLE scan every 0.5 s hearing two beacons at the ends."""
     from client_sim.imu import Gait, blocks, synthesize_walk
-    from tests.api.toy_site import rssi_at
+    from tests.support.toy_site import rssi_at
 
     trace = synthesize_walk(
         lambda t_s: np.full_like(t_s, math.pi / 2),  # east all the way
@@ -415,7 +415,7 @@ async def test_an_ended_session_offered_for_map_building_becomes_an_upload(
 ) -> None:
     site_id, building_id = await _beacon_site(client, admin)
     # the toy floor's radio map places the phone, so the session knows its floor
-    from tests.api.toy_site import rssi_at
+    from tests.support.toy_site import rssi_at
 
     points = [
         {"x_m": float(x), "y_m": float(y), "floor": 0, "wifi": rssi_at(x, y, 0)}

@@ -4,7 +4,7 @@ Playwright.
 
 Playwright cannot download its own browsers here, so it launches the system's chromium
 (``.ci/run`` installs it); without one the tests are skipped, saying so. Each test leaves
-screenshots under ``test-artifacts/console/`` for review.
+screenshots under ``test-artifacts/console/`` for review (``tests.support.console_browser``).
 """
 
 from __future__ import annotations
@@ -14,35 +14,27 @@ import contextlib
 import os
 import secrets
 import shutil
-import socket
 import subprocess
 import sys
 import time
 from collections.abc import AsyncIterator, Iterator
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import httpx
 import pytest
-from playwright.async_api import Browser, Page, Route, async_playwright
+from playwright.async_api import Browser, Route, async_playwright
 
 from client_sim.api import ApiClient, ApiError, Session
 from client_sim.run import simulated_walker, step_batches, walker_params
-from client_sim.site import ProvisionedSite, provision_site
+from client_sim.site import provision_site
 from client_sim.world import SyntheticWorld, synthesize_world
+from tests.support.console_browser import WALK_LEVEL_INDEX, Server, SimulatedSite, Tab
+from tests.support.live_server import free_port
 
 DEBIAN_CHROMIUM = Path("/usr/bin/chromium")
-ARTIFACTS = Path(__file__).resolve().parents[2] / "test-artifacts" / "console"
 SEED = 0
 START_TIMEOUT_S = 60.0
-WALK_LEVEL_INDEX = 0  # walker 0 walks the building's lowest level
-
-
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
 
 
 def _indoorpos() -> str:
@@ -64,13 +56,6 @@ def chromium() -> Path:
     return found
 
 
-@dataclass(frozen=True)
-class Server:
-    url: str
-    admin_key: str
-    log: Path
-
-
 @pytest.fixture(scope="session")
 def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
     """``indoorpos serve`` on a free loopback port, embedded (SQLite, in-process session
@@ -86,7 +71,7 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
         "INDOORPOS_ADMIN_KEY": admin_key,
         "INDOORPOS_LOG_LEVEL": "WARNING",
     }
-    port = _free_port()
+    port = free_port()
     log = data_dir / "server.log"
     with log.open("wb") as out:
         process = subprocess.Popen(
@@ -117,18 +102,6 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
             process.wait()
 
 
-@dataclass(frozen=True)
-class SimulatedSite:
-    site: ProvisionedSite
-    world: SyntheticWorld
-    viewer_key: str  # the viewer scope, for this site only: what the console logs in with
-    upload_id: str
-
-    @property
-    def walk_floor_id(self) -> str:
-        return self.site.floor_ids[self.world.building.levels[WALK_LEVEL_INDEX]]
-
-
 def _with_beacons(world: SyntheticWorld, level: int) -> dict[str, Any]:
     """The level's plan with a point where each of its BLE beacons hangs (a kind the
     positioning ignores, drawn by the console)."""
@@ -144,10 +117,6 @@ def _with_beacons(world: SyntheticWorld, level: int) -> dict[str, Any]:
                 }
             )
     return plan
-
-
-def beacons_on(world: SyntheticWorld, level: int) -> int:
-    return sum(at == level for at in world.radio.ble.level.tolist())
 
 
 def _walk_upload(world: SyntheticWorld, steps: int = 20) -> dict[str, Any]:
@@ -229,35 +198,6 @@ async def browser(chromium: Path) -> AsyncIterator[Browser]:
         launched = await playwright.chromium.launch(executable_path=str(chromium))
         yield launched
         await launched.close()
-
-
-@dataclass
-class Tab:
-    """A page of the browser, with what went wrong in it: scripts that threw, and requests
-    for anything not served by the server under test (aborted)."""
-
-    page: Page
-    base_url: str
-    errors: list[str] = field(default_factory=list)
-    offsite: list[str] = field(default_factory=list)
-
-    async def login(self, key: str) -> None:
-        await self.page.goto(f"{self.base_url}/console/")
-        await self.page.fill("input[name=key]", key)
-        await self.page.click("form.key-form button[type=submit]")
-        await self.page.wait_for_selector("main[data-page=sitesPage]")
-
-    async def open(self, fragment: str, page_name: str) -> None:
-        """Go to a console page (``#/...``) and wait until it has drawn."""
-        await self.page.evaluate("delete document.getElementById('main')?.dataset.page")
-        await self.page.goto(f"{self.base_url}/console/{fragment}")
-        await self.page.wait_for_selector(f"main[data-page={page_name}]")
-
-    async def screenshot(self, name: str, *, full_page: bool = True) -> Path:
-        ARTIFACTS.mkdir(parents=True, exist_ok=True)
-        path = ARTIFACTS / f"{name}.png"
-        await self.page.screenshot(path=str(path), full_page=full_page)
-        return path
 
 
 @pytest.fixture

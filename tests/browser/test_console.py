@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from client_sim.api import Session
-from tests.browser.conftest import Server, SimulatedSite, Tab, beacons_on
+from tests.support.console_browser import Server, SimulatedSite, Tab, beacons_on
 
 pytestmark = pytest.mark.slow
 

@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from server.cli import app
+from server.cli.main import app
 from server.positioning.radio.fix_error import DEFAULT_ERROR_68_M
-from tests.conftest import ADMIN_KEY
+from tests.support.admin_key import ADMIN_KEY
 
 # each comparison runs once in `make test`: those through the api in the production shape
 # (PostgreSQL + Redis), the crowd maps (built in process) on the embedded defaults

@@ -26,8 +26,8 @@ from schemathesis.checks import (
     status_code_conformance,
 )
 
-from tests.api.toy_site import ToySite, build_toy_site
-from tests.conftest import ADMIN_KEY
+from tests.support.admin_key import ADMIN_KEY
+from tests.support.toy_site import ToySite, build_toy_site
 
 CHECKS = [
     not_a_server_error,

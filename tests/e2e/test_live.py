@@ -15,8 +15,8 @@ import pytest
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed
 
-from tests.api.toy_site import ToySite, build_toy_site, device_headers, new_key, rssi_at
-from tests.conftest import ADMIN_KEY
+from tests.support.admin_key import ADMIN_KEY
+from tests.support.toy_site import ToySite, build_toy_site, device_headers, new_key, rssi_at
 
 T0 = 1_700_000_000_000
 ADMIN = {"Authorization": f"Bearer {ADMIN_KEY}"}

@@ -16,7 +16,7 @@ import httpx
 import pytest
 from websockets.asyncio.client import connect
 
-from tests.api.toy_site import build_toy_site, rssi_at
+from tests.support.toy_site import build_toy_site, rssi_at
 
 T0 = 1_700_000_000_000
 ADMIN_KEY = "admin-key-that-must-not-be-logged"

@@ -17,7 +17,7 @@ import pytest
 
 from server.cli.embedded import ServerThread, free_port
 from server.config import Settings
-from tests.conftest import ADMIN_KEY
+from tests.support.admin_key import ADMIN_KEY
 
 HEADER_TIMEOUT_S = 0.5
 BODY_TIMEOUT_S = 0.5

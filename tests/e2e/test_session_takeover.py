@@ -8,8 +8,8 @@ from __future__ import annotations
 import httpx
 import pytest
 
-from tests.api.toy_site import ToySite, build_toy_site, walk_batch
-from tests.conftest import ADMIN_KEY
+from tests.support.admin_key import ADMIN_KEY
+from tests.support.toy_site import ToySite, build_toy_site, walk_batch
 
 ADMIN = {"Authorization": f"Bearer {ADMIN_KEY}"}
 BATCHES = 40

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from client_sim.run import run_walkers
-from tests.conftest import ADMIN_KEY
+from tests.support.admin_key import ADMIN_KEY
 
 
 @pytest.mark.slow

@@ -22,8 +22,8 @@ import httpx
 import pytest
 
 from server.config import Settings
-from tests.conftest import ADMIN_KEY
-from tests.datasets.conftest import DATA_DIR
+from tests.support.admin_key import ADMIN_KEY
+from tests.support.datasets import DATA_DIR
 
 TRACES = DATA_DIR / "ilc20-sample" / "site2" / "F4" / "path_data_files"
 VISIBILITY_S = 2.0  # short, so a killed worker's entry comes back quickly

@@ -23,9 +23,10 @@ from pydantic import SecretStr
 
 from server.app import create_app
 from server.config import Settings
+from server.positioning.mapping.walk_contribution import Contribution
 from server.services import upload_contribution
 from server.storage import db
-from tests.conftest import ADMIN_KEY
+from tests.support.admin_key import ADMIN_KEY
 
 ADMIN = {"Authorization": f"Bearer {ADMIN_KEY}"}
 VISIBILITY_S = 0.3
@@ -171,13 +172,13 @@ async def test_a_rejected_upload_is_logged_with_the_reason(
     assert upload["report"]["reason"] in line  # "floor level 7 does not exist ..."
 
 
-def _failing(times: int) -> Callable[..., upload_contribution.Contribution]:
+def _failing(times: int) -> Callable[..., Contribution]:
     """``contribution`` whose first ``times`` calls raise (a worker crashing on an
     upload), the rest do the real work."""
     real = upload_contribution.contribution
     calls = {"n": 0}
 
-    def contribution(*args: Any, **kwargs: Any) -> upload_contribution.Contribution:
+    def contribution(*args: Any, **kwargs: Any) -> Contribution:
         calls["n"] += 1
         if calls["n"] <= times:
             raise RuntimeError(f"worker crash {calls['n']}")

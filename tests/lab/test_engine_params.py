@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from server.lab.engine_params import engine_params
+from lab.engine_params import engine_params
 from server.positioning.engines.pf_magnetic import PfMagneticParams
 from server.positioning.engines.two_stage_ekf import TwoStageParams
 from server.positioning.engines.wknn import WknnParams

@@ -1,4 +1,4 @@
-"""ILC evaluation: what the replayer is given (whole runs: tests/cli/test_evaluate.py)."""
+"""ILC evaluation: what the replayer is given (whole runs: tests/lab/cli/test_evaluate.py)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from server.lab import ilc_evaluation
+from lab import ilc_evaluation
 from server.positioning.model.events import Event, Fix, ImuEvent
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from server.datasets.ipin import read_venue
-from server.datasets.ipin_log import read_log
-from server.lab import ipin_evaluation
+from lab import ipin_evaluation
+from lab.datasets.ipin import read_venue
+from lab.datasets.ipin_log import read_log
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
 VENUE = DATA / "ipin2023-track3-dev"

@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import math
-
 import pytest
 
-from server.lab.load_bench import Level, _api_cpus, _bucket_p99_ms, find_capacity
+from lab.load_bench import Level, _api_cpus, find_capacity
 
 
 def _level(users: int, held: bool) -> Level:
@@ -49,11 +47,3 @@ def test_the_api_gets_a_cpu_per_process_and_the_simulator_keeps_one() -> None:
     assert _api_cpus([0, 1], 1) == {0}
     assert _api_cpus([0, 1], 2) == {0}  # two CPUs: both processes share the api's
     assert _api_cpus([0, 1, 2, 3], 2) == {0, 1}
-
-
-def test_the_servers_p99_is_the_bound_of_the_bucket_holding_99_percent() -> None:
-    before = {0.005: 10.0, 0.05: 10.0, 0.1: 10.0, math.inf: 10.0}
-    # 1,000 batches since: 980 within 5 ms, 15 more within 50 ms, the last 5 within 100 ms
-    after = {0.005: 990.0, 0.05: 1005.0, 0.1: 1010.0, math.inf: 1010.0}
-    assert _bucket_p99_ms(before, after) == 50.0
-    assert _bucket_p99_ms(after, after) is None  # no batch in between

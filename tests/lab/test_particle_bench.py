@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from server.lab.particle_bench import particle_bench
+from lab.particle_bench import particle_bench
 from server.positioning.filters.particle_cloud import from_points
 from server.positioning.model import state_codec
 from server.storage.codec import encode_arrays

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from server.datasets.ilc_trace import read_trace
-from server.lab.pdr_evaluation import TraceSteps, dead_reckon, trace_steps, with_detector
+from lab.pdr_evaluation import TraceSteps, dead_reckon, trace_steps, with_detector
 from server.positioning.motion.step_tracker import TrackerParams
-from tests.datasets.conftest import dataset_dir
+from server.storage.ilc_trace_format import read_trace
+from tests.support.datasets import dataset_dir
 
 T0 = 1_700_000_000_000
 

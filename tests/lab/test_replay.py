@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from server.lab import replay
+from lab import replay
 from server.positioning.model.events import ImuEvent, RadioReading, StepEvent, WifiEvent
-from tests.lab.fakes import ilc_trace
+from tests.support.lab_fakes import ilc_trace
 
 
 def test_batches_cut_phone_time() -> None:

@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from server.lab import scoring
+from lab import scoring
+from server.positioning.engines.shared.site_maps import FloorRef, SiteMaps
 from server.positioning.magnetic.field_grid import MagneticMap
 from server.positioning.mapping.magnetic_gridding import grid_from_samples, known_share
 from server.positioning.model.events import Fix
-from server.positioning.model.site_maps import FloorRef, SiteMaps
 from server.positioning.plan.geojson_plan import plan_from_geojson
-from tests.lab.fakes import ilc_trace
+from tests.support.lab_fakes import ilc_trace
 
 
 def _fix(t_ms: int, x_m: float, floor: int = 0) -> Fix:

@@ -9,11 +9,11 @@ from typing import Any
 
 import numpy as np
 
+from lab import service_replay
+from lab.training_maps import LabelledField, LabelledScans
 from server.api.schemas.maps import MagneticSurveyIn, SurveyIn
-from server.lab import service_replay
-from server.lab.training_maps import LabelledField, LabelledScans
 from server.positioning.model.events import BleEvent, RadioReading, WifiEvent
-from server.services.traces import trace_from_events
+from server.positioning.model.walk import trace_from_events
 
 
 def test_labelled_scans_become_survey_points_on_their_level() -> None:

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from server.datasets.ilc import IlcFloor, IlcSite
-from server.lab import split
+from lab import split
+from lab.datasets.ilc import IlcFloor, IlcSite
 
 
 def _site(n_per_floor: tuple[int, ...]) -> IlcSite:

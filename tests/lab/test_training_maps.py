@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-from server.lab import training_maps
+from lab import training_maps
 from server.positioning.model.events import RadioReading, WifiEvent
 
 
 def test_walks_along_one_route_share_a_cross_validation_group() -> None:
-    from server.services.traces import trace_from_events
+    from server.positioning.model.walk import trace_from_events
 
     wifi = WifiEvent(1_000, (RadioReading("aa:bb", -60.0),))
     walk = trace_from_events([wifi], [(900, 1.0, 2.0), (1_100, 2.0, 2.0)])

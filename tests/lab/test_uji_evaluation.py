@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from server.lab import uji_evaluation
-from tests.lab.fakes import uji_offset_sets
+from lab import uji_evaluation
+from tests.support.lab_fakes import uji_offset_sets
 
 
 def test_uji_phone_offsets_are_estimated_on_training_and_reduce_the_error() -> None:

@@ -20,8 +20,8 @@ from server.services import auth, revocations
 from server.services.revocations import KeyWatches
 from server.services.runtime import Runtime
 from server.storage.redis_session_store import RedisSessionStore
-from tests.conftest import ADMIN_KEY
-from tests.storage.conftest import REDIS_URL, redis_or_skip
+from tests.support.admin_key import ADMIN_KEY
+from tests.support.stores import REDIS_URL, redis_or_skip
 
 WITHIN_S = 1.0  # how soon a revocation reaches a watch
 QUIET_S = 0.3  # how long a watch that must stay unset is watched

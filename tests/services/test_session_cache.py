@@ -17,7 +17,7 @@ from server.services import batches, session_records, sessions
 from server.services.maps import MapCache
 from server.services.runtime import Runtime
 from server.services.session_cache import SessionCache
-from tests.api.toy_site import build_toy_site, rssi_at
+from tests.support.toy_site import build_toy_site, rssi_at
 
 T0 = 1_700_000_000_000
 

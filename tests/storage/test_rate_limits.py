@@ -13,7 +13,7 @@ import pytest
 
 from server.storage import rate_limits
 from server.storage.rate_limits import RedisRateLimiter, make_rate_limiter
-from tests.storage.conftest import REDIS_URL, redis_or_skip
+from tests.support.stores import REDIS_URL, redis_or_skip
 
 PER_S, BURST = 0.001, 1  # one token, back in 1,000 s
 

@@ -25,9 +25,8 @@ from server.storage.session_store import (
     SessionExists,
     SessionStore,
     StoredSession,
-    make_session_store,
 )
-from tests.storage.conftest import REDIS_URL, redis_or_skip
+from tests.support.stores import REDIS_URL, redis_or_skip
 
 TTL_S = 60
 WAIT_S = 2.0  # upper bound for any single message to arrive
@@ -522,22 +521,6 @@ async def test_odd_session_ids_stay_in_their_own_keys(
 
 async def test_ping(store: SessionStore) -> None:
     await store.ping()
-
-
-async def test_unreachable_redis_fails_ping() -> None:
-    store = make_session_store("redis://127.0.0.1:1/0")
-    assert isinstance(store, RedisSessionStore)
-    try:
-        with pytest.raises(redis.exceptions.ConnectionError):
-            await store.ping()
-    finally:
-        await store.close()
-
-
-async def test_make_session_store_without_url_is_in_memory() -> None:
-    store = make_session_store(None)
-    assert isinstance(store, MemorySessionStore)
-    await store.close()
 
 
 # --- in-memory specifics --------------------------------------------------------------------

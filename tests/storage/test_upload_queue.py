@@ -1,5 +1,5 @@
 """The upload queue contract, run against the in-process queue and a real Redis Stream
-(see ``tests/storage/conftest.py`` for which Redis)."""
+(see ``tests.support.stores`` for which Redis)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import pytest
 
 from server.storage.redis_client import AnyRedis, redis_client
 from server.storage.upload_queue import MemoryUploadQueue, RedisUploadQueue, UploadQueue
-from tests.storage.conftest import redis_or_skip
+from tests.support.stores import redis_or_skip
 
 VISIBILITY_S = 0.3
 

@@ -30,19 +30,18 @@ index of the engine in ``CANDIDATES``.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
 from server.positioning.engines import everywhere_ekf, step_ekf, wknn
-from server.positioning.engines.spec import Arrays, EngineSpec
-from server.positioning.model import state_codec
+from server.positioning.engines.shared.site_maps import SiteMaps
+from server.positioning.engines.shared.spec import EngineSpec
 from server.positioning.model.accuracy import EngineParams
 from server.positioning.model.events import BleEvent, Event, Fix, ImuEvent, StepEvent, WifiEvent
-from server.positioning.model.params import Params, build
-from server.positioning.model.site_maps import SiteMaps
+from server.positioning.model.params import Params
 from server.positioning.model.state_codec import StateError
 
 CANDIDATES: tuple[EngineSpec, ...] = (wknn.SPEC, step_ekf.SPEC, everywhere_ekf.SPEC)  # type: ignore[type-arg]
@@ -101,59 +100,41 @@ def choose(events: Sequence[Event], current: int) -> int:
     return UNDECIDED
 
 
-@dataclass(frozen=True)
-class AutoSpec:
-    """The registry entry of ``auto`` (the ``Engine`` protocol, written out: its state
-    holds another engine's)."""
-
-    name: str = "auto"
-    params_type: type[AutoParams] = AutoParams
-    uses: frozenset[str] = frozenset().union(*(c.uses for c in CANDIDATES))
-
-    def params(self, overrides: Mapping[str, object] | None = None) -> AutoParams:
-        defaults = AutoParams()
-        return build(defaults, overrides) if overrides else defaults
-
-    def start(self, params: Params) -> object:
-        self._own(params)
-        return AutoState()
-
-    def step(
-        self,
-        state: object,
-        events: Sequence[Event],
-        maps: SiteMaps,
-        params: Params,
-        rng: np.random.Generator,
-    ) -> tuple[object, list[Fix]]:
-        """The chosen engine's ``step`` over the batch (choosing first when it changes)."""
-        if not isinstance(state, AutoState):
-            raise TypeError("auto runs on AutoState states")
-        own = self._own(params)
-        choice = choose(events, state.choice)
-        if choice == UNDECIDED:
-            return state, []
-        spec = CANDIDATES[choice]
-        inner = state.inner if choice == state.choice else spec.start(own.of(choice))
-        new, fixes = spec.step(inner, events, maps, own.of(choice), rng)
-        held: dict[str, Any] = {c.name: None for c in CANDIDATES} | {spec.name: new}
-        tagged = [
-            replace(f, diagnostics={**f.diagnostics, "auto_engine": float(choice)}) for f in fixes
-        ]
-        return AutoState(choice, **held), tagged
-
-    def encode(self, state: object) -> dict[str, np.ndarray]:
-        if not isinstance(state, AutoState):
-            raise TypeError("auto encodes AutoState states")
-        return state_codec.to_arrays(state)
-
-    def decode(self, arrays: Arrays) -> object:
-        return state_codec.from_arrays(AutoState, arrays)
-
-    def _own(self, params: Params) -> AutoParams:
-        if not isinstance(params, AutoParams):
-            raise TypeError("auto takes AutoParams")
-        return params
+def initial_state(params: AutoParams) -> AutoState:
+    """An undecided session."""
+    del params  # the chosen engine starts from its own, when chosen
+    return AutoState()
 
 
-SPEC = AutoSpec()
+def run(
+    state: AutoState,
+    events: Sequence[Event],
+    maps: SiteMaps,
+    params: AutoParams,
+    rng: np.random.Generator,
+) -> tuple[AutoState, list[Fix]]:
+    """The chosen engine's ``step`` over the batch (choosing first when it changes): its
+    fixes calibrated by it, tagged with its index."""
+    choice = choose(events, state.choice)
+    if choice == UNDECIDED:
+        return state, []
+    spec = CANDIDATES[choice]
+    inner = state.inner if choice == state.choice else spec.start(params.of(choice))
+    new, fixes = spec.step(inner, events, maps, params.of(choice), rng)
+    held: dict[str, Any] = {c.name: None for c in CANDIDATES} | {spec.name: new}
+    tagged = [
+        replace(f, diagnostics={**f.diagnostics, "auto_engine": float(choice)}) for f in fixes
+    ]
+    return AutoState(choice, **held), tagged
+
+
+# its state holds another engine's: no handlers of its own, the whole batch goes to ``run``
+SPEC = EngineSpec(
+    name="auto",
+    params_type=AutoParams,
+    state_type=AutoState,
+    initial_state=initial_state,
+    uses=frozenset().union(*(c.uses for c in CANDIDATES)),
+    handlers=(),
+    delegate=run,
+)

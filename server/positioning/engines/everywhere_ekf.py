@@ -57,16 +57,16 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from server.positioning.filters import pdr_kalman
+from server.positioning.engines.shared import pdr_kalman, scan_fixes
+from server.positioning.engines.shared.site_maps import SiteMaps
+from server.positioning.engines.shared.spec import EngineSpec, with_found_steps
 from server.positioning.filters.kalman import update, wrap_angle
 from server.positioning.model.accuracy import AccuracyParams
 from server.positioning.model.events import BleEvent, Fix, radio_key
 from server.positioning.model.params import AtLeastOne, NonNegative, Positive
-from server.positioning.model.site_maps import Anchor, SiteMaps
 from server.positioning.model.state_codec import shape
 from server.positioning.motion.step_tracker import Scan, Step, TrackerParams, initial_tracker
-from server.positioning.radio import scan_fixes
-from server.positioning.radio.fingerprints import WknnFix
+from server.positioning.plan.anchors import Anchor
 
 FloatArray = NDArray[np.float64]
 
@@ -153,9 +153,13 @@ def step_motion(x: FloatArray, length_m: float, turn_rad: float) -> tuple[FloatA
 
 
 def _on_step(
-    state: EverywhereState, step: Step, maps: SiteMaps, params: EverywhereParams
+    state: EverywhereState,
+    step: Step,
+    maps: SiteMaps,
+    params: EverywhereParams,
+    rng: np.random.Generator,
 ) -> tuple[EverywhereState, Fix | None]:
-    state, turn = pdr_kalman.turn_of(state, step)
+    del rng  # deterministic
     state = replace(
         state,
         walked_m=state.walked_m + step.length_m * (1.0 + float(state.x[2])),
@@ -164,19 +168,18 @@ def _on_step(
         anchor_walked_m=state.anchor_walked_m + step.length_m,
         anchor_straight=state.anchor_straight and step.straight,
     )
-    if not state.initialized:
-        return state, None
     d = step.length_m
     new = pdr_kalman.predict_step(
         state,
         step,
-        turn,
         maps,
         params,
         (1.0 + float(state.x[2])) * d,
         lambda x, turn_rad: step_motion(x, d, turn_rad),
         params.process_noise,
     )
+    if not new.initialized:
+        return new, None
     x = new.x
     return new, pdr_kalman.state_fix(
         new, step.t_ms, "step", {"step_length_m": float((1.0 + x[2]) * d)}
@@ -202,43 +205,41 @@ def aiding_penalty(
     return penalty
 
 
-def _remember_fp(state: EverywhereState, x_m: float, y_m: float) -> EverywhereState:
-    fp = np.array([state.fp[1], [x_m, y_m]])
-    return replace(state, fp=fp, walked_m=0.0, straight=True)
+def _select(
+    state: EverywhereState, m: scan_fixes.Matched, maps: SiteMaps, params: EverywhereParams
+) -> tuple[scan_fixes.Matched, dict[str, float]]:
+    """The PDR-aided selection (eq 11-14) after straight walking from two known
+    fingerprint positions, else the whole-map fix."""
+    if not (state.straight and state.walked_m > 0.0 and not np.isnan(state.fp).any()):
+        return m, {}
+    penalty = aiding_penalty(scan_fixes.reference_xy(maps), state.fp, state.walked_m, params)
+    return scan_fixes.constrained(maps, m, params, penalty_db=penalty), {"aided": 1.0}
+
+
+def _remember_fp(
+    state: EverywhereState, taken: pdr_kalman.Taken, params: EverywhereParams
+) -> tuple[EverywhereState, dict[str, float]]:
+    """The fix the filter took as the fingerprint position at t-1, the walk since it
+    starting afresh."""
+    del params  # the same for every walk
+    found = taken.used.whole
+    fp = np.array([state.fp[1], [found.x_m, found.y_m]])
+    return replace(state, fp=fp, walked_m=0.0, straight=True), {}
 
 
 def _on_scan(
-    state: EverywhereState, event: Scan, maps: SiteMaps, params: EverywhereParams
+    state: EverywhereState,
+    event: Scan,
+    maps: SiteMaps,
+    params: EverywhereParams,
+    rng: np.random.Generator,
 ) -> tuple[EverywhereState, Fix | None]:
+    del rng  # deterministic
     if isinstance(event, BleEvent) and maps.anchors:
         state, anchor_fix = _on_anchor(state, event, maps, params)
         if anchor_fix is not None:
             return state, anchor_fix
-    start = pdr_kalman.begin_scan(maps, event, state, params)
-    if start is None or maps.radio is None:
-        return state, None
-    m, diagnostics, state = start.matched, start.diagnostics, start.state
-    if start.restart:
-        new = _remember_fp(state, *_xy(m.whole))
-        return new, pdr_kalman.state_fix(new, m.t_ms, m.kind, diagnostics)
-
-    used = m
-    aided = state.straight and state.walked_m > 0.0 and not np.isnan(state.fp).any()
-    if aided:
-        penalty = aiding_penalty(scan_fixes.reference_xy(maps), state.fp, state.walked_m, params)
-        used = scan_fixes.constrained(maps, m, params, penalty_db=penalty)
-        diagnostics["aided"] = 1.0
-    state, accepted = pdr_kalman.update_position(
-        state, used, start.rejects, params.gate_chi2, diagnostics
-    )
-    if not accepted:
-        return state, None
-    state = _remember_fp(state, *_xy(used.whole))
-    return state, pdr_kalman.state_fix(state, m.t_ms, m.kind, diagnostics)
-
-
-def _xy(found: WknnFix) -> tuple[float, float]:
-    return found.x_m, found.y_m
+    return pdr_kalman.scan_update(state, event, maps, params, _select, _remember_fp)
 
 
 def _passed_anchor(maps: SiteMaps, event: BleEvent) -> int | None:
@@ -324,6 +325,12 @@ def _on_anchor(
     return new, pdr_kalman.state_fix(new, event.t_ms, "anchor", diagnostics)
 
 
-FUSION = pdr_kalman.StepFusion(_on_step, _on_scan)
-apply = FUSION.apply
-SPEC = FUSION.spec("everywhere_ekf", EverywhereParams, EverywhereState, initial_state)
+SPEC = EngineSpec(
+    name="everywhere_ekf",
+    params_type=EverywhereParams,
+    state_type=EverywhereState,
+    initial_state=initial_state,
+    uses=pdr_kalman.USES,
+    handlers=pdr_kalman.routes(_on_step, _on_scan),
+    prepass=with_found_steps,
+)

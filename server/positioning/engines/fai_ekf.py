@@ -39,22 +39,23 @@ maps).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from typing import Self
 
 import numpy as np
 from numpy.typing import NDArray
 
-from server.positioning.engines import driver, step_ekf
-from server.positioning.engines.spec import EngineSpec
+from server.positioning.engines import step_ekf
+from server.positioning.engines.shared import phone_steps, scan_fixes
+from server.positioning.engines.shared.site_maps import SiteMaps
+from server.positioning.engines.shared.spec import EngineSpec, on, on_mag, with_floor_changes
 from server.positioning.filters.kalman import update
 from server.positioning.magnetic import profile_matching
 from server.positioning.model.accuracy import AccuracyParams
-from server.positioning.model.events import BleEvent, Event, Fix, MagEvent, StepEvent, WifiEvent
-from server.positioning.model.site_maps import SiteMaps
+from server.positioning.model.events import BleEvent, Fix, MagEvent, StepEvent, WifiEvent
 from server.positioning.model.state_codec import shape
 from server.positioning.motion.barometer import FloorChange
-from server.positioning.radio import accuracy_indicators, scan_fixes
+from server.positioning.radio import accuracy_indicators
 from server.positioning.radio.accuracy_indicators import FaiParams
 
 FloatArray = NDArray[np.float64]
@@ -126,6 +127,13 @@ class FaiEkfState(step_ekf.StepEkfState):
     radio_offset: FloatArray = field(default_factory=lambda: np.full(2, np.nan), metadata=shape(2))
     radio_eta_m: float = math.nan
 
+    def with_field(self, t_ms: int, strength_ut: float) -> Self:
+        """A magnetometer reading: its magnitude joins those of the step being walked."""
+        del t_ms  # whenever measured, it belongs to the step being walked
+        if not math.isfinite(strength_ut):
+            return self
+        return replace(self, mag_sum_ut=self.mag_sum_ut + strength_ut, mag_count=self.mag_count + 1)
+
 
 def initial_state(params: FaiEkfParams) -> FaiEkfState:
     base = step_ekf.initial_state(params)
@@ -137,28 +145,28 @@ def _cleared(state: FaiEkfState) -> FaiEkfState:
 
 
 def _on_floor_change(
-    state: FaiEkfState, change: FloorChange, maps: SiteMaps
+    state: FaiEkfState,
+    change: FloorChange,
+    maps: SiteMaps,
+    params: FaiEkfParams,
+    rng: np.random.Generator,
 ) -> tuple[FaiEkfState, Fix | None]:
-    """A barometric floor change (``scan_fixes.moved_by``); on another floor the
+    """A barometric floor change (``scan_fixes.on_floor_change``); on another floor the
     magnetic profile starts afresh, as after a scan's floor change."""
-    new, _ = scan_fixes.moved_by(maps)(state, change)
+    new, _ = scan_fixes.on_floor_change(state, change, maps, params, rng)
     return (_cleared(new) if new.floor != state.floor else new), None
 
 
-def _on_mag(state: FaiEkfState, event: MagEvent) -> tuple[FaiEkfState, Fix | None]:
-    strength = event.strength_ut
-    if not math.isfinite(strength):
-        return state, None
-    return replace(
-        state, mag_sum_ut=state.mag_sum_ut + strength, mag_count=state.mag_count + 1
-    ), None
-
-
 def _on_scan(
-    state: FaiEkfState, event: WifiEvent | BleEvent, kind: str, maps: SiteMaps, params: FaiEkfParams
+    state: FaiEkfState,
+    event: WifiEvent | BleEvent,
+    maps: SiteMaps,
+    params: FaiEkfParams,
+    rng: np.random.Generator,
 ) -> tuple[FaiEkfState, Fix | None]:
     """``step_ekf``'s scan update with the FAI noise; the fix (before fusion) and its
     predicted error become the magnetic search circle."""
+    del rng  # deterministic
     used: list[tuple[scan_fixes.Matched, float]] = []
 
     def variance(
@@ -168,7 +176,7 @@ def _on_scan(
         used.append((m, reported["fai_eta_m"]))
         return var, reported
 
-    new, fix = step_ekf.on_scan(state, event, kind, maps, params, variance)
+    new, fix = step_ekf.scan_update(state, event, maps, params, variance)
     assert isinstance(new, FaiEkfState)
     if not used:
         return new, fix
@@ -184,11 +192,15 @@ def _on_scan(
 
 
 def _on_step(
-    state: FaiEkfState, event: StepEvent, maps: SiteMaps, params: FaiEkfParams
+    state: FaiEkfState,
+    event: StepEvent,
+    maps: SiteMaps,
+    params: FaiEkfParams,
+    rng: np.random.Generator,
 ) -> tuple[FaiEkfState, Fix | None]:
     """``step_ekf``'s step; the step joins the profile with the magnitudes measured since
     the last one, and a full profile is matched (module docstring)."""
-    new, fix = step_ekf.on_step(state, event, params)
+    new, fix = step_ekf.on_step(state, event, maps, params, rng)
     assert isinstance(new, FaiEkfState)
     if fix is None:  # no usable step, or no position yet
         return replace(new, mag_sum_ut=0.0, mag_count=0), fix
@@ -258,38 +270,14 @@ def _magnetic_update(
     return new, step_ekf.state_fix(new, t_ms, "mag", diagnostics)
 
 
-def run(
-    state: FaiEkfState,
-    events: Sequence[Event],
-    maps: SiteMaps,
-    params: FaiEkfParams,
-    rng: np.random.Generator,
-) -> tuple[FaiEkfState, list[Fix]]:
-    """Process a batch of events in time order (stably); ``rng`` is unused. One fix per
-    step once initialised (the magnetic one where a profile matched) and one per accepted
-    or re-initialising scan."""
-    del rng  # deterministic
-
-    def scan(
-        kind: str,
-    ) -> Callable[[FaiEkfState, WifiEvent | BleEvent], tuple[FaiEkfState, Fix | None]]:
-        return lambda st, e: _on_scan(st, e, kind, maps, params)
-
-    routes = [
-        driver.on(StepEvent, lambda st, e: _on_step(st, e, maps, params)),
-        driver.on(WifiEvent, scan("wifi")),
-        driver.on(BleEvent, scan("ble")),
-        driver.on(MagEvent, _on_mag),
-        driver.on(FloorChange, lambda st, e: _on_floor_change(st, e, maps)),
-    ]
-    return scan_fixes.walk_with_floor_changes(state, events, maps, params, routes)
-
-
+# a batch in time order (stably); deterministic. One fix per step once initialised (the
+# magnetic one where a profile matched) and one per accepted or re-initialising scan.
 SPEC = EngineSpec(
     name="fai_ekf",
     params_type=FaiEkfParams,
     state_type=FaiEkfState,
     initial_state=initial_state,
-    run=run,
-    uses=frozenset({"step", "wifi", "ble", "mag", "pressure"}),
+    uses=phone_steps.USES | {"mag"},
+    handlers=(*phone_steps.routes(_on_step, _on_scan, _on_floor_change), on(MagEvent, on_mag)),
+    prepass=with_floor_changes,
 )

@@ -53,7 +53,6 @@ Without a graph for the floor (no plan and no reference points) the belief is sk
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Annotated
 
@@ -61,18 +60,17 @@ import numpy as np
 from annotated_types import Ge, Le
 from numpy.typing import NDArray
 
-from server.positioning.engines import driver
-from server.positioning.engines.spec import EngineSpec
+from server.positioning.engines.shared import phone_steps, scan_fixes
+from server.positioning.engines.shared.site_maps import SiteMaps
+from server.positioning.engines.shared.spec import EngineSpec, with_floor_changes
 from server.positioning.filters import markov_chain as mc
 from server.positioning.filters.kalman import update, wrap_angle
 from server.positioning.model.accuracy import AccuracyParams
-from server.positioning.model.events import BleEvent, Event, Fix, StepEvent, WifiEvent
+from server.positioning.model.events import BleEvent, Fix, StepEvent, WifiEvent
 from server.positioning.model.params import AtLeastOne, NonNegative, Positive
-from server.positioning.model.site_maps import SiteMaps
 from server.positioning.model.state_codec import shape
 from server.positioning.motion.barometer import BaroState, FloorChange, initial_barometer
 from server.positioning.plan.navigation_graph import CORRIDOR, FloorGraph
-from server.positioning.radio import scan_fixes
 from server.positioning.radio.fingerprints import signal_distances
 
 FloatArray = NDArray[np.float64]
@@ -237,8 +235,13 @@ def _start(
 
 
 def on_step(
-    state: MapMarkovState, event: StepEvent, maps: SiteMaps, params: MapMarkovParams
+    state: MapMarkovState,
+    event: StepEvent,
+    maps: SiteMaps,
+    params: MapMarkovParams,
+    rng: np.random.Generator,
 ) -> tuple[MapMarkovState, Fix | None]:
+    del rng  # deterministic
     if not (math.isfinite(event.length_m) and math.isfinite(event.heading_rad)):
         return replace(state, last_t_ms=event.t_ms), None
     if not state.initialized:
@@ -336,15 +339,17 @@ def _prior(
 def on_scan(
     state: MapMarkovState,
     event: WifiEvent | BleEvent,
-    kind: str,
     maps: SiteMaps,
     params: MapMarkovParams,
+    rng: np.random.Generator,
 ) -> tuple[MapMarkovState, Fix | None]:
-    m = scan_fixes.match(maps, event, params, state.floor_logp, state.floor_t_ms, state.baro)
+    """A WiFi/BLE scan through Algorithm 3 (module docstring): a fix when it starts the
+    session (again: a floor change, ``max_rejects`` scans not used) or corrects it."""
+    del rng  # deterministic
+    state, m = scan_fixes.scan_matched(state, event, maps, params)
     if m is None:
-        return replace(state, last_t_ms=event.t_ms), None
-    found = m.whole
-    state = replace(state, floor_logp=m.floor_logp, floor_t_ms=m.t_ms)
+        return state, None
+    kind, found = m.kind, m.whole
     diag = {"fix_var_m2": m.var_m2, "n_matched": float(m.n_matched)}
     if not state.initialized or found.floor != state.floor:
         if state.initialized:
@@ -461,45 +466,28 @@ def _in_omega(
     return None if used is m else used
 
 
-def run(
+def _on_floor_change(
     state: MapMarkovState,
-    events: Sequence[Event],
+    change: FloorChange,
     maps: SiteMaps,
     params: MapMarkovParams,
     rng: np.random.Generator,
-) -> tuple[MapMarkovState, list[Fix]]:
-    """A batch in time order (stably): steps and scans as the module docstring says;
-    magnetometer and raw samples are ignored, ``rng`` is unused (deterministic)."""
-    del rng
-
-    def wifi(st: MapMarkovState, e: WifiEvent) -> tuple[MapMarkovState, Fix | None]:
-        return on_scan(st, e, "wifi", maps, params)
-
-    def ble(st: MapMarkovState, e: BleEvent) -> tuple[MapMarkovState, Fix | None]:
-        return on_scan(st, e, "ble", maps, params)
-
-    def step(st: MapMarkovState, e: StepEvent) -> tuple[MapMarkovState, Fix | None]:
-        return on_step(st, e, maps, params)
-
-    def moved(st: MapMarkovState, change: FloorChange) -> tuple[MapMarkovState, Fix | None]:
-        # the estimate itself moves with the next scan: the belief lives on one floor's graph
-        logp, _ = scan_fixes.floor_moved(maps, st.floor_logp, st.floor, change)
-        return replace(st, floor_logp=logp), None
-
-    routes = [
-        driver.on(StepEvent, step),
-        driver.on(WifiEvent, wifi),
-        driver.on(BleEvent, ble),
-        driver.on(FloorChange, moved),
-    ]
-    return scan_fixes.walk_with_floor_changes(state, events, maps, params, routes)
+) -> tuple[MapMarkovState, Fix | None]:
+    """The floor filter moves; the estimate itself moves with the next scan (the belief
+    lives on one floor's graph)."""
+    del params, rng
+    logp, _ = scan_fixes.floor_moved(maps, state.floor_logp, state.floor, change)
+    return replace(state, floor_logp=logp), None
 
 
+# a batch in time order (stably): steps and scans as the module docstring says;
+# magnetometer events and raw samples are ignored, deterministic
 SPEC = EngineSpec(
     name="map_markov",
     params_type=MapMarkovParams,
     state_type=MapMarkovState,
     initial_state=initial_state,
-    run=run,
-    uses=frozenset({"step", "wifi", "ble", "pressure"}),
+    uses=phone_steps.USES,
+    handlers=phone_steps.routes(on_step, on_scan, _on_floor_change),
+    prepass=with_floor_changes,
 )

@@ -40,21 +40,29 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Annotated, Literal
+from typing import Annotated, Literal, Self
 
 import numpy as np
 from annotated_types import Ge, Lt
 from numpy.typing import NDArray
 
-from server.positioning.engines import driver
-from server.positioning.engines.spec import EngineSpec
-from server.positioning.filters import particle
+from server.positioning.engines.shared import scan_fixes
+from server.positioning.engines.shared.site_maps import SiteMaps
+from server.positioning.engines.shared.spec import (
+    EngineSpec,
+    on,
+    on_mag,
+    on_scans,
+    with_found_steps,
+)
+from server.positioning.filters import particle, particle_estimate
 from server.positioning.filters import particle_cloud as pc
+from server.positioning.filters.particle_resampling import alive, resample_when_low
+from server.positioning.filters.particle_weight_update import reweight
 from server.positioning.magnetic import field_grid
 from server.positioning.model.accuracy import AccuracyParams
-from server.positioning.model.events import BleEvent, Event, Fix, MagEvent, StepEvent, WifiEvent
+from server.positioning.model.events import Event, Fix, MagEvent, StepEvent
 from server.positioning.model.params import AtLeastOne, NonNegative, OpenShare, Positive
-from server.positioning.model.site_maps import SiteMaps
 from server.positioning.motion.barometer import BaroState, FloorChange, initial_barometer
 from server.positioning.motion.step_tracker import (
     Scan,
@@ -62,10 +70,8 @@ from server.positioning.motion.step_tracker import (
     TrackerParams,
     TrackerState,
     initial_tracker,
-    timeline,
 )
 from server.positioning.plan import floor_plan
-from server.positioning.radio import scan_fixes
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -116,6 +122,10 @@ class PfMagneticState:
     floor_logp: FloatArray = field(default_factory=lambda: scan_fixes.EMPTY)
     floor_t_ms: int = 0  # time of that scan
     baro: BaroState = field(default_factory=initial_barometer)  # floor changes by pressure
+
+    def with_field(self, t_ms: int, strength_ut: float) -> Self:
+        """A magnetometer reading: the latest, for the phone's next step."""
+        return replace(self, mag_t_ms=float(t_ms), mag_ut=float(strength_ut or math.nan))
 
 
 def initial_state(params: PfMagneticParams) -> PfMagneticState:
@@ -209,7 +219,7 @@ def _sample_map(maps: SiteMaps) -> pc.MapSampler:
 def _fix(
     cloud: pc.Particles, t_ms: int, heading: float, source: str, diag: dict[str, float]
 ) -> Fix:
-    est = particle.estimate(cloud)
+    est = particle_estimate.estimate(cloud)
     c = est.cov
     # the scan's floor filter where a scan made the fix, else the weight on the floor
     diag = {"floor_prob": est.floor_prob, **diag, "ess": est.ess}
@@ -242,7 +252,7 @@ def _on_step(
     if cloud is None or not math.isfinite(north_rad) or not math.isfinite(length_m):
         return state, None
     one = _one_floor(cloud.floor)
-    floor = particle.position(cloud)[1] if one is None else one
+    floor = particle_estimate.position(cloud)[1] if one is None else one
     heading = scan_fixes.in_building_frame(maps, floor, north_rad)
     use_field = math.isfinite(magnitude_ut) and params.weighting != "none"
     observed = magnitude_ut if use_field else None
@@ -271,7 +281,7 @@ def _on_step(
             _sample_map(maps),
             weighting="dtw" if params.weighting == "dtw" else "mass_centered",
         )
-    if not particle.alive(moved):
+    if not alive(moved):
         return replace(state, cloud=None, heading_rad=heading), None
     new = replace(state, cloud=moved, heading_rad=heading)
     return new, _fix(moved, t_ms, heading, "step", {"step_length_m": length_m})
@@ -297,15 +307,15 @@ def _on_scan(
     cloud = state.cloud
     if cloud is not None and params.follow_scan_floor:
         cloud = _to_floor(cloud, found.floor, maps)
-        cloud = cloud if particle.alive(cloud) else None
+        cloud = cloud if alive(cloud) else None
     if cloud is not None:
-        xy, floor = particle.position(cloud)
+        xy, floor = particle_estimate.position(cloud)
         far = math.hypot(xy[0] - found.x_m, xy[1] - found.y_m) > params.reinit_distance_m
         disagree = state.disagree + 1 if far or floor != found.floor else 0
         if disagree < params.reinit_scans:
             if params.radio_var_scale > 0:
                 cloud = _radio_weights(cloud, m, params, rng)
-            if params.recover_share > 0 and found.floor_prob >= 0.9 and particle.alive(cloud):
+            if params.recover_share > 0 and found.floor_prob >= 0.9 and alive(cloud):
                 cloud = _recover(cloud, m, params.recover_share, maps, rng)
             new = replace(
                 state, floor_logp=m.floor_logp, floor_t_ms=m.t_ms, disagree=disagree, cloud=cloud
@@ -330,7 +340,7 @@ def _to_floor(cloud: pc.Particles, floor: int, maps: SiteMaps) -> pc.Particles:
     floors = np.full(cloud.n, floor, dtype=np.int16)
     ok = _valid_point(maps)(floors, cloud.xy.astype(np.float64))
     moved = replace(cloud, floor=floors)
-    return particle.reweight(moved, np.where(ok, 0.0, -np.inf))
+    return reweight(moved, np.where(ok, 0.0, -np.inf))
 
 
 def _radio_weights(
@@ -358,10 +368,10 @@ def _radio_weights(
     if _one_floor(cloud.floor) != m.whole.floor:
         # particles on another floor than the fix's (only without follow_scan_floor)
         ll = np.where(cloud.floor == m.whole.floor, ll, ll + math.log(params.radio_outlier))
-    cloud = particle.reweight(cloud, ll)
-    if not particle.alive(cloud):
+    cloud = reweight(cloud, ll)
+    if not alive(cloud):
         return cloud
-    return particle.resample_when_low(cloud, rng, params.particles)
+    return resample_when_low(cloud, rng, params.particles)
 
 
 def _recover(
@@ -397,13 +407,19 @@ def _recover(
     moved = pc.unchecked(
         cloud, xy=new_xy, floor=new_floor, mags=mags, log_w=np.zeros(cloud.n, np.float32)
     )
-    return particle.reweight(moved, log_w)
+    return reweight(moved, log_w)
 
 
-def _phone_step(state: PfMagneticState, event: StepEvent) -> Step:
+def _on_phone_step(
+    state: PfMagneticState,
+    event: StepEvent,
+    maps: SiteMaps,
+    params: PfMagneticParams,
+    rng: np.random.Generator,
+) -> tuple[PfMagneticState, Fix | None]:
     """A step the phone detected, with the latest mag event if it is recent."""
     recent = math.isfinite(state.mag_t_ms) and 0 <= event.t_ms - state.mag_t_ms <= MAG_MAX_AGE_MS
-    return Step(
+    step = Step(
         event.t_ms,
         event.length_m,
         event.heading_rad,
@@ -411,45 +427,30 @@ def _phone_step(state: PfMagneticState, event: StepEvent) -> Step:
         True,
         state.mag_ut if recent else math.nan,
     )
+    return _on_step(state, step, maps, params, rng)
 
 
-def run(
-    state: PfMagneticState,
-    events: Sequence[Event],
-    maps: SiteMaps,
-    params: PfMagneticParams,
-    rng: np.random.Generator,
-) -> tuple[PfMagneticState, list[Fix]]:
-    """Process a batch: raw IMU blocks become steps; phone steps, mag events and scans
-    are taken as they come, all in time order."""
-    tracker, items = timeline(state.tracker, events, params.tracker)
-    baro, changes = scan_fixes.floor_changes(state.baro, events, maps, params)
-    others = [e for e in events if isinstance(e, StepEvent | MagEvent)]
-    # at equal times: the field first, then the step it belongs to, then the scan
-    timed: list[Step | Scan | StepEvent | MagEvent | FloorChange] = [*items, *others, *changes]
-    ordered = driver.in_time_order(timed, rank=_rank)
-
-    def on_step(st: PfMagneticState, step: Step) -> tuple[PfMagneticState, Fix | None]:
-        return _on_step(st, step, maps, params, rng)
-
-    routes = [
-        driver.on(MagEvent, _on_mag),
-        driver.on(StepEvent, lambda st, e: on_step(st, _phone_step(st, e))),
-        driver.on(Step, on_step),
-        driver.on(WifiEvent, lambda st, e: _on_scan(st, e, maps, params, rng)),
-        driver.on(BleEvent, lambda st, e: _on_scan(st, e, maps, params, rng)),
-        driver.on(FloorChange, lambda st, e: _on_floor_change(st, e, maps)),
-    ]
-    return driver.walk(replace(state, tracker=tracker, baro=baro), ordered, routes)
+def _prepass(
+    state: PfMagneticState, events: Sequence[Event], maps: SiteMaps, params: PfMagneticParams
+) -> tuple[PfMagneticState, list[Step | Scan | StepEvent | MagEvent | FloorChange]]:
+    """Raw IMU blocks become steps, the barometer's floor changes join them
+    (``with_found_steps``); phone steps and mag events are taken as they come."""
+    state, items = with_found_steps(state, events, maps, params)
+    return state, [*items, *(e for e in events if isinstance(e, StepEvent | MagEvent))]
 
 
 def _on_floor_change(
-    state: PfMagneticState, change: FloorChange, maps: SiteMaps
+    state: PfMagneticState,
+    change: FloorChange,
+    maps: SiteMaps,
+    params: PfMagneticParams,
+    rng: np.random.Generator,
 ) -> tuple[PfMagneticState, Fix | None]:
     """The floor filter shifted by a barometric floor change and the cloud moved onto its
     most likely floor (particles off that floor's walkable space die)."""
+    del params, rng
     if state.cloud is not None:
-        floor = particle.position(state.cloud)[1]
+        floor = particle_estimate.position(state.cloud)[1]
     else:  # the cloud died: the next scan starts it again, on the shifted filter's floor
         floor = int(np.argmax(state.floor_logp)) if state.floor_logp.size else -1
     logp, floor = scan_fixes.floor_moved(maps, state.floor_logp, floor, change)
@@ -457,25 +458,32 @@ def _on_floor_change(
     if state.cloud is None:
         return state, None
     moved = _to_floor(state.cloud, floor, maps)
-    return replace(state, cloud=moved if particle.alive(moved) else None), None
+    return replace(state, cloud=moved if alive(moved) else None), None
 
 
 def _rank(item: Step | Scan | StepEvent | MagEvent | FloorChange) -> int:
+    """At equal times: the field first, then the step it belongs to, then the scan (and
+    the floor change)."""
     if isinstance(item, MagEvent):
         return 0
     return 1 if isinstance(item, Step | StepEvent) else 2
 
 
-def _on_mag(state: PfMagneticState, event: MagEvent) -> tuple[PfMagneticState, Fix | None]:
-    strength = event.strength_ut
-    return replace(state, mag_t_ms=float(event.t_ms), mag_ut=float(strength or math.nan)), None
-
-
+# a batch in time order: raw IMU blocks become steps; phone steps, mag events and scans are
+# taken as they come
 SPEC = EngineSpec(
     name="pf_magnetic",
     params_type=PfMagneticParams,
     state_type=PfMagneticState,
     initial_state=initial_state,
-    run=run,
     uses=frozenset({"imu", "step", "mag", "wifi", "ble", "pressure"}),
+    handlers=(
+        on(MagEvent, on_mag),
+        on(StepEvent, _on_phone_step),
+        on(Step, _on_step),
+        *on_scans(_on_scan),
+        on(FloorChange, _on_floor_change),
+    ),
+    prepass=_prepass,
+    rank=_rank,
 )

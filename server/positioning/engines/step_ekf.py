@@ -52,24 +52,22 @@ step sets psi to that step's heading (variance ``p0_heading_rad2``) before its p
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 
-from server.positioning.engines import driver
-from server.positioning.engines.spec import EngineSpec
-from server.positioning.filters import pdr_kalman
+from server.positioning.engines.shared import pdr_kalman, phone_steps, scan_fixes
+from server.positioning.engines.shared.site_maps import SiteMaps
+from server.positioning.engines.shared.spec import EngineSpec, with_floor_changes
 from server.positioning.filters.kalman import predict_ekf, update, wrap_angle
 from server.positioning.model.accuracy import AccuracyParams
-from server.positioning.model.events import BleEvent, Event, Fix, StepEvent, WifiEvent
+from server.positioning.model.events import BleEvent, Fix, StepEvent, WifiEvent
 from server.positioning.model.params import NonNegative, Positive
-from server.positioning.model.site_maps import SiteMaps
 from server.positioning.model.state_codec import shape
-from server.positioning.motion.barometer import BaroState, FloorChange, initial_barometer
-from server.positioning.radio import scan_fixes
+from server.positioning.motion.barometer import BaroState, initial_barometer
 from server.positioning.radio.fingerprints import WknnFix
 
 FloatArray = NDArray[np.float64]
@@ -199,8 +197,15 @@ def _start(
 
 
 def on_step(
-    state: StepEkfState, event: StepEvent, params: StepEkfParams
+    state: StepEkfState,
+    event: StepEvent,
+    maps: SiteMaps,
+    params: StepEkfParams,
+    rng: np.random.Generator,
 ) -> tuple[StepEkfState, Fix | None]:
+    """A phone step: the prediction, then its length and heading as measurements (module
+    docstring); a fix once initialised."""
+    del maps, rng  # the phone's heading as it is; deterministic
     if not (math.isfinite(event.length_m) and math.isfinite(event.heading_rad)):
         return replace(state, last_t_ms=event.t_ms), None
     heading = float(wrap_angle(event.heading_rad))
@@ -252,17 +257,30 @@ def learned_variance(
 def on_scan(
     state: StepEkfState,
     event: WifiEvent | BleEvent,
-    kind: str,
+    maps: SiteMaps,
+    params: StepEkfParams,
+    rng: np.random.Generator,
+) -> tuple[StepEkfState, Fix | None]:
+    """A WiFi/BLE scan's position update with the learned variance of its fix."""
+    del rng  # deterministic
+    return scan_update(state, event, maps, params, learned_variance)
+
+
+def scan_update(
+    state: StepEkfState,
+    event: WifiEvent | BleEvent,
     maps: SiteMaps,
     params: P,
     variance: FixVariance[P],
 ) -> tuple[StepEkfState, Fix | None]:
-    m = scan_fixes.match(maps, event, params, state.floor_logp, state.floor_t_ms, state.baro)
+    """A scan's position update with the variance of its fix from ``variance`` (the
+    learned one here; ``fai_ekf``: the fingerprinting accuracy indicators): a fix when
+    it was accepted or (re)started the filter."""
+    state, m = scan_fixes.scan_matched(state, event, maps, params)
     if m is None:
-        return replace(state, last_t_ms=event.t_ms), None
-    found = m.whole
+        return state, None
+    kind, found = m.kind, m.whole
     var_m2, reported = variance(m, maps, params)
-    state = replace(state, floor_logp=m.floor_logp, floor_t_ms=m.t_ms)
     diagnostics = {"fix_var_m2": var_m2, "n_matched": float(m.n_matched), **reported}
 
     if not state.initialized or found.floor != state.floor:
@@ -285,51 +303,14 @@ def on_scan(
     return new, state_fix(new, event.t_ms, kind, diagnostics)
 
 
-def runner(
-    variance: FixVariance[P],
-) -> Callable[
-    [StepEkfState, Sequence[Event], SiteMaps, P, np.random.Generator],
-    tuple[StepEkfState, list[Fix]],
-]:
-    """The engine's ``run`` with the variance of each scan's fix from ``variance`` (the
-    learned one here; ``fai_ekf``: the fingerprinting accuracy indicators)."""
-
-    def run(
-        state: StepEkfState,
-        events: Sequence[Event],
-        maps: SiteMaps,
-        params: P,
-        rng: np.random.Generator,
-    ) -> tuple[StepEkfState, list[Fix]]:
-        """Process a batch of events in time order (stably, so equal times keep their
-        order); magnetometer events are ignored, ``rng`` is unused (deterministic). One
-        fix per step once initialised and one per accepted or re-initialising scan."""
-        del rng  # engines share one signature; this one draws no random numbers
-
-        def scan(
-            kind: str,
-        ) -> Callable[[StepEkfState, WifiEvent | BleEvent], tuple[StepEkfState, Fix | None]]:
-            return lambda st, e: on_scan(st, e, kind, maps, params, variance)
-
-        routes = [
-            driver.on(StepEvent, lambda st, e: on_step(st, e, params)),
-            driver.on(WifiEvent, scan("wifi")),
-            driver.on(BleEvent, scan("ble")),
-            driver.on(FloorChange, scan_fixes.moved_by(maps)),
-        ]
-        return scan_fixes.walk_with_floor_changes(state, events, maps, params, routes)
-
-    return run
-
-
-run = runner(learned_variance)
-
-
+# a batch in time order (stably); magnetometer events are ignored, deterministic. One fix
+# per step once initialised and one per accepted or re-initialising scan.
 SPEC = EngineSpec(
     name="step_ekf",
     params_type=StepEkfParams,
     state_type=StepEkfState,
     initial_state=initial_state,
-    run=run,
-    uses=frozenset({"step", "wifi", "ble", "pressure"}),
+    uses=phone_steps.USES,
+    handlers=phone_steps.routes(on_step, on_scan, scan_fixes.on_floor_change),
+    prepass=with_floor_changes,
 )

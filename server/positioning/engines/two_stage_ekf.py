@@ -53,15 +53,15 @@ import numpy as np
 from annotated_types import Ge, Le
 from numpy.typing import NDArray
 
-from server.positioning.filters import pdr_kalman
+from server.positioning.engines.shared import pdr_kalman, scan_fixes
+from server.positioning.engines.shared.site_maps import SiteMaps
+from server.positioning.engines.shared.spec import EngineSpec, with_found_steps
 from server.positioning.filters.kalman import update, wrap_angle
 from server.positioning.model.accuracy import AccuracyParams
 from server.positioning.model.events import Fix
 from server.positioning.model.params import NonNegative, Positive
-from server.positioning.model.site_maps import SiteMaps
 from server.positioning.motion import pdr
 from server.positioning.motion.step_tracker import Scan, Step, TrackerParams, initial_tracker
-from server.positioning.radio import scan_fixes
 
 FloatArray = NDArray[np.float64]
 
@@ -129,17 +129,21 @@ def initial_state(params: TwoStageParams) -> TwoStageState:
 
 
 def _on_step(
-    state: TwoStageState, step: Step, maps: SiteMaps, params: TwoStageParams
+    state: TwoStageState,
+    step: Step,
+    maps: SiteMaps,
+    params: TwoStageParams,
+    rng: np.random.Generator,
 ) -> tuple[TwoStageState, Fix | None]:
-    state, turn = pdr_kalman.turn_of(state, step)
+    del rng  # deterministic
     if not step.straight:
         state = replace(state, turn_t_ms=float(step.t_ms))
-    if not state.initialized:
-        return state, None
     length = float(state.x[2])
     state = pdr_kalman.predict_step(
-        state, step, turn, maps, params, length, pdr_kalman.step_motion, params.process_noise
+        state, step, maps, params, length, pdr_kalman.step_motion, params.process_noise
     )
+    if not state.initialized:
+        return state, None
     u = update(state.x, state.P, z=[step.length_m], H=_H_STEP, R=np.array([[params.r_step_m2]]))
     new = replace(state, x=u.x, P=u.P)
     return new, pdr_kalman.state_fix(new, step.t_ms, "step", {"step_length_m": float(u.x[2])})
@@ -168,54 +172,66 @@ def _wifi_heading(fixes: FloatArray, turn_t_ms: float, min_span_m: float) -> flo
     return math.atan2(float(direction[0]), float(direction[1]))
 
 
-def _remember(state: TwoStageState, t_ms: int, x_m: float, y_m: float) -> TwoStageState:
+def _select(
+    state: TwoStageState, m: scan_fixes.Matched, maps: SiteMaps, params: TwoStageParams
+) -> tuple[scan_fixes.Matched, dict[str, float]]:
+    """The scan matched in the moving partition (the whole-map fix when it holds no
+    usable reference)."""
+    near = _partition(scan_fixes.reference_xy(maps), state.x, params.partition_radius_m)
+    used = scan_fixes.constrained(maps, m, params, near=near)
+    return used, {"partition": 1.0 if used is not m else 0.0}
+
+
+def _remember(
+    state: TwoStageState, taken: pdr_kalman.Taken, params: TwoStageParams
+) -> tuple[TwoStageState, dict[str, float]]:
+    """The whole-map fix joins the recent WKNN positions; after an update (not at a
+    restart) their WiFi heading starts the heading, or updates it with
+    ``wifi_heading_update``."""
+    m = taken.matched
     fixes = np.roll(state.fixes, -1, axis=0)
-    fixes[-1] = t_ms, x_m, y_m
-    return replace(state, fixes=fixes)
+    fixes[-1] = m.t_ms, m.whole.x_m, m.whole.y_m
+    state = replace(state, fixes=fixes)
+    if taken.restart:
+        return state, {}
+    heading = _wifi_heading(state.fixes, state.turn_t_ms, params.min_heading_span_m)
+    if heading is None:
+        return state, {}
+    if not state.heading_known:
+        x, P = pdr_kalman.set_heading(state.x, state.P, heading, params.r_wifi_heading_rad2)
+        state = replace(state, x=x, P=P, heading_known=True)
+    elif params.wifi_heading_update:
+        h = update(
+            state.x,
+            state.P,
+            z=[heading],
+            H=_H_HEADING,
+            R=np.array([[params.r_wifi_heading_rad2]]),
+            residual=lambda z, zp: wrap_angle(z - zp),
+        )
+        x = h.x
+        x[3] = wrap_angle(x[3])
+        state = replace(state, x=x, P=h.P)
+    return state, {"wifi_heading_rad": heading}
 
 
 def _on_scan(
-    state: TwoStageState, event: Scan, maps: SiteMaps, params: TwoStageParams
+    state: TwoStageState,
+    event: Scan,
+    maps: SiteMaps,
+    params: TwoStageParams,
+    rng: np.random.Generator,
 ) -> tuple[TwoStageState, Fix | None]:
-    start = pdr_kalman.begin_scan(maps, event, state, params)
-    if start is None or maps.radio is None:
-        return state, None
-    m, diagnostics, state = start.matched, start.diagnostics, start.state
-    if start.restart:
-        new = _remember(state, m.t_ms, m.whole.x_m, m.whole.y_m)
-        return new, pdr_kalman.state_fix(new, m.t_ms, m.kind, diagnostics)
-
-    near = _partition(scan_fixes.reference_xy(maps), state.x, params.partition_radius_m)
-    used = scan_fixes.constrained(maps, m, params, near=near)
-    diagnostics["partition"] = 1.0 if used is not m else 0.0
-    state, accepted = pdr_kalman.update_position(
-        state, used, start.rejects, params.gate_chi2, diagnostics
-    )
-    if not accepted:
-        return state, None
-    state = _remember(state, m.t_ms, m.whole.x_m, m.whole.y_m)
-
-    heading = _wifi_heading(state.fixes, state.turn_t_ms, params.min_heading_span_m)
-    if heading is not None:
-        diagnostics["wifi_heading_rad"] = heading
-        if not state.heading_known:
-            x, P = pdr_kalman.set_heading(state.x, state.P, heading, params.r_wifi_heading_rad2)
-            state = replace(state, x=x, P=P, heading_known=True)
-        elif params.wifi_heading_update:
-            h = update(
-                state.x,
-                state.P,
-                z=[heading],
-                H=_H_HEADING,
-                R=np.array([[params.r_wifi_heading_rad2]]),
-                residual=lambda z, zp: wrap_angle(z - zp),
-            )
-            x = h.x
-            x[3] = wrap_angle(x[3])
-            state = replace(state, x=x, P=h.P)
-    return state, pdr_kalman.state_fix(state, m.t_ms, m.kind, diagnostics)
+    del rng  # deterministic
+    return pdr_kalman.scan_update(state, event, maps, params, _select, _remember)
 
 
-FUSION = pdr_kalman.StepFusion(_on_step, _on_scan)
-apply = FUSION.apply
-SPEC = FUSION.spec("two_stage_ekf", TwoStageParams, TwoStageState, initial_state)
+SPEC = EngineSpec(
+    name="two_stage_ekf",
+    params_type=TwoStageParams,
+    state_type=TwoStageState,
+    initial_state=initial_state,
+    uses=pdr_kalman.USES,
+    handlers=pdr_kalman.routes(_on_step, _on_scan),
+    prepass=with_found_steps,
+)

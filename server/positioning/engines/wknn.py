@@ -19,19 +19,17 @@ magnetometer events are ignored, so fixes carry no heading.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
-from server.positioning.engines import driver
-from server.positioning.engines.spec import EngineSpec
+from server.positioning.engines.shared import scan_fixes
+from server.positioning.engines.shared.site_maps import SiteMaps
+from server.positioning.engines.shared.spec import EngineSpec, on, on_scans, with_floor_changes
 from server.positioning.model.accuracy import AccuracyParams
-from server.positioning.model.events import BleEvent, Event, Fix, WifiEvent
-from server.positioning.model.site_maps import SiteMaps
+from server.positioning.model.events import BleEvent, Fix, WifiEvent
 from server.positioning.motion.barometer import BaroState, FloorChange, initial_barometer
-from server.positioning.radio import scan_fixes
 
 
 @dataclass(frozen=True)
@@ -73,12 +71,19 @@ def initial_state(params: WknnParams) -> WknnState:
     return WknnState()
 
 
-def _locate(
-    event: WifiEvent | BleEvent, state: WknnState, maps: SiteMaps, params: WknnParams
+def on_scan(
+    state: WknnState,
+    event: WifiEvent | BleEvent,
+    maps: SiteMaps,
+    params: WknnParams,
+    rng: np.random.Generator,
 ) -> tuple[WknnState, Fix | None]:
-    m = scan_fixes.match(maps, event, params, state.floor_logp, state.floor_t_ms, state.baro)
+    """Locate one scan on its own: a fix when it matched the map (``maps.radio``, by
+    WKNN; without it no fix), the floor filter after it."""
+    del rng  # matching is deterministic
+    state, m = scan_fixes.scan_matched(state, event, maps, params)
     if m is None:
-        return replace(state, last_t_ms=event.t_ms), None
+        return state, None
     found = m.whole
     fix = Fix(
         t_ms=event.t_ms,
@@ -94,62 +99,21 @@ def _locate(
             "floor_prob": found.floor_prob,
         },
     )
-    new = replace(
-        state,
-        floor=found.floor,
-        n_fixes=state.n_fixes + 1,
-        last_t_ms=event.t_ms,
-        floor_logp=m.floor_logp,
-        floor_t_ms=event.t_ms,
-    )
+    new = replace(state, floor=found.floor, n_fixes=state.n_fixes + 1, last_t_ms=event.t_ms)
     return new, fix
 
 
-def run(
-    state: WknnState,
-    events: Sequence[Event],
-    maps: SiteMaps,
-    params: WknnParams,
-    rng: np.random.Generator,
-) -> tuple[WknnState, list[Fix]]:
-    """Locate every scan of a batch on its own.
-
-    Parameters
-    ----------
-    state : WknnState
-        State after the previous batch (``initial_state`` for a new session).
-    events : sequence of Event
-        Sorted by ``t_ms`` here (stably). Step and magnetometer events are ignored.
-    maps : SiteMaps
-        ``maps.radio`` is matched by WKNN; without it no fix is produced.
-    params : WknnParams
-    rng : numpy.random.Generator
-        Unused: matching is deterministic.
-
-    Returns
-    -------
-    state : WknnState
-    fixes : list of Fix
-        One per WiFi or BLE scan that matched the map, in time order.
-    """
-    del rng  # engines share one signature; this one draws no random numbers
-
-    def locate(st: WknnState, event: WifiEvent | BleEvent) -> tuple[WknnState, Fix | None]:
-        return _locate(event, st, maps, params)
-
-    routes = [
-        driver.on(WifiEvent, locate),
-        driver.on(BleEvent, locate),
-        driver.on(FloorChange, scan_fixes.moved_by(maps)),
-    ]
-    return scan_fixes.walk_with_floor_changes(state, events, maps, params, routes)
-
-
+# a batch in time order (stably): one fix per WiFi or BLE scan that matched the map; step
+# and magnetometer events are ignored
 SPEC = EngineSpec(
     name="wknn",
     params_type=WknnParams,
     state_type=WknnState,
     initial_state=initial_state,
-    run=run,
     uses=frozenset({"wifi", "ble", "pressure"}),
+    handlers=(
+        *on_scans(on_scan),
+        on(FloorChange, scan_fixes.on_floor_change),
+    ),
+    prepass=with_floor_changes,
 )

@@ -1,4 +1,5 @@
-"""Estimators, independent of what they estimate from: Kalman steps (``kalman``) and the
-state the Kalman filter engines share (``pdr_kalman``), the particle filter (``particle``,
-``particle_cloud``, compiled loops in ``particle_kernels``), the reference-point Markov
-chain (``markov_chain``) and the hidden Markov model of the floor (``floor_hmm``)."""
+"""Estimators: Kalman steps (``kalman``), the particle filter (``particle`` and its parts
+``particle_move``, ``particle_weight_update``, ``particle_resampling`` and
+``particle_estimate``; the cloud in ``particle_cloud``; compiled loops in
+``particle_kernels``) and the reference-point Markov chain (``markov_chain``). The Kalman
+state the PDR engines share is ``engines.shared.pdr_kalman``."""

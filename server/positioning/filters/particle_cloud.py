@@ -1,5 +1,6 @@
 """The particle cloud and its parameters (``papers/001_*`` section III-B), and the array
-helpers the filter's steps (``server.positioning.filters.particle``) share.
+helpers the filter's steps (``server.positioning.filters.particle`` and its
+``particle_*`` parts) share.
 
 Numbers are stored as float32 (positions, log weights, magnitudes) and float64 only in
 the arithmetic; see ``particle`` for the filter itself.
@@ -58,9 +59,10 @@ class ParticleParams(Params):
     # disc radius around a WiFi/BLE fix: WiFi alone errs by more than 10 m at 80 %
     # (papers/001_* Figure 11), so the cloud must reach beyond that
     init_radius_m: Positive = 15.0
-    # the DTW baseline's samples per step (particle.py, "DTW baseline"): the magnetometer
-    # samples a Magicol-style matcher compares over a step, a 50 Hz magnetometer over the
-    # paper's 0.67 s step period (section IV-B); 1 compares the step magnitudes only
+    # the DTW baseline's samples per step (particle_weight_update.py, "DTW baseline"): the
+    # magnetometer samples a Magicol-style matcher compares over a step, a 50 Hz
+    # magnetometer over the paper's 0.67 s step period (section IV-B); 1 compares the step
+    # magnitudes only
     dtw_samples_per_step: Annotated[int, Ge(1), Le(100)] = 34
 
 

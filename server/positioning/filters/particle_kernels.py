@@ -1,33 +1,31 @@
-"""Compiled (numba) forms of the particle filter's hot loops, one move or particle at a
-time, where numpy needs several passes over temporary arrays.
+"""Compiled (numba) forms of the particle filter's hot loops, one particle at a time,
+where numpy needs several passes over temporary arrays: the move, the weight update,
+resampling and a whole step on one floor; and ``warm_up``, which compiles every kernel of
+the filter (these, those of ``plan.move_test_kernels`` and those of
+``magnetic.magnetic_kernels``).
 
 Each kernel computes what its numpy reference computes, with the same float64 operations
 in the same order, so the answers agree exactly (the tests compare them on random
 inputs):
 
-* ``moves_cross``: ``wall_index.moves_cross`` -- long moves cut into pieces no longer
-  than the index's reach (ends at ``a + k/n (b - a)``, the last exactly ``b``), each piece
-  tested against the walls of its bucket whose boxes meet its box, by the closed-segment
-  orientation test of ``wall_index.segments_meet``;
-* ``bilinear``: ``magnetic._bilinear`` -- bilinear interpolation over the known corners,
-  NaN outside the grid or where the known corners weigh too little;
-* ``mmse``: ``sequence_distance.mmse`` -- eq (b) of ``papers/001_*`` per candidate row,
-  ``inf`` for a row with a NaN;
-* ``valid_moves``: ``floor_plan.valid_moves_reference`` -- the end in a walkable raster
-  cell, then the clearance shortcut, then ``moves_cross``'s test, in one pass;
-* ``mass_centered_weights``: the mass-centered branch of ``particle._weight_update`` after
-  the map sampling (window shift, eq (b)-(c), the median for unknown windows and
-  ``particle_cloud.normalised``), whose log-sum-exp adds in another order than numpy's
-  pairwise sum: the float32 log weights agree to a unit in the last place;
+* ``step_ends``: ``particle_move.move_ends_reference`` -- the noisy ends of the moves,
+  rounded to float32 (``sin`` and ``cos`` may differ from numpy's in the last bit);
+* ``mass_centered_weights``: the mass-centered branch of
+  ``particle_weight_update.weight_update`` after the map sampling (window shift, eq (b)-(c),
+  the median for unknown windows and ``particle_cloud.normalised``), whose log-sum-exp adds
+  in another order than numpy's pairwise sum: the float32 log weights agree to a unit in
+  the last place;
 * ``constrained_step``: ``particle.step``'s move and mass-centered update for a cloud on
-  one floor, in one call over the kernels above (``particle.step_on_floor``), with
-  ``effective_sample_size`` and ``systematic_rows`` (``particle._resample``'s rows, in one
-  merge pass over the sorted points);
-* ``dtw``: ``sequence_distance.dtw_distance`` per candidate, two rows of the table at a
-  time.
+  one floor, in one call over the kernels above, ``move_test_kernels.valid_moves`` and
+  ``magnetic_kernels.bilinear`` (``particle.step_on_floor``), with
+  ``effective_sample_size`` and ``systematic_rows`` (``particle_resampling._resample``'s
+  rows, in one merge pass over the sorted points).
 
 Compiled on first use and cached on disk (``cache=True``); no Python object crosses into
-them.
+them. Numba checks a cached kernel against its own source file only: after a change to
+``move_test_kernels.valid_moves`` or ``magnetic_kernels.bilinear`` (or to what they call),
+delete the cache of ``constrained_step`` (``__pycache__/particle_kernels.constrained_step-*``)
+or it goes on running the old code.
 """
 
 from __future__ import annotations
@@ -38,267 +36,10 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from server.positioning.magnetic.magnetic_kernels import GridArgs, bilinear, dtw, mmse
+from server.positioning.plan.move_test_kernels import PlanArgs, moves_cross, valid_moves
+
 FloatArray = NDArray[np.float64]
-# a floor plan and a magnetic grid as ``constrained_step`` takes them
-# (``floor_plan.kernel_args``, ``field_grid.kernel_args``)
-PlanArgs = tuple[
-    NDArray[np.bool_], float, float, float, int, int, NDArray[np.uint8], FloatArray, int,
-    float, float, float, float, int, int, NDArray[np.intp], FloatArray,
-]  # fmt: skip
-GridArgs = tuple[float, float, float, int, int, FloatArray, FloatArray, float]
-
-
-@njit(cache=True)
-def _sign(x: float) -> float:
-    return (x > 0.0) - (x < 0.0)
-
-
-@njit(cache=True)
-def _within(x: float, y: float, px: float, py: float, qx: float, qy: float) -> bool:
-    return min(px, qx) <= x <= max(px, qx) and min(py, qy) <= y <= max(py, qy)
-
-
-@njit(cache=True)
-def _segments_meet(
-    px: float, py: float, qx: float, qy: float, cx: float, cy: float, dx: float, dy: float
-) -> bool:
-    rx, ry = qx - px, qy - py
-    sx, sy = dx - cx, dy - cy
-    s1 = _sign(rx * (cy - py) - ry * (cx - px))
-    s2 = _sign(rx * (dy - py) - ry * (dx - px))
-    s3 = _sign(sx * (py - cy) - sy * (px - cx))
-    s4 = _sign(sx * (qy - cy) - sy * (qx - cx))
-    if s1 * s2 < 0 and s3 * s4 < 0:
-        return True
-    return (
-        (s1 == 0 and _within(cx, cy, px, py, qx, qy))
-        or (s2 == 0 and _within(dx, dy, px, py, qx, qy))
-        or (s3 == 0 and _within(px, py, cx, cy, dx, dy))
-        or (s4 == 0 and _within(qx, qy, cx, cy, dx, dy))
-    )
-
-
-@njit(cache=True)
-def _piece_crosses(
-    px: float,
-    py: float,
-    qx: float,
-    qy: float,
-    origin_x: float,
-    origin_y: float,
-    bucket_m: float,
-    nx: int,
-    ny: int,
-    start: NDArray[np.intp],
-    segments: FloatArray,
-) -> bool:
-    x_lo, x_hi = min(px, qx), max(px, qx)
-    y_lo, y_hi = min(py, qy), max(py, qy)
-    i = math.floor((x_lo - origin_x) / bucket_m)
-    j = math.floor((y_lo - origin_y) / bucket_m)
-    if not (0 <= i < nx and 0 <= j < ny):
-        return False
-    bucket = int(j) * nx + int(i)
-    for e in range(start[bucket], start[bucket + 1]):
-        w = segments[e]
-        near = x_lo <= w[6] and w[4] <= x_hi and y_lo <= w[7] and w[5] <= y_hi
-        if near and _segments_meet(px, py, qx, qy, w[0], w[1], w[2], w[3]):
-            return True
-    return False
-
-
-@njit(cache=True)
-def _move_crosses(
-    ax: float,
-    ay: float,
-    bx: float,
-    by: float,
-    origin_x: float,
-    origin_y: float,
-    bucket_m: float,
-    reach_m: float,
-    nx: int,
-    ny: int,
-    start: NDArray[np.intp],
-    segments: FloatArray,
-) -> bool:
-    """Whether the finite move ``a -> b`` meets a wall: in pieces no longer than the reach."""
-    dx, dy = bx - ax, by - ay
-    extent = max(abs(dx), abs(dy))
-    pieces = 1 if extent <= reach_m else math.ceil(extent / reach_m)
-    for m in range(pieces):
-        sx, sy = ax + (m / pieces) * dx, ay + (m / pieces) * dy
-        if m == pieces - 1:
-            ex, ey = bx, by
-        else:
-            ex, ey = ax + ((m + 1) / pieces) * dx, ay + ((m + 1) / pieces) * dy
-        if _piece_crosses(sx, sy, ex, ey, origin_x, origin_y, bucket_m, nx, ny, start, segments):
-            return True
-    return False
-
-
-@njit(cache=True)
-def moves_cross(
-    p: FloatArray,
-    q: FloatArray,
-    origin_x: float,
-    origin_y: float,
-    bucket_m: float,
-    reach_m: float,
-    nx: int,
-    ny: int,
-    start: NDArray[np.intp],
-    segments: FloatArray,
-) -> NDArray[np.bool_]:
-    """Whether each finite move ``p[k] -> q[k]`` meets a wall of the index."""
-    out = np.zeros(p.shape[0], dtype=np.bool_)
-    for k in range(p.shape[0]):
-        out[k] = _move_crosses(
-            p[k, 0], p[k, 1], q[k, 0], q[k, 1],
-            origin_x, origin_y, bucket_m, reach_m, nx, ny, start, segments,
-        )  # fmt: skip
-    return out
-
-
-@njit(cache=True)
-def bilinear(
-    pts: FloatArray,
-    origin_x: float,
-    origin_y: float,
-    cell_m: float,
-    nx: int,
-    ny: int,
-    filled: FloatArray,
-    known: FloatArray,
-    min_weight: float,
-) -> FloatArray:
-    """The grid's field at each point (``filled``/``known`` flat, row-major (ny, nx))."""
-    n = pts.shape[0]
-    out = np.full(n, np.nan)
-    di = min(nx - 1, 1)
-    dj = nx * min(ny - 1, 1)
-    for k in range(n):
-        u = (pts[k, 0] - origin_x) / cell_m - 0.5
-        v = (pts[k, 1] - origin_y) / cell_m - 0.5
-        if not (u >= -0.5 and u <= nx - 0.5 and v >= -0.5 and v <= ny - 0.5):
-            continue
-        u = max(min(u, nx - 1.0), 0.0)
-        v = max(min(v, ny - 1.0), 0.0)
-        i0 = min(math.floor(u), max(nx - 2, 0))
-        j0 = min(math.floor(v), max(ny - 2, 0))
-        fx, fy = u - i0, v - j0
-        gx, gy = 1.0 - fx, 1.0 - fy
-        base = int(j0 * nx + i0)
-        total = 0.0
-        weight = 0.0
-        for offset, w in ((0, gx * gy), (di, fx * gy), (dj, gx * fy), (dj + di, fx * fy)):
-            w = w * known[base + offset]
-            weight += w
-            total += w * filled[base + offset]
-        if weight > min_weight:
-            out[k] = total / weight
-    return out
-
-
-@njit(cache=True)
-def mmse(observed: FloatArray, candidates: FloatArray) -> FloatArray:
-    """Eq (b) per row of ``candidates`` (n, w) against ``observed`` (w,)."""
-    n, w = candidates.shape
-    out = np.empty(n)
-    for k in range(n):
-        total = 0.0
-        for j in range(w - 1):
-            total += abs(
-                abs(candidates[k, j + 1] - candidates[k, j]) - abs(observed[j + 1] - observed[j])
-            )
-        total /= w - 1
-        out[k] = np.inf if math.isnan(total) else total
-    return out
-
-
-@njit(cache=True)
-def dtw(observed: FloatArray, candidates: FloatArray) -> FloatArray:
-    """``sequence_distance.dtw_distance`` per row of ``candidates`` (n, m) against
-    ``observed`` (w,): the same recursion row by row over two rows of the table, ``inf``
-    for a row with a NaN."""
-    n, m = candidates.shape
-    w = observed.shape[0]
-    out = np.empty(n)
-    prev = np.empty(m)
-    row = np.empty(m)
-    for i in range(n):
-        b = candidates[i]
-        prev[0] = abs(observed[0] - b[0])
-        for ell in range(1, m):
-            prev[ell] = prev[ell - 1] + abs(observed[0] - b[ell])
-        for k in range(1, w):
-            a = observed[k]
-            row[0] = prev[0] + abs(a - b[0])
-            for ell in range(1, m):
-                best = min(prev[ell], row[ell - 1], prev[ell - 1])
-                row[ell] = abs(a - b[ell]) + best
-            prev, row = row, prev
-        total = prev[m - 1]
-        out[i] = np.inf if math.isnan(total) else total
-    return out
-
-
-@njit(cache=True)
-def _cell(x: float, y: float, x0: float, y0: float, cell_m: float, nx: int, ny: int) -> int:
-    """Flat raster index of a point's cell; -1 outside the raster (and for NaN)."""
-    fx = math.floor((x - x0) / cell_m)
-    fy = math.floor((y - y0) / cell_m)
-    if fx >= 0 and fx < nx and fy >= 0 and fy < ny:
-        return int(fy) * nx + int(fx)
-    return -1
-
-
-@njit(cache=True)
-def valid_moves(
-    a: FloatArray,
-    b: FloatArray,
-    walkable: NDArray[np.bool_],
-    x0: float,
-    y0: float,
-    cell_m: float,
-    nx: int,
-    ny: int,
-    clearance: NDArray[np.uint8],
-    clear_below: FloatArray,
-    n_walls: int,
-    origin_x: float,
-    origin_y: float,
-    bucket_m: float,
-    reach_m: float,
-    bucket_nx: int,
-    bucket_ny: int,
-    start: NDArray[np.intp],
-    segments: FloatArray,
-) -> NDArray[np.bool_]:
-    """``floor_plan.valid_moves``: ``b`` in a walkable cell and ``a -> b`` meeting no wall
-    (moves shorter than the clearance of their start's cell skip the segment tests)."""
-    n = a.shape[0]
-    out = np.zeros(n, dtype=np.bool_)
-    for k in range(n):
-        ax, ay, bx, by = a[k, 0], a[k, 1], b[k, 0], b[k, 1]
-        end = _cell(bx, by, x0, y0, cell_m, nx, ny)
-        if end < 0 or not walkable[end]:
-            continue
-        if not (math.isfinite(ax) and math.isfinite(ay)):
-            continue
-        if n_walls == 0:
-            out[k] = True
-            continue
-        here = _cell(ax, ay, x0, y0, cell_m, nx, ny)
-        dx, dy = bx - ax, by - ay
-        if here >= 0 and dx * dx + dy * dy < clear_below[clearance[here]]:
-            out[k] = True
-            continue
-        out[k] = not _move_crosses(
-            ax, ay, bx, by,
-            origin_x, origin_y, bucket_m, reach_m, bucket_nx, bucket_ny, start, segments,
-        )  # fmt: skip
-    return out
 
 
 @njit(cache=True)
@@ -310,7 +51,7 @@ def step_ends(
     step_sd_m: float,
     heading_sd_rad: float,
 ) -> NDArray[np.float32]:
-    """``particle.move``'s new positions: ``a + max(S + σ_S n0, 0) (sin, cos)(θ + σ_θ n1)``
+    """``particle_move.move``'s new positions: ``a + max(S + σ_S n0, 0) (sin, cos)(θ + σ_θ n1)``
     rounded to float32; ``noise`` is (2, n) for the n rows of ``a``."""
     n = a.shape[0]
     out = np.empty((n, 2), dtype=np.float32)
@@ -353,10 +94,10 @@ def mass_centered_weights(
     t: float,
     log_k: float,
 ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-    """``particle._weight_update`` after the map sampling, for the mass-centered update:
-    the windows shifted with the new map magnitudes (``m_live`` for the rows ``live``,
-    NaN for the dead), then eq (b)-(c) and the normalisation; the log weights come back
-    unchanged when there is nothing to weigh by."""
+    """``particle_weight_update.weight_update`` after the map sampling, for the
+    mass-centered update: the windows shifted with the new map magnitudes (``m_live`` for
+    the rows ``live``, NaN for the dead), then eq (b)-(c) and the normalisation; the log
+    weights come back unchanged when there is nothing to weigh by."""
     n, slots = mags.shape
     shifted = np.empty((n, slots), dtype=np.float32)
     for k in range(n):
@@ -413,7 +154,7 @@ def constrained_step(
     t: float,
     log_k: float,
 ) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32], float]:
-    """``particle.move`` and, when ``weigh``, the mass-centered update, for a cloud on one
+    """``particle_move.move`` and, when ``weigh``, the mass-centered update, for a cloud on one
     floor: each living particle moved (``step_ends``), its move tested (``valid_moves``
     when ``has_plan``, else only for a finite end), the log weights normalised, then the
     map sampled at the living particles (``bilinear`` when ``has_grid``, else unknown) and
@@ -491,7 +232,7 @@ def effective_sample_size(log_w: NDArray[np.float32]) -> float:
 
 @njit(cache=True)
 def systematic_rows(log_w: NDArray[np.float32], u: float) -> NDArray[np.intp]:
-    """``particle._resample``'s rows: for each point ``(u + k) / n`` the first particle
+    """``particle_resampling._resample``'s rows: for each point ``(u + k) / n`` the first particle
     whose cumulative weight exceeds it (``searchsorted(..., side="right")``), in one merge
     pass over the sorted points."""
     n = log_w.shape[0]

@@ -31,7 +31,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from server.positioning.filters import particle_kernels
+from server.positioning.magnetic import magnetic_kernels
 
 FloatArray = NDArray[np.float64]
 Component = Literal["magnitude", "horizontal", "vertical"]
@@ -126,14 +126,14 @@ def sample(grid: MagneticGrid, xy: ArrayLike, component: Component = "magnitude"
     if getattr(grid, component) is None:
         raise ValueError(f"this grid has no {component} component")
     # _bilinear below, compiled (kernels)
-    out: FloatArray = particle_kernels.bilinear(pts, *kernel_args(grid, component))
+    out: FloatArray = magnetic_kernels.bilinear(pts, *kernel_args(grid, component))
     return out
 
 
 def kernel_args(
     grid: MagneticGrid, component: Component = "magnitude"
-) -> particle_kernels.GridArgs:
-    """The grid as the compiled sampling takes it (``particle_kernels.bilinear``,
+) -> magnetic_kernels.GridArgs:
+    """The grid as the compiled sampling takes it (``magnetic_kernels.bilinear``,
     ``particle_kernels.constrained_step``)."""
     filled, known = grid.sampling_arrays(component)
     ny, nx = grid.magnitude.shape

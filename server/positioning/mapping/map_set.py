@@ -32,13 +32,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from server.positioning.engines.shared.site_maps import FloorRef, SiteMaps
 from server.positioning.magnetic.field_grid import MagneticGrid, MagneticMap
 from server.positioning.mapping.fai_maps import build_fai_maps
 from server.positioning.mapping.fix_calibration import learn_fix_error
 from server.positioning.mapping.gridding import build_radio_map
 from server.positioning.mapping.magnetic_gridding import grid_from_samples
 from server.positioning.mapping.matrices import readings_matrix
-from server.positioning.model.site_maps import FloorRef, SiteMaps
 from server.positioning.motion import barometer
 from server.positioning.plan.anchors import anchors_from_plan
 from server.positioning.plan.floor_plan import FloorPlan

@@ -18,12 +18,25 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 from server.positioning.model.events import radio_key
-from server.positioning.model.site_maps import Anchor
 
 DEFAULT_RSSI_DBM = -65.0
+
+
+@dataclass(frozen=True, slots=True)
+class Anchor:
+    """A place the phone can tell it is at: a BLE beacon at a known position, such as an
+    elevator or an entrance (``papers/003_*`` section IV-B); it is passed when the beacon
+    is heard at or above ``rssi_dbm``."""
+
+    floor: int
+    x_m: float
+    y_m: float
+    emitter: str  # radio-map key of the beacon, "ble:<id>"
+    rssi_dbm: float = -65.0
 
 
 def _is_number(value: Any) -> bool:

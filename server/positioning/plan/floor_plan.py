@@ -5,8 +5,8 @@ The map constraint of the particle filter (``papers/001_*`` section III-B and II
 no possibility to walk through a wall"): a particle moved from ``a`` to ``b`` survives
 when ``b`` is reachable and the segment ``a -> b`` meets no wall.
 
-Plans are built from GeoJSON by ``geojson_plan`` (whose docstring gives the format
-and how the walkable area ``W`` and the wall segments follow from it); the wall index
+Plans are built from GeoJSON by ``geojson_plan`` (whose docstring gives how the walkable
+area ``W`` and the wall segments follow from the format of ``geojson_format``); the wall index
 and clearance raster that make the crossing test fast are in ``wall_index``.
 
 Raster. ``walkable[iy, ix]`` covers the square ``[x0 + ix c, x0 + (ix + 1) c) x
@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from server.positioning.filters import particle_kernels
+from server.positioning.plan import move_test_kernels
 from server.positioning.plan.wall_index import (
     CLEARANCE_MARGIN_M,
     CLEARANCE_STEPS,
@@ -137,16 +137,16 @@ def crosses_wall(plan: FloorPlan, a: ArrayLike, b: ArrayLike) -> NDArray[np.bool
 
 def valid_moves(plan: FloorPlan, a: ArrayLike, b: ArrayLike) -> NDArray[np.bool_]:
     """``walkable_at(plan, b) & ~crosses_wall(plan, a, b)``, shape (n,): compiled
-    (``particle_kernels.valid_moves``; ``valid_moves_reference`` is the same in numpy)."""
+    (``move_test_kernels.valid_moves``; ``valid_moves_reference`` is the same in numpy)."""
     a, b = _points(a), _points(b)
     if a.shape != b.shape:
         raise ValueError(f"a and b differ in shape: {a.shape} and {b.shape}")
-    out: NDArray[np.bool_] = particle_kernels.valid_moves(a, b, *kernel_args(plan))
+    out: NDArray[np.bool_] = move_test_kernels.valid_moves(a, b, *kernel_args(plan))
     return out
 
 
-def kernel_args(plan: FloorPlan) -> particle_kernels.PlanArgs:
-    """The plan as the compiled move test takes it (``particle_kernels.valid_moves``,
+def kernel_args(plan: FloorPlan) -> move_test_kernels.PlanArgs:
+    """The plan as the compiled move test takes it (``move_test_kernels.valid_moves``,
     ``particle_kernels.constrained_step``): raster, clearance and wall index."""
     ny, nx = plan.walkable.shape
     return (
@@ -290,7 +290,7 @@ def _crossing(plan: FloorPlan, a: FloatArray, b: FloatArray) -> NDArray[np.bool_
     todo = np.flatnonzero(~clear)
     if todo.size:
         # wall_index.moves_cross, compiled (kernels)
-        hit = particle_kernels.moves_cross(
+        hit = move_test_kernels.moves_cross(
             take_rows(a, todo), take_rows(b, todo), *plan._index.kernel_args()
         )
         out[todo if isinstance(rows, slice) else rows[todo]] = hit

@@ -87,7 +87,7 @@ class WallIndex:
     def kernel_args(
         self,
     ) -> tuple[float, float, float, float, int, int, NDArray[np.intp], FloatArray]:
-        """The index as the compiled wall test takes it (``particle_kernels.moves_cross``)."""
+        """The index as the compiled wall test takes it (``move_test_kernels.moves_cross``)."""
         x0, y0 = self.origin_m
         return x0, y0, self.bucket_m, self.reach_m, self.nx, self.ny, self.start, self.segments
 

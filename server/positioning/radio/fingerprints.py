@@ -44,8 +44,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from server.positioning.filters.floor_hmm import logsumexp
 from server.positioning.model.events import RadioReading, radio_key
+from server.positioning.radio.floor_hmm import logsumexp
 
 MISSING_DBM = -100.0
 DISTANCE_EPS_DB = 1e-6  # floor under D_i in the 1/D weights (papers/002_* eq 3)

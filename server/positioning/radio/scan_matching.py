@@ -48,9 +48,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from server.positioning.filters.floor_hmm import logsumexp
 from server.positioning.model.events import RadioReading, radio_key
 from server.positioning.radio.fingerprints import MISSING_DBM, WknnFix
+from server.positioning.radio.floor_hmm import logsumexp
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]

@@ -20,7 +20,7 @@ from server.positioning.engines.auto import (
 )
 from server.positioning.model.events import Event, Fix, ImuEvent, StepEvent, WifiEvent
 from server.positioning.model.state_codec import StateError
-from tests.positioning.engines.test_step_ekf import MAPS, loop_walk
+from tests.support.loop_building import MAPS, loop_walk
 
 SPEC = get_engine("auto")
 

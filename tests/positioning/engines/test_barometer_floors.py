@@ -13,6 +13,7 @@ import pytest
 
 from client_sim.imu import T0_MS, Block, Sensors, blocks, synthesize_walk
 from server.positioning.engines import fai_ekf, get_engine, pf_magnetic
+from server.positioning.engines.shared.site_maps import FloorRef, SiteMaps
 from server.positioning.model.events import (
     Event,
     Fix,
@@ -22,7 +23,6 @@ from server.positioning.model.events import (
     WifiEvent,
     radio_key,
 )
-from server.positioning.model.site_maps import FloorRef, SiteMaps
 from server.positioning.motion.barometer import FloorChange
 from server.positioning.radio.fingerprints import RadioMap
 
@@ -189,27 +189,30 @@ def test_a_change_while_the_cloud_is_dead_moves_the_floor_filter() -> None:
     params = pf_magnetic.PfMagneticParams()
     state = replace(pf_magnetic.initial_state(params), floor_logp=np.log([0.9, 0.1]))
     assert state.cloud is None
-    moved, fix = pf_magnetic._on_floor_change(state, FloorChange(T0_MS, 1), maps)
+    moved, fix = pf_magnetic._on_floor_change(
+        state, FloorChange(T0_MS, 1), maps, params, np.random.default_rng(0)
+    )
     assert fix is None
     np.testing.assert_allclose(np.exp(moved.floor_logp), [0.0, 1.0], atol=1e-12)
 
 
 def test_fai_ekf_starts_a_new_profile_on_the_new_floor() -> None:
     maps = two_floor_map()
+    params, rng = fai_ekf.FaiEkfParams(), np.random.default_rng(0)
     state = replace(
-        fai_ekf.initial_state(fai_ekf.FaiEkfParams()),
+        fai_ekf.initial_state(params),
         floor=0,
         initialized=True,
         floor_logp=np.log([0.8, 0.2]),
         profile_xy=np.zeros((3, 2)),
         profile_ut=np.full(3, 45.0),
     )
-    moved, fix = fai_ekf._on_floor_change(state, FloorChange(T0_MS, 1), maps)
+    moved, fix = fai_ekf._on_floor_change(state, FloorChange(T0_MS, 1), maps, params, rng)
     assert fix is None
     assert moved.floor == 1
     assert moved.profile_ut.size == 0
     assert moved.profile_xy.shape == (0, 2)
     # a change to a floor the building does not have leaves the estimate where it was
-    kept, _ = fai_ekf._on_floor_change(state, FloorChange(T0_MS, 3), maps)
+    kept, _ = fai_ekf._on_floor_change(state, FloorChange(T0_MS, 3), maps, params, rng)
     assert kept.floor == 0
     assert kept.profile_ut.size == 3

@@ -1,4 +1,5 @@
-"""Every registered engine through the same checks: its state survives the codec
+"""Every registered engine through the same checks: it is declared one way (an
+``EngineSpec`` of named handlers, or of a delegate), its state survives the codec
 exactly, a seed makes it deterministic, its fixes carry finite values and a floor, and
 bad parameters are refused naming the field."""
 
@@ -10,36 +11,15 @@ from collections.abc import Sequence
 import numpy as np
 import pytest
 
-from client_sim.imu import blocks, synthesize_walk
 from server.positioning.engines import ENGINES, get_engine
-from server.positioning.engines.spec import Engine
+from server.positioning.engines.shared.spec import Engine, EngineSpec
 from server.positioning.model import state_codec
-from server.positioning.model.events import Event, Fix, ImuEvent
+from server.positioning.model.events import Event, Fix
 from server.positioning.model.params import ParamError, as_dict
 from server.storage.codec import decode_arrays, encode_arrays
-from tests.positioning.engines.test_pf_magnetic import T0, scan, site_maps, walk
+from tests.support.corridor_site import batches, site_maps
 
 MAPS = site_maps()
-
-
-def batches() -> list[list[Event]]:
-    """Six one-second batches of a walk east along the corridor with all kinds of event:
-    phone steps with the field, raw IMU samples and a scan each second."""
-    rng = np.random.default_rng(11)
-    trace = synthesize_walk(lambda t: np.full_like(t, math.pi / 2), 6.0, rng, t0_ms=T0)
-    imu = [
-        ImuEvent(b.t_ms, accel=b.accel, gyro=b.gyro, magnetic=b.magnetic, rotation=b.rotation)
-        for b in blocks(trace, 1000.0)
-    ]
-    steps = walk(5.0, 10, rng, t0=T0)
-    out: list[list[Event]] = []
-    for k in range(6):
-        lo, hi = T0 + 1000 * k, T0 + 1000 * (k + 1)
-        batch: list[Event] = [scan(lo + 1, 5.0 + 0.7 * k, 1.5)]
-        batch += [e for e in steps if lo <= e.t_ms < hi]
-        batch += [e for e in imu if lo <= e.t_ms < hi]
-        out.append(batch)
-    return out
 
 
 def replay(
@@ -60,6 +40,27 @@ def replay(
 @pytest.fixture(scope="module")
 def events() -> list[list[Event]]:
     return batches()
+
+
+@pytest.mark.parametrize("name", sorted(ENGINES))
+def test_every_engine_is_declared_as_an_engine_spec(name: str) -> None:
+    spec = get_engine(name)
+    assert isinstance(spec, EngineSpec)
+    assert spec.name == name
+    # the handlers a reader finds at the declaration are the engine's own functions
+    for route in spec.handlers:
+        assert route.handler.__name__ != "<lambda>", route
+        assert "<locals>" not in route.handler.__qualname__, route
+    assert bool(spec.handlers) != (spec.delegate is not None)
+    with pytest.raises(ValueError, match="handlers or a delegate"):
+        EngineSpec(
+            name="neither",
+            params_type=spec.params_type,
+            state_type=spec.state_type,
+            initial_state=spec.initial_state,
+            uses=spec.uses,
+            handlers=(),
+        )
 
 
 @pytest.mark.parametrize("name", sorted(ENGINES))

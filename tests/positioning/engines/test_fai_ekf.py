@@ -8,6 +8,7 @@ from dataclasses import replace
 import numpy as np
 
 from server.positioning.engines import fai_ekf, step_ekf
+from server.positioning.engines.shared.site_maps import SiteMaps
 from server.positioning.magnetic.field_grid import MagneticMap
 from server.positioning.mapping.fai_maps import build_fai_maps
 from server.positioning.mapping.magnetic_gridding import grid_from_samples
@@ -19,12 +20,10 @@ from server.positioning.model.events import (
     WifiEvent,
     radio_key,
 )
-from server.positioning.model.site_maps import SiteMaps
 from server.positioning.radio.accuracy_indicators import FaiParams
 from server.positioning.radio.fingerprints import RadioMap
 from server.positioning.radio.fix_error import EDGES, FixErrorModel
-from tests.positioning.engines.test_contract import batches
-from tests.positioning.engines.test_pf_magnetic import LENGTH_M, T0, WIDTH_M, rssi, site_maps
+from tests.support.corridor_site import LENGTH_M, T0, WIDTH_M, batches, rssi, site_maps
 
 SIGMA_M = 5.0
 
@@ -39,7 +38,7 @@ def test_a_constant_fai_is_the_plain_step_ekf() -> None:
     a_state, b_state = step_ekf.initial_state(plain), fai_ekf.initial_state(ct)
     a_fixes, b_fixes = [], []
     for batch in batches():
-        a_state, a = step_ekf.run(a_state, batch, maps, plain, rng)
+        a_state, a = step_ekf.SPEC.run(a_state, batch, maps, plain, rng)
         b_state, b = fai_ekf.SPEC.run(b_state, batch, maps, ct, rng)
         a_fixes += a
         b_fixes += b

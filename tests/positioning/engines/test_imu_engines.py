@@ -16,13 +16,16 @@ from hypothesis import strategies as st
 from server.positioning.engines import everywhere_ekf as ev
 from server.positioning.engines import get_engine
 from server.positioning.engines import two_stage_ekf as ts
+from server.positioning.engines.shared.pdr_kalman import FilterState, step_motion
+from server.positioning.engines.shared.site_maps import FloorRef, SiteMaps
 from server.positioning.filters.kalman import predict
-from server.positioning.filters.pdr_kalman import FilterState, step_motion
 from server.positioning.model import state_codec
 from server.positioning.model.events import BleEvent, Fix, RadioReading, WifiEvent, radio_key
-from server.positioning.model.site_maps import Anchor, FloorRef, SiteMaps
 from server.positioning.motion.step_tracker import Scan, Step
+from server.positioning.plan.anchors import Anchor
 from server.positioning.radio.fingerprints import RadioMap
+
+NO_RNG = np.random.default_rng(0)  # the filters draw no random numbers
 
 T0 = 1_700_000_000_000
 FLOORS = (FloorRef("b", "f0", 0),)
@@ -112,7 +115,7 @@ def test_ekf_step_equals_a_plain_kalman_filter_when_the_model_is_linear() -> Non
     )
     maps = SiteMaps(FLOORS, None, "v")
     step = Step(T0, 0.7, 0.3 + 0.2, math.nan, True)  # a 0.2 rad turn
-    new, _ = ev.apply(state, [step], maps, params)
+    new, _ = ev.SPEC.walk(state, [step], maps, params, NO_RNG)
 
     u = 1.1 * 0.7 * np.array([math.sin(0.5), math.cos(0.5), 0.0, 0.0])
     kf_x, kf_P = predict(x, P, np.eye(4), params.process_noise)
@@ -129,9 +132,9 @@ def apply_items(
     """Steps and scans straight into a PDR fusion engine's filter, on its defaults."""
     if engine == "everywhere_ekf":
         ev_params = ev.EverywhereParams()
-        return ev.apply(ev.initial_state(ev_params), items, maps, ev_params)
+        return ev.SPEC.walk(ev.initial_state(ev_params), items, maps, ev_params, NO_RNG)
     ts_params = ts.TwoStageParams()
-    return ts.apply(ts.initial_state(ts_params), items, maps, ts_params)
+    return ts.SPEC.walk(ts.initial_state(ts_params), items, maps, ts_params, NO_RNG)
 
 
 @pytest.mark.parametrize("engine", ["two_stage_ekf", "everywhere_ekf"])
@@ -180,7 +183,7 @@ def test_two_stage_learns_the_heading_from_wifi_without_a_compass() -> None:
         items.append(step)
         if i % 3 == 0:
             items.append(scan_at(step.t_ms, 3.0 + 0.7 * i, 3.0))
-    state, fixes = ts.apply(ts.initial_state(params), items, maps, params)
+    state, fixes = ts.SPEC.walk(ts.initial_state(params), items, maps, params, NO_RNG)
     assert state.heading_known
     assert abs(state.x[3] - math.pi / 2) < math.radians(10)
     assert any("wifi_heading_rad" in f.diagnostics for f in fixes)
@@ -227,13 +230,13 @@ def test_anchors_calibrate_step_length_and_heading() -> None:
     ]
     items += steps[:30]  # 21 m of true walking
     items.append(beacon(steps[29].t_ms + 1, "beacon-b"))
-    state, fixes = ev.apply(ev.initial_state(params), items, maps, params)
+    state, fixes = ev.SPEC.walk(ev.initial_state(params), items, maps, params, NO_RNG)
     calibrated = [f for f in fixes if "step_scale" in f.diagnostics]
     assert len(calibrated) == 1
     assert 1.0 + state.x[2] == pytest.approx(1 / 1.1, rel=0.02)
     assert state.x[3] == pytest.approx(math.pi / 2, abs=math.radians(1.0))
 
-    state, fixes = ev.apply(state, steps[30:], maps, params)
+    state, fixes = ev.SPEC.walk(state, steps[30:], maps, params, NO_RNG)
     end = fixes[-1]
     assert math.hypot(end.x_m - (23.0 + 30 * true_step), end.y_m - 3.0) < 0.5
 
@@ -243,6 +246,6 @@ def test_a_weak_beacon_is_not_an_anchor() -> None:
     maps = SiteMaps(FLOORS, None, "v", anchors=anchors)
     params = ev.EverywhereParams()
     weak = BleEvent(T0, (RadioReading("beacon-a", -80.0),))
-    state, fixes = ev.apply(ev.initial_state(params), [weak], maps, params)
+    state, fixes = ev.SPEC.walk(ev.initial_state(params), [weak], maps, params, NO_RNG)
     assert not state.initialized
     assert fixes == []

@@ -1,5 +1,6 @@
-"""The ``map_markov`` engine on the synthetic two-floor building of the ``step_ekf``
-tests (no plan: a free graph over each floor's reference points)."""
+"""The ``map_markov`` engine on the synthetic two-floor building of
+``tests.support.loop_building`` (no plan: a free graph over each floor's reference
+points)."""
 
 from __future__ import annotations
 
@@ -10,17 +11,17 @@ import pytest
 
 from server.positioning.engines import get_engine
 from server.positioning.engines.map_markov import (
+    SPEC,
     MapMarkovParams,
     MapMarkovState,
     blend,
     initial_state,
-    run,
 )
+from server.positioning.engines.shared.site_maps import SiteMaps
 from server.positioning.model import state_codec
 from server.positioning.model.events import Event, Fix, StepEvent, WifiEvent
-from server.positioning.model.site_maps import SiteMaps
 from server.positioning.plan.navigation_graph import site_graphs
-from tests.positioning.engines.test_step_ekf import (
+from tests.support.loop_building import (
     MAPS,
     N_FLOORS,
     errors,
@@ -35,7 +36,7 @@ def run_all(
     events: list[Event], params: MapMarkovParams | None = None, maps: SiteMaps = GRAPH_MAPS
 ) -> tuple[MapMarkovState, list[Fix]]:
     p = params or MapMarkovParams()
-    return run(initial_state(p), events, maps, p, np.random.default_rng(0))
+    return SPEC.run(initial_state(p), events, maps, p, np.random.default_rng(0))
 
 
 def test_blend_at_theta_zero_and_one_is_each_source() -> None:
@@ -94,7 +95,7 @@ def test_state_round_trips_and_batches_split_anywhere() -> None:
         spec = get_engine("map_markov")
         arrays = spec.encode(state)
         state = spec.decode(arrays)  # type: ignore[assignment]
-        state, out = run(
+        state, out = SPEC.run(
             state, walk.events[start : start + 7], GRAPH_MAPS, p, np.random.default_rng(0)
         )
         fixes.extend(out)
@@ -137,7 +138,7 @@ def test_a_new_map_mid_session_reseeds_the_belief() -> None:
         ),
     )
     p = MapMarkovParams()
-    new, fixes = run(state, walk.events[half:], smaller, p, np.random.default_rng(0))
+    new, fixes = SPEC.run(state, walk.events[half:], smaller, p, np.random.default_rng(0))
     graph = smaller.graphs[0]
     assert graph is not None
     assert new.graph_key == graph.fingerprint != state.graph_key

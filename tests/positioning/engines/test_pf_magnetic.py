@@ -5,99 +5,18 @@ disagreeing."""
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from server.positioning.engines import pf_magnetic
-from server.positioning.magnetic.field_grid import MagneticMap
-from server.positioning.mapping.magnetic_gridding import grid_from_samples
+from server.positioning.engines.shared.site_maps import FloorRef, SiteMaps
 from server.positioning.model import state_codec
 from server.positioning.model.events import (
-    Event,
-    MagEvent,
     RadioReading,
-    StepEvent,
     WifiEvent,
     radio_key,
 )
-from server.positioning.model.site_maps import FloorRef, SiteMaps
-from server.positioning.plan.geojson_plan import plan_from_geojson
 from server.positioning.radio.fingerprints import RadioMap
-
-T0 = 1_700_000_000_000
-LENGTH_M, WIDTH_M = 60.0, 3.0
-AP_XY = np.array([[x, y] for x in (0.0, 20.0, 40.0, 60.0) for y in (0.0, 3.0)])
-
-
-def field_ut(x: np.ndarray) -> np.ndarray:
-    """A smooth, non-periodic field along the corridor (µT)."""
-    out: np.ndarray = (
-        45.0 + 6.0 * np.sin(x / 3.1) + 4.0 * np.sin(x / 1.7 + 1.0) + 3.0 * np.cos(x / 7.3)
-    )
-    return out
-
-
-def rssi(x: float, y: float) -> np.ndarray:
-    d = np.maximum(np.hypot(AP_XY[:, 0] - x, AP_XY[:, 1] - y), 1.0)
-    out: np.ndarray = -40.0 - 25.0 * np.log10(d)
-    return out
-
-
-def site_maps() -> SiteMaps:
-    plan = plan_from_geojson(
-        {
-            "type": "FeatureCollection",
-            "features": [
-                {
-                    "type": "Feature",
-                    "properties": {"kind": "walkable"},
-                    "geometry": {
-                        "type": "Polygon",
-                        "coordinates": [
-                            [[0, 0], [LENGTH_M, 0], [LENGTH_M, WIDTH_M], [0, WIDTH_M], [0, 0]]
-                        ],
-                    },
-                }
-            ],
-        }
-    )
-    gx, gy = np.meshgrid(np.arange(0.0, LENGTH_M, 0.25), np.arange(0.0, WIDTH_M, 0.25))
-    xy = np.column_stack([gx.ravel(), gy.ravel()])
-    grid = grid_from_samples(xy, field_ut(xy[:, 0]), extent=(0.0, 0.0, LENGTH_M, WIDTH_M))
-    rp = np.array([[x, y] for x in range(61) for y in (0.5, 1.5, 2.5)], dtype=np.float32)
-    mean = np.array([rssi(float(x), float(y)) for x, y in rp], dtype=np.float32)
-    radio = RadioMap(
-        rp_xy=rp,
-        rp_floor=np.zeros(len(rp), dtype=np.int32),
-        mean_dbm=mean,
-        var_db2=np.ones_like(mean),
-        count=np.ones(mean.shape, dtype=np.int32),
-        emitters=tuple(radio_key("wifi", f"ap{i}") for i in range(len(AP_XY))),
-    )
-    return SiteMaps(
-        (FloorRef("b", "f0", 0),),
-        radio,
-        "v",
-        plans=(plan,),
-        magnetic=MagneticMap((grid,), "v"),
-    )
-
-
-def scan(t_ms: int, x: float, y: float) -> WifiEvent:
-    readings = tuple(RadioReading(f"ap{i}", float(round(v))) for i, v in enumerate(rssi(x, y)))
-    return WifiEvent(t_ms, readings)
-
-
-def walk(start_x: float, n: int, rng: np.random.Generator, t0: int = T0) -> list[Event]:
-    """Steps of 0.7 m east along y = 1.5, each with the field measured there (+ noise)."""
-    events: list[Event] = []
-    for i in range(1, n + 1):
-        t = t0 + 600 * i
-        x = start_x + 0.7 * i
-        strength = float(field_ut(np.array([x]))[0] + rng.normal(0.0, 0.5))
-        events += [MagEvent(t, magnitude_ut=strength), StepEvent(t, 0.7, math.pi / 2)]
-    return events
+from tests.support.corridor_site import T0, WIDTH_M, rssi, scan, site_maps, walk
 
 
 def test_a_wrong_wifi_start_converges_on_the_magnetic_field() -> None:
@@ -105,11 +24,11 @@ def test_a_wrong_wifi_start_converges_on_the_magnetic_field() -> None:
     params = pf_magnetic.PfMagneticParams()
     rng = np.random.default_rng(7)
     # WiFi places the phone 8 m ahead of where it is
-    state, fixes = pf_magnetic.run(
+    state, fixes = pf_magnetic.SPEC.run(
         pf_magnetic.initial_state(params), [scan(T0, 18.0, 1.5)], maps, params, rng
     )
     assert fixes[0].x_m > 14.0
-    state, fixes = pf_magnetic.run(state, walk(10.0, 30, rng), maps, params, rng)
+    state, fixes = pf_magnetic.SPEC.run(state, walk(10.0, 30, rng), maps, params, rng)
     steps = [f for f in fixes if f.source == "step"]
     assert len(steps) == 30
     errors = [abs(f.x_m - (10.0 + 0.7 * (i + 1))) for i, f in enumerate(steps)]
@@ -123,10 +42,10 @@ def test_without_the_field_the_wrong_start_stays_wrong() -> None:
     maps = site_maps()
     params = pf_magnetic.PfMagneticParams(weighting="none")
     rng = np.random.default_rng(7)
-    state, _ = pf_magnetic.run(
+    state, _ = pf_magnetic.SPEC.run(
         pf_magnetic.initial_state(params), [scan(T0, 18.0, 1.5)], maps, params, rng
     )
-    _, fixes = pf_magnetic.run(state, walk(10.0, 30, rng), maps, params, rng)
+    _, fixes = pf_magnetic.SPEC.run(state, walk(10.0, 30, rng), maps, params, rng)
     steps = [f for f in fixes if f.source == "step"]
     errors = [abs(f.x_m - (10.0 + 0.7 * (i + 1))) for i, f in enumerate(steps)]
     assert np.mean(errors[-5:]) > 3.0, errors
@@ -136,16 +55,16 @@ def test_state_round_trip_continues_identically() -> None:
     maps = site_maps()
     params = pf_magnetic.PfMagneticParams()
     events = walk(10.0, 12, np.random.default_rng(1))
-    first = pf_magnetic.run(
+    first = pf_magnetic.SPEC.run(
         pf_magnetic.initial_state(params),
         [scan(T0, 12.0, 1.5)],
         maps,
         params,
         np.random.default_rng(2),
     )[0]
-    direct, a = pf_magnetic.run(first, events, maps, params, np.random.default_rng(3))
+    direct, a = pf_magnetic.SPEC.run(first, events, maps, params, np.random.default_rng(3))
     again = state_codec.from_arrays(pf_magnetic.PfMagneticState, state_codec.to_arrays(first))
-    _, b = pf_magnetic.run(again, events, maps, params, np.random.default_rng(3))
+    _, b = pf_magnetic.SPEC.run(again, events, maps, params, np.random.default_rng(3))
     assert [(f.x_m, f.y_m, f.cov) for f in a] == [(f.x_m, f.y_m, f.cov) for f in b]
     size = sum(v.nbytes for v in state_codec.to_arrays(direct).values())
     assert size < 120_000  # 3000 particles as float32 plus the step tracker
@@ -155,11 +74,11 @@ def test_wifi_that_keeps_disagreeing_restarts_the_cloud() -> None:
     maps = site_maps()
     params = pf_magnetic.PfMagneticParams()
     rng = np.random.default_rng(4)
-    state, _ = pf_magnetic.run(
+    state, _ = pf_magnetic.SPEC.run(
         pf_magnetic.initial_state(params), [scan(T0, 10.0, 1.5)], maps, params, rng
     )
     far = [scan(T0 + 1000 * i, 50.0, 1.5) for i in range(1, 4)]
-    state, fixes = pf_magnetic.run(state, far, maps, params, rng)
+    state, fixes = pf_magnetic.SPEC.run(state, far, maps, params, rng)
     assert [("reinitialised" in f.diagnostics) for f in fixes] == [False, False, True]
     assert abs(fixes[-1].x_m - 50.0) < 6.0
 
@@ -168,12 +87,12 @@ def test_steps_before_any_fix_are_ignored_and_no_map_still_works() -> None:
     maps = SiteMaps((FloorRef("b", "f0", 0),), site_maps().radio, "v")  # no plan, no field
     params = pf_magnetic.PfMagneticParams()
     rng = np.random.default_rng(5)
-    state, fixes = pf_magnetic.run(
+    state, fixes = pf_magnetic.SPEC.run(
         pf_magnetic.initial_state(params), walk(10.0, 3, rng), maps, params, rng
     )
     assert fixes == []
     assert state.cloud is None
-    state, fixes = pf_magnetic.run(
+    state, fixes = pf_magnetic.SPEC.run(
         state, [scan(T0 + 5000, 20.0, 1.5), *walk(20.0, 5, rng, t0=T0 + 5000)], maps, params, rng
     )
     assert len(fixes) == 6
@@ -203,7 +122,7 @@ def test_a_scan_on_another_floor_moves_the_cloud_there_in_place() -> None:
     )
     params = pf_magnetic.PfMagneticParams()
     rng = np.random.default_rng(6)
-    state, fixes = pf_magnetic.run(
+    state, fixes = pf_magnetic.SPEC.run(
         pf_magnetic.initial_state(params), [scan(T0, 30.0, 1.5)], maps, params, rng
     )
     assert fixes[0].floor == 0
@@ -211,7 +130,7 @@ def test_a_scan_on_another_floor_moves_the_cloud_there_in_place() -> None:
         T0 + 1000,
         tuple(RadioReading(f"bp{i}", float(round(v))) for i, v in enumerate(rssi(31.0, 1.5))),
     )
-    state, fixes = pf_magnetic.run(state, [upstairs], maps, params, rng)
+    state, fixes = pf_magnetic.SPEC.run(state, [upstairs], maps, params, rng)
     assert fixes[0].floor == 1
     assert "reinitialised" not in fixes[0].diagnostics
     assert abs(fixes[0].x_m - 30.0) < 3.0

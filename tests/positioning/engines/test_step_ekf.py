@@ -1,11 +1,6 @@
-"""The ``step_ekf`` engine on a synthetic two-floor building.
-
-The building is 40 m x 20 m with eight WiFi access points per floor and log-distance
-path loss (P0 = -35 dBm at 1 m, exponent 3, 4 m between floors, 15 dB per floor crossed).
-A survey every metre (two samples a point, 2 dB noise) is gridded into the radio map with
-``build_radio_map``. A walker goes round a 30 m x 10 m loop with 0.7 m steps; the phone
-reports each step with 5 % length noise and 5 deg heading noise, and a WiFi scan (5 dB
-noise, nothing below -90 dBm) every third step.
+"""The ``step_ekf`` engine on the synthetic two-floor building of
+``tests.support.loop_building``: a walker goes round a 30 m x 10 m loop with 0.7 m steps
+and a WiFi scan every third step.
 """
 
 from __future__ import annotations
@@ -13,24 +8,21 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from numpy.typing import NDArray
 
 from server.positioning.engines import ENGINES, get_engine
+from server.positioning.engines.shared.site_maps import SiteMaps
 from server.positioning.engines.step_ekf import (
     SPEC,
     StepEkfParams,
     StepEkfState,
     initial_state,
-    run,
 )
 from server.positioning.filters.kalman import wrap_angle
-from server.positioning.mapping.gridding import build_radio_map
 from server.positioning.model import state_codec
 from server.positioning.model.events import (
     BleEvent,
@@ -41,124 +33,26 @@ from server.positioning.model.events import (
     StepEvent,
     WifiEvent,
 )
-from server.positioning.model.site_maps import FloorRef, SiteMaps
-from server.positioning.radio.fingerprints import scan_vector, wknn
-
-FloatArray = NDArray[np.float64]
-
-WIDTH_M, DEPTH_M, FLOOR_HEIGHT_M = 40.0, 20.0, 4.0
-AP_XY = np.array(
-    [(2, 2), (20, 2), (38, 2), (2, 18), (20, 18), (38, 18), (11, 10), (29, 10)], dtype=float
+from tests.support.loop_building import (
+    BSSIDS,
+    DEPTH_M,
+    MAPS,
+    N_FLOORS,
+    STEP_M,
+    WIDTH_M,
+    FloatArray,
+    errors,
+    loop_walk,
+    scan_at,
+    wknn_errors,
 )
-N_FLOORS = 2
-BSSIDS = tuple(f"02:00:00:00:{f:02x}:{i:02x}" for f in range(N_FLOORS) for i in range(len(AP_XY)))
-STEP_M = 0.7
-LOOP = np.array([(5.0, 5.0), (35.0, 5.0), (35.0, 15.0), (5.0, 15.0), (5.0, 5.0)])
-
-
-def true_rssi(xy: FloatArray, floor: int) -> FloatArray:
-    """Noise-free RSS, shape (n, n_aps over all floors)."""
-    columns = []
-    for ap_floor in range(N_FLOORS):
-        dz = FLOOR_HEIGHT_M * abs(ap_floor - floor)
-        d = np.sqrt(np.sum((xy[:, None, :] - AP_XY[None, :, :]) ** 2, axis=2) + dz**2)
-        columns.append(-35.0 - 30.0 * np.log10(np.maximum(d, 1.0)) - 15.0 * abs(ap_floor - floor))
-    return np.concatenate(columns, axis=1)
-
-
-def noisy_rssi(rssi: FloatArray, sigma_db: float, rng: np.random.Generator) -> FloatArray:
-    heard = rssi + rng.normal(0.0, sigma_db, rssi.shape)
-    return np.where(heard < -90.0, np.nan, heard)
-
-
-def building_maps() -> SiteMaps:
-    rng = np.random.default_rng(2024)
-    xs, ys = np.meshgrid(np.arange(0.5, WIDTH_M), np.arange(0.5, DEPTH_M))
-    grid = np.column_stack([xs.ravel(), ys.ravel()])
-    xy, floor, rssi = [], [], []
-    for f in range(N_FLOORS):
-        for _ in range(2):
-            xy.append(grid)
-            floor.append(np.full(len(grid), f))
-            rssi.append(noisy_rssi(true_rssi(grid, f), 2.0, rng))
-    radio = build_radio_map(
-        np.concatenate(xy),
-        np.concatenate(floor),
-        np.concatenate(rssi),
-        tuple(f"wifi:{b}" for b in BSSIDS),
-    )
-    floors = tuple(FloorRef("b1", f"f{f}", f) for f in range(N_FLOORS))
-    return SiteMaps(floors=floors, radio=radio, version="test")
-
-
-MAPS = building_maps()
-
-
-def scan_at(
-    xy: Sequence[float] | FloatArray, floor: int, t_ms: int, rng: np.random.Generator
-) -> WifiEvent:
-    rssi = noisy_rssi(true_rssi(np.array([xy], dtype=float), floor), 5.0, rng)[0]
-    return WifiEvent(
-        t_ms,
-        tuple(
-            RadioReading(b.upper(), float(v))
-            for b, v in zip(BSSIDS, rssi, strict=True)
-            if not np.isnan(v)
-        ),
-    )
-
-
-@dataclass(frozen=True)
-class Walk:
-    events: list[Event]
-    truth: dict[int, FloatArray]  # true position at each event time
-
-
-def loop_walk(seed: int, laps: int = 2) -> Walk:
-    """Steps round the loop and a scan every third step, starting with a scan."""
-    rng = np.random.default_rng(seed)
-    seg = np.diff(LOOP, axis=0)
-    seg_len = np.linalg.norm(seg, axis=1)
-    total = laps * seg_len.sum()
-    s = np.arange(0.0, total, STEP_M) % seg_len.sum()
-    cum = np.concatenate([[0.0], np.cumsum(seg_len)])
-    i = np.searchsorted(cum, s, side="right") - 1
-    pos = LOOP[i] + seg[i] * ((s - cum[i]) / seg_len[i])[:, None]
-    events: list[Event] = [scan_at(pos[0], 0, 0, rng)]
-    truth = {0: pos[0]}
-    for k in range(1, len(pos)):
-        t = 500 * k
-        d = pos[k] - pos[k - 1]
-        heading = math.atan2(d[0], d[1]) + rng.normal(0.0, math.radians(5.0))
-        length = float(np.linalg.norm(d)) * (1.0 + rng.normal(0.0, 0.05))
-        events.append(StepEvent(t, length, heading))
-        truth[t] = pos[k]
-        if k % 3 == 0:
-            events.append(scan_at(pos[k], 0, t + 1, rng))
-            truth[t + 1] = pos[k]
-    return Walk(events, truth)
-
-
-def errors(fixes: Sequence[Fix], truth: dict[int, FloatArray]) -> FloatArray:
-    return np.array([math.dist((f.x_m, f.y_m), truth[f.t_ms]) for f in fixes])
-
-
-def wknn_errors(walk: Walk) -> FloatArray:
-    assert MAPS.radio is not None
-    out = []
-    for e in walk.events:
-        if isinstance(e, WifiEvent):
-            fix = wknn(MAPS.radio, scan_vector(MAPS.radio, e.readings, "wifi"))
-            assert fix is not None
-            out.append(math.dist((fix.x_m, fix.y_m), walk.truth[e.t_ms]))
-    return np.array(out)
 
 
 def run_all(
     events: Sequence[Event], params: StepEkfParams | None = None
 ) -> tuple[StepEkfState, list[Fix]]:
     p = params or StepEkfParams()
-    return run(initial_state(p), events, MAPS, p, np.random.default_rng(0))
+    return SPEC.run(initial_state(p), events, MAPS, p, np.random.default_rng(0))
 
 
 def assert_states_equal(a: StepEkfState, b: StepEkfState) -> None:
@@ -210,8 +104,8 @@ def test_state_round_trips_through_arrays() -> None:
     # and the restored state carries on exactly like the original
     p = StepEkfParams()
     rng = np.random.default_rng(0)
-    _, fixes_a = run(state, walk.events[half:], MAPS, p, rng)
-    _, fixes_b = run(back, walk.events[half:], MAPS, p, rng)
+    _, fixes_a = SPEC.run(state, walk.events[half:], MAPS, p, rng)
+    _, fixes_b = SPEC.run(back, walk.events[half:], MAPS, p, rng)
     assert fixes_a == fixes_b
 
 
@@ -237,7 +131,9 @@ def test_same_seed_same_fixes_and_batching_does_not_matter() -> None:
     p = StepEkfParams()
     state, fixes = initial_state(p), []
     for chunk in np.array_split(np.arange(len(a.events)), 3):
-        state, out = run(state, [a.events[i] for i in chunk], MAPS, p, np.random.default_rng(9))
+        state, out = SPEC.run(
+            state, [a.events[i] for i in chunk], MAPS, p, np.random.default_rng(9)
+        )
         fixes += out
     assert fixes == fixes_a
     assert_states_equal(state, state_a)
@@ -257,7 +153,7 @@ def test_steps_before_the_first_scan_only_give_the_heading() -> None:
     assert fixes == []
     assert not state.initialized
     assert state.last_step_heading_rad == pytest.approx(east)
-    state, fixes = run(state, [scan_at((10.0, 10.0), 0, 900, rng)], MAPS, StepEkfParams(), rng)
+    state, fixes = SPEC.run(state, [scan_at((10.0, 10.0), 0, 900, rng)], MAPS, StepEkfParams(), rng)
     assert len(fixes) == 1
     assert fixes[0].source == "wifi"
     assert fixes[0].heading_rad == pytest.approx(east)
@@ -271,7 +167,7 @@ def test_unknown_heading_is_taken_from_the_next_step() -> None:
     assert fixes[0].heading_rad is None
     assert state.P[3, 3] == pytest.approx(math.pi**2)
     before = state.x.copy()
-    state, fixes = run(state, [StepEvent(500, 0.7, math.pi)], MAPS, StepEkfParams(), rng)
+    state, fixes = SPEC.run(state, [StepEvent(500, 0.7, math.pi)], MAPS, StepEkfParams(), rng)
     assert fixes[0].heading_rad == pytest.approx(math.pi, abs=1e-9)
     # moved south by about one step, not north
     assert state.x[1] - before[1] == pytest.approx(-0.7, abs=0.05)
@@ -289,13 +185,13 @@ def test_a_far_outlier_fix_is_gated() -> None:
     rng = np.random.default_rng(22)
     far = scan_at((35.0, 15.0), 0, 10**7, rng)
     p = StepEkfParams()
-    after, fixes = run(state, [far], MAPS, p, rng)
+    after, fixes = SPEC.run(state, [far], MAPS, p, rng)
     assert fixes == []
     assert after.rejects == 1
     np.testing.assert_array_equal(after.x, state.x)
     np.testing.assert_array_equal(after.P, state.P)
     # a good scan is accepted and clears the reject count
-    after, fixes = run(after, [scan_at(here, 0, 10**7 + 1, rng)], MAPS, p, rng)
+    after, fixes = SPEC.run(after, [scan_at(here, 0, 10**7 + 1, rng)], MAPS, p, rng)
     assert len(fixes) == 1
     assert fixes[0].diagnostics["mahalanobis2"] <= p.gate_chi2
     assert after.rejects == 0
@@ -306,7 +202,7 @@ def test_consecutive_outliers_reinitialise_at_the_fix() -> None:
     rng = np.random.default_rng(24)
     p = StepEkfParams()
     far = [scan_at((35.0, 15.0), 0, 10**7 + i, rng) for i in range(p.max_rejects)]
-    after, fixes = run(state, far, MAPS, p, rng)
+    after, fixes = SPEC.run(state, far, MAPS, p, rng)
     assert len(fixes) == 1
     assert fixes[0].diagnostics["reinitialised"] == 1.0
     assert math.dist((fixes[0].x_m, fixes[0].y_m), (35.0, 15.0)) < 4.0
@@ -318,7 +214,7 @@ def test_consecutive_outliers_reinitialise_at_the_fix() -> None:
 def test_floor_change_reinitialises() -> None:
     state, here = converged(seed=25)
     rng = np.random.default_rng(26)
-    after, fixes = run(state, [scan_at(here, 1, 10**7, rng)], MAPS, StepEkfParams(), rng)
+    after, fixes = SPEC.run(state, [scan_at(here, 1, 10**7, rng)], MAPS, StepEkfParams(), rng)
     assert len(fixes) == 1
     assert fixes[0].floor == 1
     assert fixes[0].diagnostics["floor_change"] == 1.0
@@ -335,13 +231,13 @@ def test_scans_without_a_map_or_a_match_and_mag_events_are_skipped() -> None:
     rng = np.random.default_rng(0)
     no_map = SiteMaps(floors=MAPS.floors, radio=None, version="none")
     scan = scan_at((10.0, 10.0), 0, 0, rng)
-    state, fixes = run(initial_state(p), [scan], no_map, p, rng)
+    state, fixes = SPEC.run(initial_state(p), [scan], no_map, p, rng)
     assert fixes == []
     assert not state.initialized
     unknown = WifiEvent(1, (RadioReading("12:34:56:78:9a:bc", -40.0),))
     ble = BleEvent(2, (RadioReading(BSSIDS[0], -40.0),))  # WiFi emitter, but a BLE scan
     mag = MagEvent(3, magnitude_ut=48.0)
-    state, fixes = run(initial_state(p), [unknown, ble, mag], MAPS, p, rng)
+    state, fixes = SPEC.run(initial_state(p), [unknown, ble, mag], MAPS, p, rng)
     assert fixes == []
     assert not state.initialized
 
@@ -413,10 +309,10 @@ def test_walking_south_across_the_heading_wrap() -> None:
     rng = np.random.default_rng(31)
     p = StepEkfParams()
     start: list[Event] = [StepEvent(0, 0.7, math.pi - 0.02), scan_at((20.0, 15.0), 0, 1, rng)]
-    state, fixes = run(initial_state(p), start, MAPS, p, rng)
+    state, fixes = SPEC.run(initial_state(p), start, MAPS, p, rng)
     y0 = state.x[1]
     steps = [StepEvent(10 + k, 0.7, math.pi + (0.02 if k % 2 else -0.02)) for k in range(10)]
-    state, fixes = run(state, steps, MAPS, p, rng)
+    state, fixes = SPEC.run(state, steps, MAPS, p, rng)
     assert state.x[1] - y0 == pytest.approx(-7.0, abs=0.2)
     assert abs(state.x[0] - fixes[0].x_m) < 0.2
     assert all(abs(abs(f.heading_rad or 0.0) - math.pi) < 0.05 for f in fixes)
@@ -436,7 +332,7 @@ def test_heading_innovation_is_wrapped() -> None:
         last_step_heading_rad=math.pi - 0.01,
         rejects=0,
     )
-    after, fixes = run(
+    after, fixes = SPEC.run(
         state, [StepEvent(500, 0.7, math.pi + 0.01)], MAPS, p, np.random.default_rng(0)
     )
     assert abs(float(wrap_angle(after.x[3] - math.pi))) < 0.03

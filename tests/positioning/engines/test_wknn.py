@@ -14,8 +14,9 @@ import numpy as np
 import pytest
 
 from server.positioning.engines import ENGINES, get_engine
+from server.positioning.engines.shared.site_maps import FloorRef, SiteMaps
 from server.positioning.engines.step_ekf import StepEkfParams
-from server.positioning.engines.wknn import SPEC, WknnParams, WknnState, initial_state, run
+from server.positioning.engines.wknn import SPEC, WknnParams, WknnState, initial_state
 from server.positioning.model import state_codec
 from server.positioning.model.events import (
     BleEvent,
@@ -26,7 +27,6 @@ from server.positioning.model.events import (
     StepEvent,
     WifiEvent,
 )
-from server.positioning.model.site_maps import FloorRef, SiteMaps
 from server.positioning.radio import fix_error
 from server.positioning.radio.fingerprints import MISSING_DBM, RadioMap, scan_vector, wknn
 
@@ -80,7 +80,7 @@ def run_all(
     events: list[Event], maps: SiteMaps = MAPS, params: WknnParams | None = None
 ) -> tuple[WknnState, list[Fix]]:
     p = params or WknnParams()
-    return run(initial_state(p), events, maps, p, np.random.default_rng(0))
+    return SPEC.run(initial_state(p), events, maps, p, np.random.default_rng(0))
 
 
 @pytest.mark.parametrize("rp", [0, 4, 8, 9, 13, 17])
@@ -174,14 +174,16 @@ def test_state_round_trips_through_arrays_and_batches_compose() -> None:
         for i, rp in enumerate([0, 5, 10, 15], start=1)
     ]
     params = WknnParams()
-    state, first = run(initial_state(params), events[:2], MAPS, params, np.random.default_rng(1))
+    state, first = SPEC.run(
+        initial_state(params), events[:2], MAPS, params, np.random.default_rng(1)
+    )
     arrays = state_codec.to_arrays(state)
     assert all(np.issubdtype(a.dtype, np.number) for a in arrays.values())
     restored = state_codec.from_arrays(WknnState, arrays)
     assert state_codec.to_arrays(restored).keys() == arrays.keys()
     for key, value in state_codec.to_arrays(restored).items():
         np.testing.assert_array_equal(value, arrays[key])
-    state, second = run(restored, events[2:], MAPS, params, np.random.default_rng(2))
+    state, second = SPEC.run(restored, events[2:], MAPS, params, np.random.default_rng(2))
     whole_state, whole = run_all(events)
     assert (state.floor, state.n_fixes, state.last_t_ms) == (1, 4, 400)
     np.testing.assert_array_equal(state.floor_logp, whole_state.floor_logp)

@@ -1,4 +1,5 @@
-"""The compiled kernels against their numpy references, on random inputs."""
+"""The compiled move ends, weight update and whole filter step (``particle_kernels``)
+against their numpy references, on random inputs."""
 
 from __future__ import annotations
 
@@ -10,96 +11,16 @@ from hypothesis import strategies as st
 from numpy.typing import NDArray
 
 from server.positioning.filters import particle_kernels
-from server.positioning.filters.particle import (
+from server.positioning.filters.particle import step, step_on_floor
+from server.positioning.filters.particle_cloud import ParticleParams, from_points
+from server.positioning.filters.particle_move import move_ends_reference
+from server.positioning.filters.particle_weight_update import (
     mass_centered_update,
     mass_centered_update_reference,
-    move_ends_reference,
-    step,
-    step_on_floor,
 )
-from server.positioning.filters.particle_cloud import ParticleParams, from_points
-from server.positioning.magnetic.field_grid import MIN_CORNER_WEIGHT, MagneticGrid, _bilinear
-from server.positioning.magnetic.sequence_distance import dtw_distance, mmse
-from server.positioning.plan.floor_plan import valid_moves, valid_moves_reference
-from server.positioning.plan.wall_index import moves_cross
-from tests.positioning.toy_plans import room
-
-
-@settings(max_examples=30, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), reach=st.sampled_from([0.3, 1.0, 4.0]))
-def test_moves_cross_matches_the_numpy_index(seed: int, reach: float) -> None:
-    """Random moves over the toy room, short and long, some ending exactly on walls."""
-    rng = np.random.default_rng(seed)
-    index = room()._index
-    n = 400
-    a = rng.uniform([-2, -2], [22, 12], (n, 2))
-    b = a + rng.normal(0, reach, (n, 2))
-    b[:20, 0] = 10.0  # onto the thin wall at x = 10
-    b[20:40] = a[20:40]  # no move at all
-    expected = moves_cross(index, a, b)
-    got = particle_kernels.moves_cross(a, b, *index.kernel_args())
-    np.testing.assert_array_equal(got, expected)
-    assert expected.any()
-    assert not expected.all()
-
-
-@settings(max_examples=30, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1))
-def test_bilinear_matches_the_numpy_sampling(seed: int) -> None:
-    rng = np.random.default_rng(seed)
-    ny, nx = rng.integers(1, 12, 2)
-    field = rng.uniform(20, 60, (ny, nx))
-    field[rng.random((ny, nx)) < 0.3] = np.nan  # unknown cells
-    grid = MagneticGrid(
-        origin_m=(1.0, -2.0),
-        cell_m=0.5,
-        magnitude=field.astype(np.float32),
-        var=np.zeros((ny, nx), np.float32),
-        count=np.ones((ny, nx), np.int32),
-        horizontal=None,
-        vertical=None,
-    )
-    pts = rng.uniform([0, -3], [1 + 0.5 * nx + 1, -2 + 0.5 * ny + 1], (300, 2))
-    filled, known = grid.sampling_arrays("magnitude")
-    got = particle_kernels.bilinear(
-        pts, 1.0, -2.0, 0.5, int(nx), int(ny), filled, known, MIN_CORNER_WEIGHT
-    )
-    np.testing.assert_allclose(got, _bilinear(grid, pts, "magnitude"), rtol=0, atol=1e-12)
-
-
-@settings(max_examples=30, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), w=st.integers(2, 6))
-def test_mmse_matches_eq_b(seed: int, w: int) -> None:
-    rng = np.random.default_rng(seed)
-    obs = rng.uniform(30, 60, w)
-    cand = rng.uniform(30, 60, (200, w))
-    cand[rng.random((200, w)) < 0.05] = np.nan
-    np.testing.assert_allclose(particle_kernels.mmse(obs, cand), mmse(obs, cand), rtol=1e-12)
-
-
-@settings(max_examples=30, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), w=st.integers(1, 12), m=st.integers(1, 12))
-def test_dtw_matches_the_numpy_distance(seed: int, w: int, m: int) -> None:
-    rng = np.random.default_rng(seed)
-    obs = rng.uniform(30, 60, w)
-    cand = rng.uniform(30, 60, (100, m))
-    cand[rng.random((100, m)) < 0.02] = np.nan
-    np.testing.assert_allclose(particle_kernels.dtw(obs, cand), dtw_distance(obs, cand), rtol=1e-12)
-
-
-@settings(max_examples=30, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), reach=st.sampled_from([0.2, 0.7, 3.0]))
-def test_valid_moves_matches_the_numpy_reference(seed: int, reach: float) -> None:
-    rng = np.random.default_rng(seed)
-    n = 500
-    a = rng.uniform([-1, -1], [21, 11], (n, 2))
-    b = a + rng.normal(0, reach, (n, 2))
-    a[:5, 0] = np.nan  # non-finite starts and ends
-    b[5:10, 1] = np.inf
-    got = valid_moves(room(), a, b)
-    np.testing.assert_array_equal(got, valid_moves_reference(room(), a, b))
-    assert got.any()
-    assert not got.all()
+from server.positioning.magnetic.field_grid import MagneticGrid, _bilinear
+from server.positioning.plan.floor_plan import valid_moves_reference
+from tests.support.toy_plans import room
 
 
 @settings(max_examples=30, deadline=None)

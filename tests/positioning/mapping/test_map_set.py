@@ -12,6 +12,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from numpy.typing import NDArray
 
+from server.positioning.engines.shared.site_maps import FloorRef
 from server.positioning.mapping.map_set import (
     FAI,
     FIX_ERROR,
@@ -25,7 +26,6 @@ from server.positioning.mapping.map_set import (
     build_map_set,
     grid_scans,
 )
-from server.positioning.model.site_maps import FloorRef
 from server.positioning.plan.navigation_graph import FloorGraph, learn
 from server.positioning.radio import fix_error
 

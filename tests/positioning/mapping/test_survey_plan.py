@@ -23,7 +23,7 @@ from server.positioning.plan.navigation_graph import (
     plan_graph,
 )
 from server.positioning.radio.fingerprints import RadioMap
-from tests.positioning.toy_plans import ROOM, room
+from tests.support.toy_plans import ROOM, room
 
 
 def strip(n: int) -> FloorGraph:

@@ -11,9 +11,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from client_sim.imu import Sensors, synthesize_walk
-from server.positioning.filters import floor_hmm
 from server.positioning.motion import barometer
 from server.positioning.motion.barometer import BaroParams, FloorChange
+from server.positioning.radio import floor_hmm
 
 STOREY_M = 3.6  # 0.43 hPa near sea level
 PHONES = {

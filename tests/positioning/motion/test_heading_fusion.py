@@ -20,7 +20,7 @@ from server.positioning.motion.heading_fusion import (
     fuse_heading,
     initial_heading,
 )
-from tests.positioning.motion.synthetic_phone import (
+from tests.support.synthetic_phone import (
     T0_MS,
     angle_error_deg,
     short_walk,

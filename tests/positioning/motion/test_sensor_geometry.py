@@ -16,7 +16,7 @@ from server.positioning.motion.sensor_geometry import (
     rotation_heading,
     vertical_rate,
 )
-from tests.positioning.motion.synthetic_phone import (
+from tests.support.synthetic_phone import (
     EARTH_FIELD_UT,
     T0_MS,
     angle_error_deg,

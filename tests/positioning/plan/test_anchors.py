@@ -4,8 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from server.positioning.model.site_maps import Anchor
-from server.positioning.plan.anchors import anchors_from_plan
+from server.positioning.plan.anchors import Anchor, anchors_from_plan
 
 
 def point(x: Any, y: Any, **props: Any) -> dict[str, Any]:

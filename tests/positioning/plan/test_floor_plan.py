@@ -20,8 +20,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from numpy.typing import NDArray
 
-from server.datasets.ilc import read_site
-from server.datasets.ilc_trace import read_trace
+from lab.datasets.ilc import read_site
 from server.positioning.plan.floor_plan import (
     FloorPlan,
     crosses_wall,
@@ -30,8 +29,9 @@ from server.positioning.plan.floor_plan import (
     walkable_at,
 )
 from server.positioning.plan.geojson_plan import plan_from_geojson
-from tests.datasets.conftest import dataset_dir
-from tests.positioning.toy_plans import ROOM, as_moves, room
+from server.storage.ilc_trace_format import read_trace
+from tests.support.datasets import dataset_dir
+from tests.support.toy_plans import ROOM, as_moves, room
 
 NUMERIC_TOL_M = 1e-9
 RASTER_BAND_M = 0.25 * math.sqrt(0.5)  # half a cell diagonal

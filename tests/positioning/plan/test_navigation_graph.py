@@ -20,7 +20,7 @@ from server.positioning.plan.navigation_graph import (
     site_graphs,
 )
 from server.positioning.radio.fingerprints import RadioMap
-from tests.positioning.toy_plans import ROOM, box, feature, room
+from tests.support.toy_plans import ROOM, box, feature, room
 
 # a 2 m wide corridor 20 m long with a side room (door at x 9-11) and an elevator
 CORRIDOR_PLAN = {

@@ -20,7 +20,7 @@ from server.positioning.plan.floor_plan import (
 )
 from server.positioning.plan.geojson_plan import plan_from_geojson
 from server.positioning.plan.wall_index import CLEARANCE_STEPS, segments_meet
-from tests.positioning.toy_plans import ROOM, box, feature, room
+from tests.support.toy_plans import ROOM, box, feature, room
 
 
 def _plain_crossing(
