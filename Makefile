@@ -10,10 +10,10 @@ ARGS ?=
 
 .PHONY: demo test test-embedded test-production lint openapi clean
 
+# the service, its simulator and its research harness: three distributions
 $(STAMP): pyproject.toml lab/pyproject.toml client_sim/pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	# the service, its simulator and its research harness: three distributions
 	$(BIN)/pip install --quiet -e '.[dev]' -e ./client_sim -e './lab[plots]'
 	touch $(STAMP)
 
@@ -25,8 +25,8 @@ test: test-embedded test-production
 test-embedded: $(STAMP)
 	env -u INDOORPOS_DATABASE_URL -u INDOORPOS_REDIS_URL $(BIN)/pytest -q
 
-# the core's own tests (tests/positioning, tests/lab/datasets) touch no store: they run once,
-# in the embedded pass
+# the core's and the dataset readers' tests (tests/positioning, tests/lab/datasets) touch no
+# store: they run once, in the embedded pass
 test-production: $(STAMP)
 	INDOORPOS_DATABASE_URL=$(PG_URL) INDOORPOS_REDIS_URL=$(REDIS_URL) \
 	INDOORPOS_TEST_REQUIRE_REDIS=1 $(BIN)/pytest -q \
@@ -42,4 +42,5 @@ openapi: $(STAMP)
 	$(BIN)/indoorpos openapi
 
 clean:
-	rm -rf $(VENV) .indoorpos .mypy_cache .ruff_cache .pytest_cache
+	rm -rf $(VENV) .indoorpos .mypy_cache .ruff_cache .pytest_cache build *.egg-info \
+		lab/build lab/*.egg-info client_sim/build client_sim/*.egg-info

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-from server.positioning.engines import get_engine
+from server.positioning.engines.registry import get_engine
 from server.positioning.model.params import Params, assignments
 
 

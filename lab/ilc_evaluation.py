@@ -26,7 +26,7 @@ from lab.replay import Replayer, in_process_replayer, trace_events
 from lab.scoring import PathResult, estimates_at_waypoints, summarize
 from lab.split import SplitPaths, restrict, split_site
 from lab.training_maps import TrainingSurvey, build_site_maps, parts_for
-from server.positioning.engines import get_engine
+from server.positioning.engines.registry import get_engine
 from server.positioning.engines.shared.site_maps import SiteMaps
 from server.positioning.model.walk import Walk
 from server.storage.ilc_trace_format import read_trace

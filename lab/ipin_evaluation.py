@@ -12,8 +12,8 @@ the true floor and searches every floor of the venue. The estimate at a POSI lin
 last fix at or before its time (none yet: counted as missing), its true floor the POSI
 floor's index in the venue's floor list.
 
-The summary holds the usual error report (``positioning.metrics.error_report``) over all
-POSI lines, ``ipin_score_m`` (``positioning.metrics.ipin_score``: P75 of the horizontal
+The summary holds the usual error report (``positioning.model.error_metrics.error_report``) over all
+POSI lines, ``ipin_score_m`` (``error_metrics.ipin_score``: P75 of the horizontal
 error plus 15 m per floor off), ``per_floor`` and ``per_log`` breakdowns and, per left-out
 trial, what its maps were built from (``folds``). With ``validation`` only repetitions 01
 and 03 of every trial are read at all, for the maps and for scoring: for choosing
@@ -46,7 +46,7 @@ from lab.training_maps import (
     parts_for,
     site_floors,
 )
-from server.positioning.engines import get_engine
+from server.positioning.engines.registry import get_engine
 from server.positioning.engines.shared.site_maps import SiteMaps
 from server.positioning.mapping.map_set import MAGNETIC, SiteRecords, build_map_set
 from server.positioning.model.error_metrics import ipin_score

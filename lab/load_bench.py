@@ -75,7 +75,7 @@ from lab.load_bench_api import LOAD_GENERATOR_LIMITS, ApiProcesses, batch_bucket
 from server.api.convert import to_events
 from server.api.schemas.sessions import BatchIn
 from server.config import Settings
-from server.positioning.engines import get_engine
+from server.positioning.engines.registry import get_engine
 from server.positioning.model.events import StepEvent
 from server.services.maps import site_maps
 from server.services.runtime import open_runtime

@@ -65,8 +65,8 @@ class TraceSteps:
 
 
 def trace_steps(trace: Walk, params: TrackerParams) -> TraceSteps | None:
-    """The tracker run over a trace (``traces.anchored_steps``); None when it has under two
-    waypoints or walks less than ``traces.MIN_ANCHORED_PATH_M``."""
+    """The tracker run over a trace (``walk_steps.anchored_steps``); None when it has under two
+    waypoints or walks less than ``walk_steps.MIN_ANCHORED_PATH_M``."""
     steps = anchored_steps(trace, params)
     if steps is None:
         return None

@@ -16,7 +16,7 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 DPI = 120
-INSTALL_HINT = "drawing figures needs matplotlib: pip install 'indoorpos[plots]'"
+INSTALL_HINT = "drawing figures needs matplotlib: pip install 'indoorpos-lab[plots]'"
 
 
 def figure(width_in: float, height_in: float) -> Figure:

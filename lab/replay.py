@@ -17,7 +17,7 @@ import numpy as np
 
 from lab.progress import Progress
 from lab.training_maps import TrainingSurvey
-from server.positioning.engines import get_engine
+from server.positioning.engines.registry import get_engine
 from server.positioning.engines.shared.site_maps import SiteMaps
 from server.positioning.model.events import Event, Fix, MagEvent, StepEvent
 from server.positioning.model.walk import Walk

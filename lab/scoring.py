@@ -1,8 +1,8 @@
 """Scoring replayed fixes against the truth at the waypoints.
 
 The estimate at a waypoint is the last fix at or before its timestamp (none yet: counted as
-missing). ``summarize`` gives the error report (``positioning.metrics.error_report``) over
-all paths and per floor; ``write_points`` every scored point as a CSV row.
+missing). ``summarize`` gives the error report (``model.error_metrics.error_report``) over all
+paths and per floor; ``write_points`` every scored point as a CSV row.
 """
 
 from __future__ import annotations

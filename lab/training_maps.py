@@ -141,7 +141,7 @@ class TrainingSurvey:
 def parts_for(engines: Collection[str]) -> frozenset[str]:
     """What the map builder must build besides the radio map for these engines: the
     fix-error table always, the rest where an engine reads it."""
-    from server.positioning.engines import NEEDS_GRAPHS, get_engine
+    from server.positioning.engines.registry import NEEDS_GRAPHS, get_engine
 
     parts = {map_set.FIX_ERROR}
     for engine in engines:

@@ -1,7 +1,8 @@
 """The harness's commands under ``indoorpos`` (the ``indoorpos.commands`` entry point of
 this distribution): ``demo`` and ``simulate`` (the simulator against the service),
 ``evaluate`` (recorded datasets through the engines), ``bench`` (the particle filter, the
-map build, the service under load) and ``plan-survey``."""
+map build, the service under load) and ``plan-survey``; ``reports`` holds their progress
+bars and tables, ``embedded`` the service some of them run in this process."""
 
 from __future__ import annotations
 

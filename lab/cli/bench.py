@@ -8,7 +8,8 @@ from typing import Annotated
 
 import typer
 
-from server.cli.output import console, print_report
+from lab.cli.reports import print_report
+from server.cli.output import console
 
 bench_app = typer.Typer(
     help="Time the positioning core (bench/performance.md).", no_args_is_help=True
@@ -56,8 +57,8 @@ def bench_map_build(
 ) -> None:
     """The worker's build of a site's maps (fix-error table, FAI maps, floor graphs) from
     its training traces surveyed into a throw-away embedded service: time and peak memory."""
+    from lab.cli.reports import StageProgress, progress_bar
     from lab.map_build_bench import map_build_bench
-    from server.cli.output import StageProgress, progress_bar
 
     with progress_bar() as bar:
         result = map_build_bench(site_dir, split_seed=split_seed, progress=StageProgress(bar))

@@ -12,8 +12,9 @@ from typing import Annotated, Any
 import typer
 from rich.table import Table
 
-from server.cli.embedded import embedded_service
-from server.cli.output import StageProgress, console, print_report, progress_bar
+from lab.cli.embedded import embedded_service
+from lab.cli.reports import StageProgress, print_report, progress_bar
+from server.cli.output import console
 
 evaluate_app = typer.Typer(
     help="Measure engines and methods on recorded datasets.", no_args_is_help=True

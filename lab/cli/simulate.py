@@ -11,9 +11,10 @@ from typing import Annotated, Any, Literal
 
 import typer
 
-from server.cli.embedded import ServerThread, embedded_service, free_port
+from lab.cli.embedded import ServerThread, embedded_service, free_port
+from lab.cli.reports import print_report, progress_bar
 from server.cli.keys import run_keys
-from server.cli.output import console, print_report, progress_bar
+from server.cli.output import console
 from server.config import get_settings
 from server.services import auth
 

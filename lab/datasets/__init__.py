@@ -1,13 +1,15 @@
 """Readers of recorded public datasets.
 
-Each reader turns files into the service's own values — a ``walk.Walk`` (scans, motion
+Each reader turns files into the service's own values — a ``Walk`` (scans, motion
 samples and ground truth, with event views from ``server.positioning.model.events``, so a
 replayed trace and live phone traffic go through the same code) or plain arrays of
 fingerprints — with units in the field names (``t_ms``, ``x_m``, ``rssi_dbm``). What a
-reader could not read goes into its report (``records.ParseReport``), not into the walk.
+reader could not read goes into its report (``server.storage.text_records.ParseReport``),
+not into the walk.
 
 - ``ilc``: Indoor Location Competition 2.0 sites, floors and floor plans (``read_site``);
-  ``ilc_trace``: one of its phone traces (``read_trace``, strict ``parse_trace_text``).
+  one of its phone traces is read by the service's own ``server.storage.ilc_trace_format``
+  (``read_trace``; strict ``parse_trace_text`` for uploads).
 - ``ipin``: the IPIN 2023 Track 3 venue (``read_venue``); ``ipin_log``: one GetSensorData
   log (``read_log``); ``ipin_frame``: the venue's local metric frame.
 - ``uji``: UJIIndoorLoc and the UJI long-term WiFi fingerprints

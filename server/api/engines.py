@@ -15,7 +15,7 @@ from server.api.schemas.engines import (
     EngineSettingsList,
     EngineSettingsRead,
 )
-from server.positioning.engines import ENGINES
+from server.positioning.engines.registry import ENGINES
 from server.services import engine_settings
 from server.services.engine_settings import EngineSettings
 

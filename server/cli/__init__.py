@@ -2,9 +2,8 @@
 arguments, calling the services and printing what they give back.
 
 ``main`` builds the command (``main.app``, the console script's entry point): ``service``
-(serve, worker, migrate, openapi), ``keys``; ``output`` holds the console and the progress
-bars, ``embedded`` the service some commands run in this process. Importing a module of
-this package runs no plugin: only ``main`` loads them.
+(serve, worker, migrate, openapi), ``keys``; ``output`` holds the console. Importing a
+module of this package runs no plugin: only ``main`` loads them.
 
 Other distributions add their commands through the ``indoorpos.commands`` entry point
 group: each entry point names a function taking this ``app``. The research harness

@@ -4,7 +4,8 @@ add through the ``indoorpos.commands`` entry point group (package docstring)."""
 from __future__ import annotations
 
 import sys
-from importlib.metadata import entry_points
+from collections.abc import Iterable
+from importlib.metadata import EntryPoint, entry_points
 
 import typer
 
@@ -17,10 +18,20 @@ app.command()(service.worker)
 app.command()(service.migrate)
 app.command()(service.openapi)
 app.add_typer(keys.keys_app, name="keys")
-for _plugin in entry_points(group="indoorpos.commands"):
-    try:
-        _register = _plugin.load()
-    except ImportError as exc:  # its distribution's metadata is there, its code is not
-        print(f"indoorpos: commands of {_plugin.value} not loaded: {exc}", file=sys.stderr)
-        continue
-    _register(app)
+
+
+def add_plugins(target: typer.Typer, plugins: Iterable[EntryPoint]) -> list[str]:
+    """Let each plugin add its commands to ``target``; what went wrong with the others, one
+    line each (a plugin whose code is gone or fails must not take the service's own
+    commands down with it)."""
+    failed: list[str] = []
+    for plugin in plugins:
+        try:
+            plugin.load()(target)
+        except Exception as exc:  # any failure of foreign code: reported, then skipped
+            failed.append(f"commands of {plugin.value} not loaded: {type(exc).__name__}: {exc}")
+    return failed
+
+
+for _problem in add_plugins(app, entry_points(group="indoorpos.commands")):
+    print(f"indoorpos: {_problem}", file=sys.stderr)

@@ -27,7 +27,7 @@ import anyio
 import numpy as np
 import orjson
 
-from server.positioning.engines import NEEDS_GRAPHS, get_engine
+from server.positioning.engines.registry import NEEDS_GRAPHS, get_engine
 from server.positioning.engines.shared.site_maps import SiteMaps
 from server.positioning.model.events import (
     BleEvent,

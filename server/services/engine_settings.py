@@ -20,7 +20,7 @@ from typing import Any
 import orjson
 from sqlalchemy.ext.asyncio import AsyncSession
 
-from server.positioning.engines import ENGINES, get_engine
+from server.positioning.engines.registry import ENGINES, get_engine
 from server.positioning.engines.shared.spec import Engine
 from server.positioning.model.params import ParamError, Params, as_dict, merge
 from server.services.errors import Invalid, NotFound

@@ -47,7 +47,7 @@ STOP_WAIT_S = 5.0  # how long the last watch to leave waits for the listener to 
 logger = logging.getLogger(__name__)
 
 
-class Runtime(Protocol):
+class WatchingRuntime(Protocol):
     """What watching keys needs of the process's runtime (``runtime.Runtime``, which holds
     this module's ``KeyWatches``): SQL sessions, the session store (its key channel), the
     settings and the watches."""
@@ -78,7 +78,7 @@ class KeyWatches:
         self._listener: asyncio.Task[None] | None = None
 
     @asynccontextmanager
-    async def holding(self, rt: Runtime, watch: Watch) -> AsyncIterator[None]:
+    async def holding(self, rt: WatchingRuntime, watch: Watch) -> AsyncIterator[None]:
         """Hold ``watch`` within the block. The channel need not be subscribed yet: the
         listener looks up every held key once its subscription is live, so a key revoked
         before then is found too (after then, the message tells)."""
@@ -106,7 +106,7 @@ class KeyWatches:
             listener.cancel()
             await asyncio.wait([listener], timeout=STOP_WAIT_S)
 
-    async def check(self, rt: Runtime, watches: Iterable[Watch]) -> None:
+    async def check(self, rt: WatchingRuntime, watches: Iterable[Watch]) -> None:
         """Set ``revoked`` on each of ``watches`` whose secret no longer works. A failed
         read is logged: the next sweep reads again."""
         pending = [w for w in watches if not w.revoked.is_set()]
@@ -126,17 +126,17 @@ class KeyWatches:
     def _all(self) -> list[Watch]:
         return [w for held in self._by_key.values() for w in held]
 
-    async def _listen(self, rt: Runtime) -> None:
+    async def _listen(self, rt: WatchingRuntime) -> None:
         async with anyio.create_task_group() as tg:
             tg.start_soon(self._sweep, rt)
             await self._follow(rt)
 
-    async def _sweep(self, rt: Runtime) -> None:
+    async def _sweep(self, rt: WatchingRuntime) -> None:
         while True:
             await anyio.sleep(SWEEP_S)
             await self.check(rt, self._all())
 
-    async def _follow(self, rt: Runtime) -> None:
+    async def _follow(self, rt: WatchingRuntime) -> None:
         wait_s = RETRY_S[0]
         while True:
             try:
@@ -159,7 +159,7 @@ class KeyWatches:
 
 
 @asynccontextmanager
-async def watch(rt: Runtime, secret: str) -> AsyncIterator[anyio.Event]:
+async def watch(rt: WatchingRuntime, secret: str) -> AsyncIterator[anyio.Event]:
     """Within the block, an event set once the API key ``secret`` stops working (revoked
     or rotated, through any replica), never for the configured admin key. ``secret`` is a
     key that was let in just before: if it was revoked since, the event is set at once
@@ -178,7 +178,7 @@ async def watch(rt: Runtime, secret: str) -> AsyncIterator[anyio.Event]:
         yield held.revoked
 
 
-async def announce(rt: Runtime, key_id: str) -> None:
+async def announce(rt: WatchingRuntime, key_id: str) -> None:
     """Tell every replica that key ``key_id`` stopped working; call it after the commit.
     A failed publish is logged, not raised: the key is revoked either way, and the sweeps
     close within ``SWEEP_S`` what the message would have."""
@@ -189,7 +189,7 @@ async def announce(rt: Runtime, key_id: str) -> None:
         logger.warning("could not announce that key %s stopped working", key_id, exc_info=True)
 
 
-async def revoke_key(rt: Runtime, key_id: str) -> ApiKey:
+async def revoke_key(rt: WatchingRuntime, key_id: str) -> ApiKey:
     """Revoke a key (``auth.revoke_key``), then close the sockets it opened."""
     async with rt.transaction() as s:
         row = await auth.revoke_key(s, key_id)
@@ -197,7 +197,7 @@ async def revoke_key(rt: Runtime, key_id: str) -> ApiKey:
     return row
 
 
-async def rotate_key(rt: Runtime, key_id: str) -> tuple[ApiKey, str]:
+async def rotate_key(rt: WatchingRuntime, key_id: str) -> tuple[ApiKey, str]:
     """Give a key a new secret (``auth.rotate_key``), then close the sockets its old
     secret opened."""
     async with rt.transaction() as s:

@@ -44,7 +44,7 @@ from typing import Any
 import anyio
 import orjson
 
-from server.positioning.engines import get_engine
+from server.positioning.engines.registry import get_engine
 from server.positioning.model.walk import join_traces
 from server.services import auth, engine_settings, uploads
 from server.services.errors import Forbidden, Invalid, NotFound

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
+import os
 import sys
+import sysconfig
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
@@ -13,14 +16,28 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.ext.asyncio import AsyncEngine, AsyncSession, async_sessionmaker
 from sqlalchemy.ext.asyncio import create_async_engine as _create_async_engine
 
-# the alembic scripts: the checkout's migrations/ (a source or editable install), else where
-# the service's wheel puts them (<prefix>/share/indoorpos/migrations)
-_CHECKOUT_MIGRATIONS = Path(__file__).resolve().parents[2] / "migrations"
-MIGRATIONS_DIR = (
-    _CHECKOUT_MIGRATIONS
-    if _CHECKOUT_MIGRATIONS.is_dir()
-    else Path(sys.prefix) / "share" / "indoorpos" / "migrations"
-)
+
+def _migrations_dir() -> Path:
+    """The alembic scripts: the checkout's ``migrations/`` beside its ``alembic.ini`` (a
+    source or editable install), else where the service's wheel put them: ``share/indoorpos/
+    migrations`` under the install scheme's data path (the user scheme's, for ``--user``),
+    or under the interpreter's prefix. The first that exists; the checkout's path when none
+    does (``alembic_config`` says so)."""
+    root = Path(__file__).resolve().parents[2]
+    checkout = root / "migrations"
+    if (root / "alembic.ini").is_file() and checkout.is_dir():
+        return checkout
+    schemes = [sysconfig.get_path("data")]
+    with contextlib.suppress(KeyError):
+        schemes.append(sysconfig.get_path("data", f"{os.name}_user"))
+    for data in [*schemes, sys.prefix]:
+        installed = Path(data) / "share" / "indoorpos" / "migrations"
+        if (installed / "env.py").is_file():
+            return installed
+    return checkout
+
+
+MIGRATIONS_DIR = _migrations_dir()
 
 
 def async_url(url: str) -> str:
@@ -83,6 +100,11 @@ async def ping(engine: AsyncEngine) -> None:
 def alembic_config(url: str) -> Any:
     from alembic.config import Config
 
+    if not (MIGRATIONS_DIR / "env.py").is_file():
+        raise RuntimeError(
+            f"the database migrations are not at {MIGRATIONS_DIR}: install the service from "
+            "its checkout or its wheel (which carries them under share/indoorpos/migrations)"
+        )
     cfg = Config()
     cfg.set_main_option("script_location", str(MIGRATIONS_DIR))
     cfg.set_main_option("sqlalchemy.url", async_url(url).replace("%", "%%"))

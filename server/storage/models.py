@@ -254,7 +254,7 @@ class SessionContribution(Base):
     __tablename__ = "session_contributions"
     session_id: Mapped[str] = mapped_column(String(32), primary_key=True)
     seq: Mapped[int] = mapped_column(BigInteger, primary_key=True)
-    payload: Mapped[bytes] = mapped_column(LargeBinary)  # services.traces encoding
+    payload: Mapped[bytes] = mapped_column(LargeBinary)  # storage.trace_codec encoding
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
 
 

@@ -7,8 +7,8 @@ import httpx
 import pytest
 from fastapi import FastAPI
 
-from server.positioning.engines import get_engine
 from server.positioning.engines.pf_magnetic import PfMagneticState
+from server.positioning.engines.registry import get_engine
 from server.positioning.filters.particle_cloud import Particles
 from server.positioning.radio.fix_error import DEFAULT_ERROR_68_M
 from server.services import batches, engine_settings, sessions

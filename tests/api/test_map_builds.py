@@ -18,7 +18,7 @@ from fastapi import FastAPI
 from sqlalchemy import select, update
 
 from server import worker
-from server.positioning.engines import get_engine
+from server.positioning.engines.registry import get_engine
 from server.positioning.engines.shared.site_maps import SiteMaps
 from server.positioning.engines.wknn import WknnParams
 from server.positioning.mapping.map_set import (
@@ -190,7 +190,7 @@ def _records(
 
 def _radius_68(model: FixErrorModel, n_matched: int) -> float:
     """The 68 % radius of a ``wknn`` fix of a WiFi scan matching ``n_matched`` emitters on
-    a map whose fix error is ``model``, at the table's variance (radio_fusion.match
+    a map whose fix error is ``model``, at the table's variance (scan_fixes.match
     multiplies it by the scan's distance to the nearest reference scan)."""
     params = WknnParams()
     var = max(model.variance("wifi", n_matched) * params.fix_var_scale, params.min_fix_var_m2)

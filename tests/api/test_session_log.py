@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from fastapi import FastAPI
 
-from server.positioning.engines import get_engine
+from server.positioning.engines.registry import get_engine
 from server.services import batches, engine_settings, sessions
 from server.services.maps import site_maps
 from server.services.runtime import Runtime

@@ -15,7 +15,7 @@ import httpx
 import orjson
 import pytest
 
-from server.cli.embedded import ServerThread, free_port
+from lab.cli.embedded import ServerThread, free_port
 from server.config import Settings
 from tests.support.admin_key import ADMIN_KEY
 

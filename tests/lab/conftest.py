@@ -6,7 +6,8 @@ from dataclasses import replace
 
 import pytest
 
-from server.positioning.engines import ENGINES, step_ekf
+from server.positioning.engines import step_ekf
+from server.positioning.engines.registry import ENGINES
 
 
 @pytest.fixture

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from server.positioning.engines import get_engine
+from server.positioning.engines.registry import get_engine
 from server.services.session_records import SessionState
 from server.storage.codec import decode_arrays, encode_arrays
 

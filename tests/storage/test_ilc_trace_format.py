@@ -6,10 +6,11 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from server.storage.ilc_trace_format import WIFI_MAX_AGE_MS, IlcWalk, read_trace
+from server.storage.ilc_trace_format import WIFI_MAX_AGE_MS, IlcWalk, floor_level, read_trace
 from tests.support.datasets import SAMPLE_ID
 
 
@@ -227,3 +228,17 @@ def test_uncalibrated_stream_stands_in_for_a_missing_calibrated_one(
     same = np.abs(tr.magnetic[:, 1:] - raw_trace.magnetic[:, 1:]).max(axis=1) < 1e-4
     assert same.mean() > 0.95
     np.testing.assert_array_equal(tr.gyro, raw_trace.gyro)
+
+
+@pytest.mark.parametrize(
+    ("name", "level"),
+    [("B2", -2), ("B1", -1), ("F1", 0), ("F2", 1), ("F8", 7), ("1F", 0), ("L3", 2), ("b1", -1)],
+)
+def test_floor_level(name: str, level: int) -> None:
+    assert floor_level(name) == level
+
+
+@pytest.mark.parametrize("name", ["F0", "Mezzanine", "F", ""])
+def test_floor_level_refuses_unknown_names(name: str) -> None:
+    with pytest.raises(ValueError, match="level"):
+        floor_level(name)

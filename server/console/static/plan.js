@@ -1,5 +1,5 @@
 // A floor drawn to scale in SVG: the plan (GeoJSON in metres of the floor frame, x east,
-// y north; see server/positioning/floorplan_geojson.py), the map-quality layers and the
+// y north; see server/positioning/plan/geojson_plan.py), the map-quality layers and the
 // live positions. The drawing group flips y, so everything inside it is in floor metres.
 
 import { h, num, s } from "./dom.js";

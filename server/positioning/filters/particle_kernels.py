@@ -22,21 +22,25 @@ inputs):
   rows, in one merge pass over the sorted points).
 
 Compiled on first use and cached on disk (``cache=True``); no Python object crosses into
-them. Numba checks a cached kernel against its own source file only: after a change to
-``move_test_kernels.valid_moves`` or ``magnetic_kernels.bilinear`` (or to what they call),
-delete the cache of ``constrained_step`` (``__pycache__/particle_kernels.constrained_step-*``)
-or it goes on running the old code.
+them. Numba checks a cached kernel against its own source file only, while these call the
+kernels of two other files: on import, ``drop_stale_caches`` compares those files with the
+stamp it left beside the cache and, when either changed, empties this module's cache, so
+an edit of ``move_test_kernels`` or ``magnetic_kernels`` never leaves a stale compiled step.
 """
 
 from __future__ import annotations
 
 import math
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from server.positioning.magnetic import magnetic_kernels
 from server.positioning.magnetic.magnetic_kernels import GridArgs, bilinear, dtw, mmse
+from server.positioning.plan import move_test_kernels
 from server.positioning.plan.move_test_kernels import PlanArgs, moves_cross, valid_moves
 
 FloatArray = NDArray[np.float64]
@@ -285,3 +289,34 @@ def warm_up() -> None:
             0.1, 0.1, known, NO_PLAN, known, NO_GRID, known, 0.05, 4.2,
         )  # fmt: skip
     systematic_rows(log_w, 0.5)
+
+
+CALLEES = (Path(move_test_kernels.__file__), Path(magnetic_kernels.__file__))
+STAMP_NAME = "particle_kernels.callees"
+
+
+def drop_stale_caches(callees: tuple[Path, ...] = CALLEES, stamp_dir: Path | None = None) -> bool:
+    """Empty the disk cache of this module's kernels when a file whose kernels they call
+    has changed since the stamp beside the cache was written (numba would not notice);
+    True when it did. A cache that cannot be written (a read-only install) is left as it
+    is: it was built from the files beside it."""
+    kernels = [k for k in globals().values() if hasattr(k, "_cache") and hasattr(k, "py_func")]
+    stamp = ";".join(f"{f.name}:{f.stat().st_mtime_ns}:{f.stat().st_size}" for f in callees)
+    cache: Any = getattr(constrained_step, "_cache")  # noqa: B009 (numba's, untyped)
+    where = (stamp_dir or Path(cache._cache_path)) / STAMP_NAME
+    try:
+        if where.read_text() == stamp:
+            return False
+    except OSError:
+        pass
+    try:
+        for kernel in kernels:
+            kernel._cache.flush()
+        where.parent.mkdir(parents=True, exist_ok=True)
+        where.write_text(stamp)
+    except OSError:
+        return False
+    return True
+
+
+drop_stale_caches()

@@ -1,10 +1,11 @@
 """A recorded walk: what the dataset readers produce and the map builder reads.
 
-One shape for every source: an ILC 2.0 path file (``ilc_trace.read_trace``), an IPIN
-GetSensorData log (``ipin_log.read_log``), or our own events (an upload, the batches of a
-session; ``services.traces``). A walk is what the phone recorded and where it is known to
-have been; what a reader could not read is in its report (``records.ParseReport``), not
-here.
+One shape for every source: an ILC 2.0 path file (``storage.ilc_trace_format``), an IPIN
+GetSensorData log (the lab's ``datasets.ipin_log``), or our own events (an upload, the
+batches of a session; ``trace_from_events`` below, kept as bytes by
+``storage.trace_codec``). A walk is what the phone recorded and where it is known to have
+been; what a reader could not read is in its report (``storage.text_records.ParseReport``),
+not here.
 
 Its views as events (``radio_events``, ``imu_events``, ``events``) are what a phone would
 have posted, so a replayed walk and live phone traffic go through the same code.

@@ -1,7 +1,7 @@
 """Motion from the phone's own sensors: steps (``pdr``, ``step_tracker``), turns and straight
 stretches (``turns``, ``straight_lines``), attitude and heading (``attitude_ekf``,
-``heading_fusion``, ``sensor_geometry``, ``matrix3``, ``sensor_streams``) and floor changes
-(``barometer``).
+``heading_fusion``, ``sensor_geometry``, ``matrix3``, ``sensor_streams``), floor changes
+(``barometer``) and a recorded walk's steps (``walk_steps``).
 
 Frames and units. Phone axes are Android's (x to the right edge, y to the top edge, z out
 of the screen); the world frame is east-north-up. The accelerometer gives specific force

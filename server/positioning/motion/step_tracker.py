@@ -3,7 +3,8 @@
 This joins the pieces of PDR for the fusion engines, across batches:
 
 * steps and their lengths from the accelerometer (``server.positioning.motion.pdr``);
-* the phone heading from one of three sources (``server.positioning.sensors``):
+* the phone heading from one of three sources (``attitude_ekf``, ``heading_fusion``,
+  ``sensor_geometry``):
 
   - ``"attitude"``: the yaw of the attitude-determination EKF (``papers/002_*`` eq 9-17),
     gyro-driven with roll and pitch from gravity;

@@ -49,7 +49,7 @@ import shapely
 
 _OPEN_KINDS = frozenset({"walkable", "outline"})
 ROOM_KINDS = frozenset({"room"})
-_LINK_KINDS = frozenset({"elevator", "stairs", "escalator"})  # floor_graph.LINK_KINDS
+_LINK_KINDS = frozenset({"elevator", "stairs", "escalator"})  # navigation_graph.LINK_KINDS
 AREA_KINDS = _OPEN_KINDS | ROOM_KINDS | _LINK_KINDS
 BARRIER_KINDS = frozenset({"wall", "unit", "obstacle"})
 DOOR_KINDS = frozenset({"door"})

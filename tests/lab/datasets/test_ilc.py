@@ -12,23 +12,9 @@ from matplotlib.path import Path as PolygonPath
 from numpy.typing import NDArray
 
 from lab.datasets.ilc import read_site
-from server.storage.ilc_trace_format import floor_level, read_trace
+from server.storage.ilc_trace_format import read_trace
 
 SITE2_FLOORS = ("B1", "F1", "F2", "F3", "F4", "F5", "F6", "F7", "F8")
-
-
-@pytest.mark.parametrize(
-    ("name", "level"),
-    [("B2", -2), ("B1", -1), ("F1", 0), ("F2", 1), ("F8", 7), ("1F", 0), ("L3", 2), ("b1", -1)],
-)
-def test_floor_level(name: str, level: int) -> None:
-    assert floor_level(name) == level
-
-
-@pytest.mark.parametrize("name", ["F0", "Mezzanine", "F", ""])
-def test_floor_level_refuses_unknown_names(name: str) -> None:
-    with pytest.raises(ValueError, match="level"):
-        floor_level(name)
 
 
 def test_read_site_lists_site2(ilc_dir: Path) -> None:

@@ -8,7 +8,6 @@ from collections.abc import Sequence
 import numpy as np
 import pytest
 
-from server.positioning.engines import get_engine
 from server.positioning.engines.auto import (
     SAMPLES,
     STEPS,
@@ -18,6 +17,7 @@ from server.positioning.engines.auto import (
     AutoState,
     choose,
 )
+from server.positioning.engines.registry import get_engine
 from server.positioning.model.events import Event, Fix, ImuEvent, StepEvent, WifiEvent
 from server.positioning.model.state_codec import StateError
 from tests.support.loop_building import MAPS, loop_walk

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from client_sim.imu import T0_MS, Block, Sensors, blocks, synthesize_walk
-from server.positioning.engines import fai_ekf, get_engine, pf_magnetic
+from server.positioning.engines import fai_ekf, pf_magnetic
+from server.positioning.engines.registry import get_engine
 from server.positioning.engines.shared.site_maps import FloorRef, SiteMaps
 from server.positioning.model.events import (
     Event,

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 import numpy as np
 import pytest
 
-from server.positioning.engines import ENGINES, get_engine
+from server.positioning.engines.registry import ENGINES, get_engine
 from server.positioning.engines.shared.spec import Engine, EngineSpec
 from server.positioning.model import state_codec
 from server.positioning.model.events import Event, Fix

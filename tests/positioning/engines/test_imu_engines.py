@@ -14,8 +14,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from server.positioning.engines import everywhere_ekf as ev
-from server.positioning.engines import get_engine
 from server.positioning.engines import two_stage_ekf as ts
+from server.positioning.engines.registry import get_engine
 from server.positioning.engines.shared.pdr_kalman import FilterState, step_motion
 from server.positioning.engines.shared.site_maps import FloorRef, SiteMaps
 from server.positioning.filters.kalman import predict

@@ -9,7 +9,6 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from server.positioning.engines import get_engine
 from server.positioning.engines.map_markov import (
     SPEC,
     MapMarkovParams,
@@ -17,6 +16,7 @@ from server.positioning.engines.map_markov import (
     blend,
     initial_state,
 )
+from server.positioning.engines.registry import get_engine
 from server.positioning.engines.shared.site_maps import SiteMaps
 from server.positioning.model import state_codec
 from server.positioning.model.events import Event, Fix, StepEvent, WifiEvent

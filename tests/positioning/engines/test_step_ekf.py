@@ -14,7 +14,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from server.positioning.engines import ENGINES, get_engine
+from server.positioning.engines.registry import ENGINES, get_engine
 from server.positioning.engines.shared.site_maps import SiteMaps
 from server.positioning.engines.step_ekf import (
     SPEC,

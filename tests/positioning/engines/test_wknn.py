@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from server.positioning.engines import ENGINES, get_engine
+from server.positioning.engines.registry import ENGINES, get_engine
 from server.positioning.engines.shared.site_maps import FloorRef, SiteMaps
 from server.positioning.engines.step_ekf import StepEkfParams
 from server.positioning.engines.wknn import SPEC, WknnParams, WknnState, initial_state

@@ -4,6 +4,7 @@ against their numpy references, on random inputs."""
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 from hypothesis import given, settings
@@ -140,3 +141,17 @@ def test_step_on_floor_matches_the_numpy_filter_step(
     np.testing.assert_array_equal(got.observed, expected.observed)
     assert got.count == expected.count
     np.testing.assert_array_max_ulp(got.log_w, expected.log_w, maxulp=2)
+
+
+def test_the_cache_is_dropped_when_a_called_kernel_s_file_changes(tmp_path: Path) -> None:
+    """numba checks a cached kernel against its own file only; the stamp of the files whose
+    kernels these call catches an edit of them."""
+    callees = (tmp_path / "move_test_kernels.py", tmp_path / "magnetic_kernels.py")
+    for f in callees:
+        f.write_text("# kernels\n")
+    stamps = tmp_path / "cache"
+    assert particle_kernels.drop_stale_caches(callees, stamps)  # no stamp yet
+    assert not particle_kernels.drop_stale_caches(callees, stamps)
+    callees[1].write_text("# kernels, edited\n")
+    assert particle_kernels.drop_stale_caches(callees, stamps)
+    assert not particle_kernels.drop_stale_caches(callees, stamps)

@@ -26,6 +26,7 @@ from server.positioning.mapping.map_quality import (
     RadioCells,
     floor_figures,
 )
+from tests.support.quality_floor import polygon
 
 NAN = float("nan")
 NOW = datetime(2024, 3, 1, 12, 0, tzinfo=UTC)
@@ -33,20 +34,11 @@ DAY_MS = 86_400_000
 T0_MS = 1_700_000_000_000
 
 
-def box(x0: float, y0: float, x1: float, y1: float, kind: str) -> dict[str, Any]:
-    ring = [[x0, y0], [x1, y0], [x1, y1], [x0, y1], [x0, y0]]
-    return {
-        "type": "Feature",
-        "properties": {"kind": kind},
-        "geometry": {"type": "Polygon", "coordinates": [ring]},
-    }
-
-
 # 4 m x 3 m of floor from (2, 1) to (6, 4), a 1 m pillar at (3, 2)-(4, 3): 12 - 1 = 11
 # walkable 1 m cells, 48 - 4 = 44 walkable 0.5 m cells; the plan's lattice starts at (2, 1)
 PLAN = {
     "type": "FeatureCollection",
-    "features": [box(2, 1, 6, 4, "walkable"), box(3, 2, 4, 3, "obstacle")],
+    "features": [polygon(2, 1, 6, 4, "walkable"), polygon(3, 2, 4, 3, "obstacle")],
 }
 
 
@@ -140,7 +132,7 @@ def test_without_a_plan_radio_coverage_is_over_the_rps_bounding_box() -> None:
         # an obstacle over all the walkable area
         {
             "type": "FeatureCollection",
-            "features": [box(0, 0, 1, 1, "walkable"), box(-1, -1, 2, 2, "obstacle")],
+            "features": [polygon(0, 0, 1, 1, "walkable"), polygon(-1, -1, 2, 2, "obstacle")],
         },
     ],
 )

@@ -46,7 +46,7 @@ class SiteMaps:
     # what the fingerprinting accuracy indicators read of the radio map (fai_ekf); None:
     # not built, the indicators that need it are not computed
     fai: FaiMaps | None = None
-    # per floor index: the reference-point graph (floor_graph; map_markov); missing or
+    # per floor index: the reference-point graph (navigation_graph; map_markov); missing or
     # None: none built
     graphs: tuple[FloorGraph | None, ...] = ()
     # the surveyed scans themselves, matched scan by scan (scan_matching); None: not
