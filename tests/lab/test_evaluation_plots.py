@@ -109,7 +109,7 @@ def test_missing_matplotlib_names_the_extra(
 ) -> None:
     for name in ("matplotlib", "matplotlib.figure", "matplotlib.backends.backend_agg"):
         monkeypatch.setitem(sys.modules, name, None)
-    with pytest.raises(RuntimeError, match=r"indoorpos\[plots\]"):
+    with pytest.raises(RuntimeError, match=r"indoorpos-lab\[plots\]"):
         plot_error_cdf({"a": [1.0]}, tmp_path / "cdf.png", title="")
     assert not (tmp_path / "cdf.png").exists()
 
