@@ -33,4 +33,5 @@ async def locate(
         accuracy_68_m=fix.accuracy_68_m,
         accuracy_95_m=fix.accuracy_95_m,
         floor_prob=fix.floor_prob,
+        **found.world,
     )

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -20,6 +21,7 @@ from server.services import engine_settings
 from server.services.errors import Invalid, NotFound
 from server.services.maps import site_maps
 from server.services.runtime import Runtime
+from server.services.session_records import world_fields
 
 
 @dataclass(frozen=True)
@@ -28,6 +30,7 @@ class Located:
     level: int
     building_id: str
     floor_id: str
+    world: dict[str, Any]  # lat, lon, level, accuracy_m, heading_deg (session_records)
 
 
 async def locate(
@@ -55,8 +58,10 @@ async def locate(
         rng = np.random.default_rng(0)  # the engine draws none
         _, fixes = engine.step(engine.start(params), [scan], maps, params, rng)
         if fixes:
-            ref = maps.floors[fixes[0].floor]
-            return Located(fixes[0], ref.level, ref.building_id, ref.floor_id)
+            fix = fixes[0]
+            ref = maps.floors[fix.floor]
+            world = world_fields(fix.x_m, fix.y_m, fix.heading_rad, fix.accuracy_68_m, ref)
+            return Located(fix, ref.level, ref.building_id, ref.floor_id, world)
     raise Invalid(
         "the scan matches too few emitters of the site's radio map to place it (at least "
         f"{params.min_matched} of one kind)",

@@ -23,6 +23,7 @@ from server.positioning.mapping.map_set import merged_fai, most_learned, parse_p
 from server.positioning.mapping.matrices import merge_radio_maps, readings_matrix
 from server.positioning.mapping.survey_points import SurveyPointData
 from server.positioning.model.events import radio_key
+from server.positioning.model.geo import GeoReference
 from server.positioning.plan.anchors import anchors_from_plan
 from server.positioning.plan.geojson_plan import plan_extent
 from server.positioning.plan.navigation_graph import FloorGraph, attach, site_graphs
@@ -35,7 +36,7 @@ from server.services.device_offsets import building_offsets
 from server.services.errors import Invalid, NotFound
 from server.services.magnetic_maps import check_on_floor, fold_sources
 from server.storage.map_artefacts import decode_artefacts, fix_error_from_json, plan_digest
-from server.storage.models import RadioMapVersion
+from server.storage.models import Building, RadioMapVersion
 from server.storage.repositories import maps as map_repo
 from server.storage.repositories import sites as site_repo
 from server.storage.repositories import surveys as survey_repo
@@ -104,7 +105,7 @@ class MapCache:
 
 async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None) -> SiteMaps:
     floors = await site_repo.list_site_floors(s, site_id)
-    refs = tuple(FloorRef(b.id, f.id, f.level, b.rotation_rad) for f, b in floors)
+    refs = tuple(FloorRef(b.id, f.id, f.level, b.rotation_rad, geo_reference(b)) for f, b in floors)
     building_ids = list(dict.fromkeys(b.id for _, b in floors))
     latest = [m for b in building_ids if (m := await map_repo.latest_radio_map(s, b)) is not None]
     anchors = tuple(
@@ -120,7 +121,8 @@ async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None
         + [plan_digest(stored)]
     )
     if cached is not None and cached.version == version:
-        return cached
+        # the same maps; a building's rotation or geo-reference may still have changed
+        return cached if cached.floors == refs else replace(cached, floors=refs)
     # rasterising a mall floor takes a good part of a second: not on the event loop
     plans = await anyio.to_thread.run_sync(parse_plans, stored)
     grids = await anyio.to_thread.run_sync(
@@ -423,3 +425,10 @@ def owe_build(row: RadioMapVersion) -> None:
     row.build_status = PENDING
     row.build_attempts = 0
     row.build_leased_until = None
+
+
+def geo_reference(building: Building) -> GeoReference | None:
+    """Where ``building`` sits on the Earth; None when its origin is not set."""
+    if building.origin_lat is None or building.origin_lon is None:
+        return None
+    return GeoReference(building.origin_lat, building.origin_lon, building.rotation_rad)

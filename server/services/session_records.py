@@ -29,10 +29,11 @@ from typing import Any
 
 import numpy as np
 
-from server.positioning.engines.shared.site_maps import SiteMaps
+from server.positioning.engines.shared.site_maps import FloorRef, SiteMaps
 from server.positioning.engines.shared.spec import Engine
 from server.positioning.model import state_codec
 from server.positioning.model.events import Event, Fix, ImuEvent
+from server.positioning.model.geo import heading_from_north_deg, to_world
 from server.positioning.model.state_codec import StateError
 from server.storage.codec import (
     CodecError,
@@ -283,8 +284,32 @@ def fix_to_wire(fix: Fix, maps: SiteMaps, engine: str) -> dict[str, Any]:
         "source": fix.source,
         "engine": engine,
         "diagnostics": fix.diagnostics,
+        **world_fields(fix.x_m, fix.y_m, fix.heading_rad, fix.accuracy_68_m, ref),
     }
 
 
 def _finite(value: float) -> float | None:
     return value if math.isfinite(value) else None
+
+
+def world_fields(
+    x_m: float, y_m: float, heading_rad: float | None, accuracy_68_m: float, ref: FloorRef | None
+) -> dict[str, Any]:
+    """A fix as a phone app or a web map reads one: WGS84 ``lat``/``lon`` (degrees; null
+    where the building has no geo-reference), the floor's ``level``, ``accuracy_m`` (the
+    68 % radius, as Android's and the W3C API's accuracy) and ``heading_deg`` clockwise
+    from north (``model.geo``)."""
+    geo = ref.geo if ref is not None else None
+    lat, lon = to_world(x_m, y_m, geo) if geo is not None else (None, None)
+    heading = (
+        heading_from_north_deg(heading_rad, geo)
+        if geo is not None and heading_rad is not None and math.isfinite(heading_rad)
+        else None
+    )
+    return {
+        "lat": lat,
+        "lon": lon,
+        "level": ref.level if ref is not None else None,
+        "accuracy_m": _finite(accuracy_68_m),
+        "heading_deg": heading,
+    }

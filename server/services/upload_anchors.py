@@ -14,13 +14,12 @@ from collections import OrderedDict
 import anyio
 from sqlalchemy.ext.asyncio import AsyncSession
 
-from server.positioning.mapping.anchors import GeoReference
 from server.positioning.mapping.walk_contribution import AnchorContext, Beacon
 from server.positioning.mapping.wifi_anchors import anchor_nodes
 from server.positioning.plan.anchors import anchors_from_plan
 from server.positioning.plan.geojson_plan import plan_extent
 from server.positioning.radio.fingerprints import MISSING_DBM
-from server.services.maps import stored_radio_map
+from server.services.maps import geo_reference, stored_radio_map
 from server.storage.models import Upload
 from server.storage.repositories import maps as map_repo
 from server.storage.repositories import sites as site_repo
@@ -44,15 +43,12 @@ async def anchor_context(s: AsyncSession, upload: Upload) -> AnchorContext:
     building = await site_repo.get_building(s, building_id) if building_id else None
     if building is None:
         return AnchorContext()
-    geo = None
-    if building.origin_lat is not None and building.origin_lon is not None:
-        geo = GeoReference(building.origin_lat, building.origin_lon, building.rotation_rad)
     extents = {
         f.level: extent
         for f in await site_repo.list_floors(s, building.id)
         if (extent := plan_extent(f.plan_geojson)) is not None
     }
-    return AnchorContext(await _beacons(s, building.id), geo, extents)
+    return AnchorContext(await _beacons(s, building.id), geo_reference(building), extents)
 
 
 async def _beacons(s: AsyncSession, building_id: str) -> list[Beacon]:

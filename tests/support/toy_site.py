@@ -82,11 +82,16 @@ class ToySite:
     device: dict[str, str]  # the header of a device key for the site
 
 
-async def build_toy_site(client: httpx.AsyncClient, admin: dict[str, str]) -> ToySite:
+async def build_toy_site(
+    client: httpx.AsyncClient, admin: dict[str, str], building: dict[str, Any] | None = None
+) -> ToySite:
+    """The toy site; ``building`` adds fields to its building (e.g. a geo-reference)."""
     r = await client.post("/v1/sites", json={"name": "toy"}, headers=admin)
     assert r.status_code == 201, r.text
     site_id = r.json()["id"]
-    r = await client.post(f"/v1/sites/{site_id}/buildings", json={"name": "B"}, headers=admin)
+    r = await client.post(
+        f"/v1/sites/{site_id}/buildings", json={"name": "B", **(building or {})}, headers=admin
+    )
     assert r.status_code == 201, r.text
     building_id = r.json()["id"]
     floor_ids = {}

@@ -30,3 +30,10 @@ class LocateOut(Strict):
     accuracy_68_m: float = Field(description="radius (m) that holds 68 % of the errors")
     accuracy_95_m: float = Field(description="radius (m) that holds 95 % of the errors")
     floor_prob: float = Field(description="probability that the floor is right")
+    lat: float | None = Field(
+        None, description="WGS84 latitude (degrees); null without a geo-referenced building"
+    )
+    lon: float | None = Field(None, description="WGS84 longitude (degrees); null likewise")
+    level: int | None = Field(None, description="the floor's ordinal (0: ground floor)")
+    accuracy_m: float | None = Field(None, description="the 68 % radius (m)")
+    heading_deg: float | None = Field(None, description="heading from north (degrees)")

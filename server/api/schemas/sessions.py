@@ -46,6 +46,20 @@ class FixOut(Strict):
     source: str
     engine: str
     diagnostics: dict[str, float] = Field(default_factory=dict)
+    lat: float | None = Field(
+        None,
+        description="WGS84 latitude (degrees) of x_m, y_m; null without a geo-referenced building",
+    )
+    lon: float | None = Field(None, description="WGS84 longitude (degrees); null likewise")
+    level: int | None = Field(None, description="the floor's ordinal (0: ground floor)")
+    accuracy_m: float | None = Field(
+        None, description="the 68 % radius (m), as Android's and the W3C API's accuracy"
+    )
+    heading_deg: float | None = Field(
+        None,
+        description="heading (degrees, clockwise from north, [0, 360)); null without a "
+        "geo-referenced building or a heading",
+    )
 
 
 # ---------------------------------------------------------------- sessions

@@ -59,6 +59,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.signal import find_peaks
 
+from server.positioning.model.geo import GeoReference
 from server.positioning.plan.anchors import DEFAULT_RSSI_DBM
 
 FloatArray = NDArray[np.float64]
@@ -68,23 +69,6 @@ EARTH_RADIUS_M = 6_371_008.8  # IUGG mean radius
 
 
 # ---------------------------------------------------------------- GNSS
-
-
-@dataclass(frozen=True)
-class GeoReference:
-    """Where a building's local frame sits on the Earth."""
-
-    origin_lat_deg: float
-    origin_lon_deg: float
-    rotation_rad: float = 0.0  # bearing of the building's y axis, clockwise from north
-
-    def __post_init__(self) -> None:
-        if not (math.isfinite(self.origin_lat_deg) and -90.0 < self.origin_lat_deg < 90.0):
-            raise ValueError(f"origin_lat_deg must be in (-90, 90), got {self.origin_lat_deg}")
-        if not (math.isfinite(self.origin_lon_deg) and -180.0 <= self.origin_lon_deg <= 180.0):
-            raise ValueError(f"origin_lon_deg must be in [-180, 180], got {self.origin_lon_deg}")
-        if not math.isfinite(self.rotation_rad):
-            raise ValueError(f"rotation_rad must be finite, got {self.rotation_rad}")
 
 
 def geo_to_local(lat_deg: ArrayLike, lon_deg: ArrayLike, ref: GeoReference) -> FloatArray:

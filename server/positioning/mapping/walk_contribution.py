@@ -26,13 +26,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from server.positioning.mapping.anchors import GeoReference, ble_anchors, gnss_anchors
+from server.positioning.mapping.anchors import ble_anchors, gnss_anchors
 from server.positioning.mapping.labelled import interpolate_track
 from server.positioning.mapping.magnetic_gridding import MagneticSamples
 from server.positioning.mapping.placement import place_samples
 from server.positioning.mapping.selection import select_inertial
 from server.positioning.mapping.survey_points import SurveyPointData
 from server.positioning.model.events import WifiEvent
+from server.positioning.model.geo import GeoReference
 from server.positioning.model.walk import Walk
 from server.positioning.motion.step_tracker import TrackerParams
 from server.positioning.motion.walk_steps import anchored_steps

@@ -11,11 +11,11 @@ from hypothesis import strategies as st
 
 from server.positioning.mapping.anchors import (
     EARTH_RADIUS_M,
-    GeoReference,
     ble_anchors,
     geo_to_local,
     gnss_anchors,
 )
+from server.positioning.model.geo import GeoReference
 from server.positioning.plan.anchors import DEFAULT_RSSI_DBM
 
 T0 = 1_700_000_000_000

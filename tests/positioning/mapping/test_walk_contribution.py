@@ -13,7 +13,7 @@ from functools import cache
 import numpy as np
 import pytest
 
-from server.positioning.mapping.anchors import EARTH_RADIUS_M, GeoReference
+from server.positioning.mapping.anchors import EARTH_RADIUS_M
 from server.positioning.mapping.labelled import interpolate_track
 from server.positioning.mapping.survey_points import SurveyPointData
 from server.positioning.mapping.walk_contribution import (
@@ -31,6 +31,7 @@ from server.positioning.model.events import (
     StepEvent,
     WifiEvent,
 )
+from server.positioning.model.geo import GeoReference
 from server.positioning.model.walk import Walk, trace_from_events
 from server.positioning.plan.geojson_plan import PLAN_MARGIN_M
 from server.storage.ilc_trace_format import parse_trace_text

@@ -7,6 +7,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from server.positioning.magnetic.field_grid import MagneticMap
+from server.positioning.model.geo import GeoReference
 from server.positioning.plan.anchors import Anchor
 from server.positioning.plan.floor_plan import FloorPlan
 from server.positioning.plan.navigation_graph import FloorGraph
@@ -25,6 +26,7 @@ class FloorRef:
     floor_id: str
     level: int
     rotation_rad: float = 0.0  # bearing of the building's y axis, clockwise from north
+    geo: GeoReference | None = None  # where the building sits on the Earth, when it is known
 
 
 @dataclass(frozen=True)
