@@ -119,10 +119,11 @@ async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None
         + [f"{m.id}:{m.build_status}" for m in latest]
         + [m.id if m else "-" for m in magnetic]
         + [plan_digest(stored)]
+        # where each building sits and how it is turned: fixes in world coordinates
+        + [f"{b.origin_lat},{b.origin_lon},{b.rotation_rad}" for _, b in floors]
     )
     if cached is not None and cached.version == version:
-        # the same maps; a building's rotation or geo-reference may still have changed
-        return cached if cached.floors == refs else replace(cached, floors=refs)
+        return cached
     # rasterising a mall floor takes a good part of a second: not on the event loop
     plans = await anyio.to_thread.run_sync(parse_plans, stored)
     grids = await anyio.to_thread.run_sync(
@@ -431,4 +432,7 @@ def geo_reference(building: Building) -> GeoReference | None:
     """Where ``building`` sits on the Earth; None when its origin is not set."""
     if building.origin_lat is None or building.origin_lon is None:
         return None
-    return GeoReference(building.origin_lat, building.origin_lon, building.rotation_rad)
+    try:
+        return GeoReference(building.origin_lat, building.origin_lon, building.rotation_rad)
+    except ValueError:  # stored before the API refused it (a pole): no world coordinates
+        return None

@@ -297,13 +297,13 @@ def world_fields(
 ) -> dict[str, Any]:
     """A fix as a phone app or a web map reads one: WGS84 ``lat``/``lon`` (degrees; null
     where the building has no geo-reference), the floor's ``level``, ``accuracy_m`` (the
-    68 % radius, as Android's and the W3C API's accuracy) and ``heading_deg`` clockwise
-    from north (``model.geo``)."""
+    68 % radius, as Android's accuracy) and ``heading_deg`` clockwise from north, by the
+    building's rotation (``model.geo``)."""
     geo = ref.geo if ref is not None else None
     lat, lon = to_world(x_m, y_m, geo) if geo is not None else (None, None)
     heading = (
-        heading_from_north_deg(heading_rad, geo)
-        if geo is not None and heading_rad is not None and math.isfinite(heading_rad)
+        heading_from_north_deg(heading_rad, ref.rotation_rad)
+        if ref is not None and heading_rad is not None and math.isfinite(heading_rad)
         else None
     )
     return {

@@ -48,13 +48,13 @@ async def test_a_geo_referenced_building_s_fixes_are_in_wgs84(
         if fix["heading_rad"] is None:
             assert fix["heading_deg"] is None
         else:
-            expected = math.degrees(fix["heading_rad"] + ROTATION_RAD) % 360.0
-            assert fix["heading_deg"] == pytest.approx(expected, abs=1e-9)
             assert 0.0 <= fix["heading_deg"] < 360.0
-    # after a step east in the building frame, the heading from north is 90 + 25 degrees
+    # the phone stepped east (a step's heading is the phone's, from north): the fix heads
+    # east, whatever the building's rotation; in the building's frame it is 90 - 25 degrees
     stepped = [f for f in fixes if f["heading_rad"] is not None]
     assert stepped
-    assert stepped[-1]["heading_deg"] == pytest.approx(115.0, abs=20.0)
+    assert stepped[-1]["heading_deg"] == pytest.approx(90.0, abs=5.0)
+    assert math.degrees(stepped[-1]["heading_rad"]) == pytest.approx(65.0, abs=5.0)
     track = await client.get(f"/v1/sessions/{sid}/track", headers=auth)
     assert track.status_code == 200, track.text
     body = track.json()
@@ -80,13 +80,17 @@ async def test_without_a_geo_reference_the_world_fields_are_null(
 ) -> None:
     site = await build_toy_site(client, admin)
     sid, auth = await open_session(client, site)
+    events = [scan(T0, 5, 5), step(T0 + 600, heading_rad=math.pi)]
     r = await client.post(
-        f"/v1/sessions/{sid}/batches", json={"seq": 1, "events": [scan(T0, 5, 5)]}, headers=auth
+        f"/v1/sessions/{sid}/batches", json={"seq": 1, "events": events}, headers=auth
     )
     assert r.status_code == 200, r.text
-    (fix,) = r.json()["fixes"]
-    assert fix["lat"] is None
-    assert fix["lon"] is None
-    assert fix["heading_deg"] is None
-    assert fix["level"] == 0
-    assert fix["accuracy_m"] == fix["accuracy_68_m"]
+    first, stepped = r.json()["fixes"]
+    for fix in (first, stepped):
+        assert fix["lat"] is None
+        assert fix["lon"] is None
+        assert fix["level"] == 0
+        assert fix["accuracy_m"] == fix["accuracy_68_m"]
+    assert first["heading_deg"] is None  # a scan alone says nothing of the heading
+    # a building that is not turned: its y axis is north, the heading is the step's, south
+    assert stepped["heading_deg"] == pytest.approx(180.0, abs=5.0)

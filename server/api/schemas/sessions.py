@@ -53,12 +53,12 @@ class FixOut(Strict):
     lon: float | None = Field(None, description="WGS84 longitude (degrees); null likewise")
     level: int | None = Field(None, description="the floor's ordinal (0: ground floor)")
     accuracy_m: float | None = Field(
-        None, description="the 68 % radius (m), as Android's and the W3C API's accuracy"
+        None, description="the 68 % radius (m), as Android's Location accuracy"
     )
     heading_deg: float | None = Field(
         None,
-        description="heading (degrees, clockwise from north, [0, 360)); null without a "
-        "geo-referenced building or a heading",
+        description="heading (degrees, clockwise from north by the building's rotation, "
+        "[0, 360)); null without a heading",
     )
 
 

@@ -29,7 +29,7 @@ class SiteList(Strict):
 
 class BuildingCreate(StrictIn):
     name: Name
-    origin_lat: Annotated[float | None, Field(ge=-90, le=90, allow_inf_nan=False)] = None
+    origin_lat: Annotated[float | None, Field(gt=-90, lt=90, allow_inf_nan=False)] = None
     origin_lon: Annotated[float | None, Field(ge=-180, le=180, allow_inf_nan=False)] = None
     rotation_rad: FiniteFloat = Field(
         0.0, description="angle from geographic north to the local y axis, clockwise"

@@ -1,7 +1,9 @@
 """``step_ekf``: a position EKF driven by phone steps and corrected by WiFi/BLE WKNN fixes.
 
-State (``papers/002_*`` eq 18): ``B = [x, y, S, psi]`` -- position (m, x east, y north),
-step length S (m) and heading psi (rad, clockwise from north, as the phone reports it).
+State (``papers/002_*`` eq 18): ``B = [x, y, S, psi]`` -- position (m, in the building's
+frame: x east, y north before its rotation), step length S (m) and heading psi (rad,
+clockwise from the building's y axis: the phone's heading from north less the building's
+rotation, ``scan_fixes.in_building_frame``).
 
 Prediction at each step event (``papers/002_*`` eq 21, in the form of ``papers/003_*``
 eq 15, which moves with the heading *after* the step's turn)::
@@ -205,19 +207,21 @@ def on_step(
 ) -> tuple[StepEkfState, Fix | None]:
     """A phone step: the prediction, then its length and heading as measurements (module
     docstring); a fix once initialised."""
-    del maps, rng  # the phone's heading as it is; deterministic
+    del rng  # deterministic
     if not (math.isfinite(event.length_m) and math.isfinite(event.heading_rad)):
         return replace(state, last_t_ms=event.t_ms), None
-    heading = float(wrap_angle(event.heading_rad))
+    heading = float(wrap_angle(event.heading_rad))  # the phone's, from north
     if not state.initialized:
         return replace(state, last_t_ms=event.t_ms, last_step_heading_rad=heading), None
 
+    # the filter's heading is in the building's frame; a turn is the same in both
+    along = scan_fixes.in_building_frame(maps, state.floor, heading)
     x, P = state.x, state.P
     if math.isnan(state.last_step_heading_rad):
         # started without a heading: psi is uncorrelated with the rest, take this step's
         x = x.copy()
         P = P.copy()
-        x[3] = heading
+        x[3] = along
         P[3, :] = P[:, 3] = 0.0
         P[3, 3] = params.p0_heading_rad2
         turn = 0.0
@@ -230,7 +234,7 @@ def on_step(
     u = update(
         x,
         P,
-        z=[event.length_m, heading],
+        z=[event.length_m, along],
         H=_H_STEP,
         R=np.diag([params.r_step_m2, params.r_heading_rad2]),
         residual=_step_residual,

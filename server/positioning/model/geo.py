@@ -47,7 +47,8 @@ def to_world(x_m: float, y_m: float, ref: GeoReference) -> tuple[float, float]:
     return float(lat), float(lon)
 
 
-def heading_from_north_deg(heading_rad: float, ref: GeoReference) -> float:
+def heading_from_north_deg(heading_rad: float, rotation_rad: float) -> float:
     """A heading clockwise from the building's y axis as degrees clockwise from north, in
-    [0, 360)."""
-    return math.degrees(heading_rad + ref.rotation_rad) % 360.0
+    [0, 360), for a building whose y axis has the bearing ``rotation_rad``."""
+    degrees = math.degrees(heading_rad + rotation_rad) % 360.0
+    return 0.0 if degrees >= 360.0 else degrees  # a tiny negative sum rounds up to 360

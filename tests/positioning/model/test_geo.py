@@ -68,5 +68,10 @@ def test_the_origin_and_the_axes() -> None:
     ],
 )
 def test_headings_from_north(heading_rad: float, rotation_rad: float, expected_deg: float) -> None:
-    ref = GeoReference(48.0, 11.0, rotation_rad)
-    assert heading_from_north_deg(heading_rad, ref) == pytest.approx(expected_deg, abs=1e-9)
+    assert heading_from_north_deg(heading_rad, rotation_rad) == pytest.approx(
+        expected_deg, abs=1e-9
+    )
+
+
+def test_a_heading_a_hair_west_of_north_is_not_360() -> None:
+    assert heading_from_north_deg(-1e-17, 0.0) == 0.0
