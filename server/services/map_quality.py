@@ -75,15 +75,12 @@ async def floor_map_quality(
         # CPU work (a grid of up to millions of cells decompressed, plans rasterised,
         # emitters fitted): in a worker thread
         grid = map_repo.magnetic_grid(magnetic_row) if magnetic_row is not None else None
-        if radio is None:
-            return floor_figures(
-                plan_geojson, np.zeros((0, 2)), np.zeros((0, 0), np.int32), None, set(),
-                grid, points, params, now,
-            )  # fmt: skip
-        on_floor = np.array([f == floor_id for f in radio.rp_floor_id], dtype=bool)
-        count, var = radio.count[on_floor], radio.var_db2[on_floor]
-        seen = {radio.emitters[i] for i in np.flatnonzero((count > 0).any(axis=0)).tolist()}
-        rp_xy = radio.rp_xy[on_floor].astype(np.float64)
+        rp_xy, count, var, seen = np.zeros((0, 2)), np.zeros((0, 0), np.int32), None, set()
+        if radio is not None:
+            on_floor = np.array([f == floor_id for f in radio.rp_floor_id], dtype=bool)
+            rp_xy = radio.rp_xy[on_floor].astype(np.float64)
+            count, var = radio.count[on_floor], radio.var_db2[on_floor]
+            seen = {radio.emitters[i] for i in np.flatnonzero((count > 0).any(axis=0)).tolist()}
         return floor_figures(plan_geojson, rp_xy, count, var, seen, grid, points, params, now)
 
     figures = await anyio.to_thread.run_sync(figures_of_floor)
