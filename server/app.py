@@ -29,6 +29,8 @@ from server.api import (
     quality,
     sessions,
     uploads,
+    webhooks,
+    zones,
 )
 from server.api.schemas.errors import ErrorOut
 from server.config import Settings, get_settings
@@ -103,7 +105,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 tasks.start_soon(run_worker)
             else:
                 stopped.set()
+            # sessions' history to SQL about every second, and once more at shutdown
+            tasks.start_soon(runtime.history.run, runtime.transaction)
             yield
+            runtime.history.close()
             # the worker ends its transaction and stops; cancelled if it takes too long
             stop.set()
             with anyio.move_on_after(WORKER_STOP_S):
@@ -123,7 +128,20 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     errors.install(app)
     console.install(app)
-    routers = (health, admin, engines, keys, sessions, live, locate, uploads, quality, metrics)
+    routers = (
+        health,
+        admin,
+        engines,
+        keys,
+        sessions,
+        live,
+        locate,
+        uploads,
+        quality,
+        zones,
+        webhooks,
+        metrics,
+    )
     for module in routers:
         app.include_router(module.router)
     app.add_middleware(

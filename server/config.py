@@ -167,6 +167,14 @@ class Settings(BaseSettings):
         "keep their statistics, but a later build learns its fix-error table and graph "
         "moves only from the walks still kept. None (the default): kept for good",
     )
+    history_retention_days: float | None = Field(
+        30.0,
+        ge=0,
+        description="how long every session's fixes are kept after they were made, for "
+        "its history and exports (GET /v1/sessions/{id}/history, track.geojson, "
+        "track.mfjson), whether or not the session ended; the worker deletes older ones. "
+        "0 keeps none (nothing is written); none (or forever) keeps them for good",
+    )
     upload_visibility_s: float = Field(
         120.0,
         gt=0,
@@ -177,6 +185,45 @@ class Settings(BaseSettings):
         False,
         description="use only the samples of an upload's steady walking (Mansour IV-A); "
         "off by default: on ILC site2 about a third of the walking time passes",
+    )
+    zone_dwell_s: float = Field(
+        3.0,
+        ge=0,
+        le=3600,
+        description="a session enters (or leaves) a zone once its fixes have stayed across "
+        "the border this long, or this far (zone_dwell_m): a fix wobbling on a border "
+        "makes no events",
+    )
+    zone_dwell_m: float = Field(
+        3.0, ge=0, le=1000, description="the distance that confirms a zone border crossing"
+    )
+    webhook_retry_s: float = Field(
+        10.0,
+        gt=0,
+        le=3600,
+        description="a failed webhook delivery is tried again after this, doubled at each "
+        "further failure (at most an hour)",
+    )
+    webhook_attempts: int = Field(
+        10, ge=1, le=100, description="attempts of a webhook delivery before it is failed"
+    )
+    webhook_timeout_s: float = Field(
+        10.0, gt=0, le=60, description="how long a webhook receiver may take to answer"
+    )
+    webhook_private_networks: bool = Field(
+        False,
+        description="let webhooks send to hosts that resolve to loopback, private or "
+        "link-local addresses (off: an API key cannot point the worker at the service's "
+        "own network)",
+    )
+    webhook_retention_days: float = Field(
+        30.0,
+        gt=0,
+        description="deliveries delivered or failed are deleted this long after they were "
+        "made (pending ones are kept until they settle)",
+    )
+    webhook_poll_s: float = Field(
+        1.0, gt=0, le=60, description="how often a worker looks for webhook deliveries due"
     )
     log_format: Literal["json", "text"] = Field(
         "text", description="json: one JSON object per log line (server/logs.py)"
@@ -208,6 +255,14 @@ class Settings(BaseSettings):
                 "redis_url must start with redis://, rediss://, unix:// or redis+cluster:// "
                 "(a Redis Cluster: any of its nodes)"
             )
+        return v
+
+    @field_validator("history_retention_days", mode="before")
+    @classmethod
+    def _for_good(cls, v: Any) -> Any:
+        """``none`` or ``forever``, as an environment variable says it."""
+        if isinstance(v, str) and v.strip().lower() in {"none", "forever"}:
+            return None
         return v
 
     @field_validator("trusted_proxies", mode="before")

@@ -1,6 +1,7 @@
 """The upload worker: takes uploads from the queue and folds them into the maps.
 
-When the queue is quiet it builds what is owed of new radio map versions (the fix-error table,
+Beside it, it sends what webhooks are owed (``services.webhook_delivery``). When the
+queue is quiet it builds what is owed of new radio map versions (the fix-error table,
 FAI maps and floor graphs: ``build_maps``, ``services.map_builds``).
 
 One delivery at a time per worker (the work is CPU-bound; run more worker processes to go
@@ -29,7 +30,15 @@ from functools import partial
 
 import anyio
 
-from server.services import map_builds, sites, upload_anchors, upload_contribution, uploads
+from server.services import (
+    history,
+    map_builds,
+    sites,
+    upload_anchors,
+    upload_contribution,
+    uploads,
+    webhook_delivery,
+)
 from server.services.errors import NotFound
 from server.services.runtime import Runtime
 from server.storage.upload_queue import Delivery, MemoryUploadQueue
@@ -214,6 +223,15 @@ async def build_maps(
 
 
 async def run(rt: Runtime, consumer: str, stop: anyio.Event | None = None) -> None:
+    """Serve the queue, and send what webhooks are owed (``services.webhook_delivery``),
+    until ``stop`` is set (forever without one)."""
+    stop = stop or anyio.Event()
+    async with anyio.create_task_group() as tasks:
+        tasks.start_soon(webhook_delivery.run, rt, stop)
+        await serve_uploads(rt, consumer, stop)
+
+
+async def serve_uploads(rt: Runtime, consumer: str, stop: anyio.Event | None = None) -> None:
     """Serve the queue until ``stop`` is set (forever without one)."""
     idle_s = rt.settings.upload_visibility_s
     # an in-process queue starts empty: everything unsettled is this process' to redo
@@ -265,3 +283,9 @@ async def run(rt: Runtime, consumer: str, stop: anyio.Event | None = None) -> No
                         log.info("deleted %d survey points past the walks' retention", pruned)
                 except Exception:
                     log.exception("could not prune old walks; trying again later")
+            try:
+                purged = await history.purge(rt)
+                if purged:
+                    log.info("deleted %d batches of fixes past the history's retention", purged)
+            except Exception:
+                log.exception("could not purge old session history; trying again later")

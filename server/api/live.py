@@ -10,6 +10,8 @@ socket), as the first message ``{"type": "auth", "token": "..."}`` within
 log line either way).
 Messages out: ``{"type": "ready"}`` once the socket follows the session (fixes
 of batches posted after it are never missed), ``{"type": "fix", "seq", "fix"}``,
+``{"type": "zone", "session_id", "seq", "event"}`` after the fix that confirmed a zone
+entry or exit (``event`` as the fix's ``zone_events`` hold it),
 ``{"type": "batch_result", ...}`` (the fields of a batch's HTTP answer) for batches sent
 over the socket, and ``{"type": "error", "status", "detail", "message"}`` (with the
 ``seq`` of the batch it answers, when it answers one).
@@ -172,6 +174,10 @@ async def _follow(
                         break
                     for fix in message["fixes"]:
                         await sock.send({"type": "fix", "seq": message["seq"], "fix": fix})
+                        for event in fix.get("zone_events", ()):
+                            await sock.send(zone_message(session_id, message["seq"], event))
+                    for event in message.get("zone_events", ()):  # the session ended inside
+                        await sock.send(zone_message(session_id, message["seq"], event))
                 await websocket.close(code=1000)
             if not forwarding.cancel_called:
                 tg.cancel_scope.cancel()
@@ -190,6 +196,11 @@ async def _follow(
         with contextlib.suppress(*GONE):
             await _read(sock, rt, session_id, secret, owner)
         tg.cancel_scope.cancel()
+
+
+def zone_message(session_id: str, seq: int, event: dict[str, Any]) -> dict[str, Any]:
+    """A zone event as the socket sends it, after the fix that confirmed it."""
+    return {"type": "zone", "session_id": session_id, "seq": seq, "event": event}
 
 
 async def _read(sock: _Socket, rt: Runtime, session_id: str, secret: str, owner: bool) -> None:

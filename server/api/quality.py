@@ -1,5 +1,5 @@
 """Admin routes: how good a floor's current maps are (coverage, sampling, freshness,
-emitters) and where to survey it next."""
+emitters), cell by cell, and where to survey it next."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from fastapi import APIRouter, Query
 
 from server.api.deps import IdPath, SqlDep, ViewerDep
 from server.api.gated_route import GatedRoute
-from server.api.schemas.map_quality import MapQualityRead, SurveyPlanRead
+from server.api.schemas.map_quality import CoverageGridRead, MapQualityRead, SurveyPlanRead
 from server.positioning.mapping.map_quality import QualityParams
 from server.services import map_quality, survey_plans
 
@@ -38,6 +38,31 @@ async def get_map_quality(
     params = QualityParams(max_emitters=max_emitters, retired_after_days=retired_after_days)
     quality = await map_quality.floor_map_quality(s, floor_id, params)
     return MapQualityRead.model_validate(quality, from_attributes=True)
+
+
+@router.get("/floors/{floor_id}/maps/coverage")
+async def get_map_coverage(
+    floor_id: IdPath,
+    s: SqlDep,
+    cell_m: Annotated[
+        float,
+        Query(
+            ge=0.5,
+            le=50,
+            description="side of a grid cell (m); a floor may have at most 40,000 cells",
+        ),
+    ] = 2.0,
+) -> CoverageGridRead:
+    """Where the floor's radio map is thin, cell by cell: over a grid on the floor's
+    walkable area (without a plan, the box of its reference points and survey points),
+    each cell's readings, survey points, emitters heard, RSS variance, the age of its
+    newest survey point, and the error a radio fix there can be expected to have: from
+    the map's fix-error table for the emitters heard at the nearest reference point and
+    the distance to it, so that a cell far from every reference point looks worse. Cells
+    without data are listed too; a floor without maps answers an empty grid or one
+    without data. A ``cell_m`` too small for the floor's size answers 422."""
+    found = await map_quality.floor_coverage(s, floor_id, cell_m)
+    return CoverageGridRead.model_validate(found.document())
 
 
 @router.get("/floors/{floor_id}/maps/placement")

@@ -11,6 +11,7 @@ from typing import Annotated, Any
 import orjson
 from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response, status
 from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
 from pydantic import ValidationError
 
 from server.api.convert import to_events
@@ -30,6 +31,7 @@ from server.api.deps import (
 )
 from server.api.gated_route import GatedRoute
 from server.api.schemas.common import ID_PATTERN
+from server.api.schemas.history import SessionHistory, TrackGeoJSON, TrackMovingFeatures
 from server.api.schemas.pages import CREATED, encode_cursor
 from server.api.schemas.sessions import (
     BatchIn,
@@ -43,7 +45,8 @@ from server.api.schemas.sessions import (
     SessionTrack,
 )
 from server.logs import session_context
-from server.services import batches, limits, sessions, telemetry
+from server.services import batches, history, limits, sessions, telemetry
+from server.services.runtime import Runtime
 
 router = APIRouter(prefix="/v1/sessions", tags=["sessions"], route_class=GatedRoute)
 SessionPage = Annotated[PageQuery, page_query("sessions", CREATED)]
@@ -261,6 +264,71 @@ async def get_track(
         fixes = await sessions.get_track(rt, session_id, token, limit)
     items = [FixOut.model_validate(f) for f in fixes]
     return SessionTrack(items=items, count=len(items), max_fixes=rt.settings.session_track_len)
+
+
+@router.get("/{session_id}/history")
+async def get_history(
+    session_id: IdPath,
+    rt: RuntimeDep,
+    token: BearerDep,
+    after_seq: Annotated[
+        int, Query(ge=0, lt=2**63, description="last_seq of the previous page; 0: the first")
+    ] = 0,
+    limit: Annotated[
+        int,
+        Query(ge=1, le=MAX_TRACK, description="most fixes wanted (a page holds whole batches)"),
+    ] = 1000,
+) -> SessionHistory:
+    """Every fix the session made, kept for the history's retention (the first batches
+    may have gone before it), a page at a time in seq order: for its token while it
+    lives, for a key with the viewer scope for its site also once it ended."""
+    with session_context(session_id):
+        found = await history.page(rt, session_id, token, after_seq, limit)
+    items = [FixOut.model_validate(f) for f in found.fixes]
+    return SessionHistory(
+        items=items,
+        count=len(items),
+        last_seq=found.last_seq,
+        more=found.more,
+        retention_days=rt.settings.history_retention_days,
+    )
+
+
+class GeoJSONResponse(JSONResponse):
+    """What documents an answer as GeoJSON with its model's schema (the route writes the
+    bytes itself, unchecked)."""
+
+    media_type = "application/geo+json"
+
+
+async def _export(rt: Runtime, session_id: str, token: str, form: history.Form) -> Response:
+    with session_context(session_id):
+        body = await history.export(rt, session_id, token, form)
+    disposition = f'attachment; filename="session-{session_id}.{form}"'
+    headers = {"Content-Disposition": disposition}
+    return Response(body, media_type=GeoJSONResponse.media_type, headers=headers)
+
+
+@router.get(
+    "/{session_id}/track.geojson", response_model=TrackGeoJSON, response_class=GeoJSONResponse
+)
+async def get_track_geojson(session_id: IdPath, rt: RuntimeDep, token: BearerDep) -> Response:
+    """The session's history (as GET /v1/sessions/{id}/history, the same readers) as
+    RFC 7946 GeoJSON in WGS84: a LineString per run of fixes on one floor, with each
+    vertex's time and accuracy. 409 naming the building when it had no geo-reference."""
+    return await _export(rt, session_id, token, "geojson")
+
+
+@router.get(
+    "/{session_id}/track.mfjson",
+    response_model=TrackMovingFeatures,
+    response_class=GeoJSONResponse,
+)
+async def get_track_mfjson(session_id: IdPath, rt: RuntimeDep, token: BearerDep) -> Response:
+    """The session's history as OGC Moving Features JSON (a MovingPoint with the fixes'
+    times, linear interpolation; accuracy and floor as temporal properties), in WGS84.
+    409 naming the building when it had no geo-reference."""
+    return await _export(rt, session_id, token, "mfjson")
 
 
 @router.delete("/{session_id}", status_code=status.HTTP_204_NO_CONTENT)

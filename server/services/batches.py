@@ -41,7 +41,8 @@ from server.positioning.model.events import (
 )
 from server.positioning.model.params import Params
 from server.positioning.model.walk import trace_from_events
-from server.services import engine_settings, limits, telemetry
+from server.positioning.plan import zone_presence
+from server.services import engine_settings, limits, telemetry, webhooks
 from server.services.device_offsets import on_common_level
 from server.services.errors import Conflict, Invalid
 from server.services.maps import site_maps, with_graphs
@@ -51,7 +52,10 @@ from server.services.session_records import (
     SessionMeta,
     SessionState,
     events_digest,
+    fix_places,
     fix_to_wire,
+    presence_from_bytes,
+    presence_to_bytes,
 )
 from server.services.sessions import load_state, no_session, now_ms, token_digest
 from server.storage import trace_codec
@@ -165,7 +169,12 @@ async def _attempt(
         rt.states.put(session_id, version, meta, state)  # no longer trusted: read it
         return _Retry.READ
     if seq <= state.last_seq:
-        return _replay(state, seq, digest, not_used)
+        replayed = _replay(state, seq, digest, not_used)
+        if webhooks.has_zone_events(replayed.fixes):  # owed again: the first answer was lost
+            await webhooks.owe_events(
+                rt, meta.site_id, session_id, seq, orjson.loads(replayed.fixes)
+            )
+        return replayed
     if seq > state.last_seq + 1 and not rebuilt:
         if time.monotonic() >= deadline:
             raise Conflict(
@@ -206,7 +215,10 @@ async def _attempt(
     except BaseException:
         rt.states.drop(session_id)  # never reuse a state an engine failed on
         raise
-    wire = [fix_to_wire(f, maps, meta.engine) for f in fixes]
+    presence, in_zones = zone_presence.follow(
+        presence_from_bytes(state.zones), fix_places(fixes), maps.zones, _dwell(rt)
+    )
+    wire = [fix_to_wire(f, maps, meta.engine, z) for f, z in zip(fixes, in_zones, strict=True)]
     each = [orjson.dumps(f) for f in wire]  # for the track; the reply is their list
     body = b"[" + b",".join(each) + b"]"
     now = now_ms()
@@ -218,6 +230,7 @@ async def _attempt(
         body,
         each[-1] if each else b"",
         now if touch else state.touched_ms,
+        presence_to_bytes(presence),
     )
     # step() stepped through the logged batches: the new state holds them
     new_state = replace(state, pending=()).applied(
@@ -244,6 +257,9 @@ async def _attempt(
         raise limits.session_bucket_empty(rt, session_id, e.wait_s) from None
     if ok:
         rt.states.put(session_id, version + 1, meta, new_state, written=True)
+        rt.history.record(session_id, seq, meta.site_id, wire, body)  # written within ~1 s
+        if any(z.events for z in in_zones):  # owed before the batch is answered
+            await webhooks.owe_events(rt, meta.site_id, session_id, seq, wire)
         if touch:  # the row says the session is alive, should the store lose it
             async with rt.transaction() as s:
                 await repo.touch_session_record(s, session_id)
@@ -293,6 +309,10 @@ def caught_up(state: SessionState, meta: SessionMeta, maps: SiteMaps, params: Pa
         events = on_common_level(entry.events, scans_level)
         engine_state, _ = spec.step(engine_state, events, maps, params, _rng(meta, entry.seq))
     return engine_state
+
+
+def _dwell(rt: Runtime) -> zone_presence.Dwell:
+    return zone_presence.Dwell(rt.settings.zone_dwell_s, rt.settings.zone_dwell_m)
 
 
 def _rng(meta: SessionMeta, seq: int) -> np.random.Generator:

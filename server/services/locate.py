@@ -30,7 +30,8 @@ class Located:
     level: int
     building_id: str
     floor_id: str
-    world: dict[str, Any]  # lat, lon, level, accuracy_m, heading_deg (session_records)
+    # lat, lon, level, accuracy_m, heading_deg (session_records) and the zones it is in
+    world: dict[str, Any]
 
 
 async def locate(
@@ -61,7 +62,9 @@ async def locate(
             fix = fixes[0]
             ref = maps.floors[fix.floor]
             world = world_fields(fix.x_m, fix.y_m, fix.heading_rad, fix.accuracy_68_m, ref)
-            return Located(fix, ref.level, ref.building_id, ref.floor_id, world)
+            # one scan has no dwell: the zones its position lies in
+            zones = [z.id for z in maps.zones.at(fix.floor, fix.x_m, fix.y_m)]
+            return Located(fix, ref.level, ref.building_id, ref.floor_id, {**world, "zones": zones})
     raise Invalid(
         "the scan matches too few emitters of the site's radio map to place it (at least "
         f"{params.min_matched} of one kind)",

@@ -4,6 +4,7 @@ graphs, ``services.map_builds``) cached in memory by version."""
 
 from __future__ import annotations
 
+import math
 import time
 from collections import OrderedDict
 from collections.abc import Mapping, Sequence
@@ -27,6 +28,7 @@ from server.positioning.model.geo import GeoReference
 from server.positioning.plan.anchors import anchors_from_plan
 from server.positioning.plan.geojson_plan import plan_extent
 from server.positioning.plan.navigation_graph import FloorGraph, attach, site_graphs
+from server.positioning.plan.zones import ZoneIndex
 from server.positioning.radio import fix_error
 from server.positioning.radio.accuracy_indicators import FaiMaps
 from server.positioning.radio.fingerprints import MISSING_DBM, RadioMap, in_place_order
@@ -35,11 +37,13 @@ from server.positioning.radio.scan_matching import ScanMap, merge_scan_maps
 from server.services.device_offsets import building_offsets
 from server.services.errors import Invalid, NotFound
 from server.services.magnetic_maps import check_on_floor, fold_sources
+from server.storage import models
 from server.storage.map_artefacts import decode_artefacts, fix_error_from_json, plan_digest
 from server.storage.models import Building, RadioMapVersion
 from server.storage.repositories import maps as map_repo
 from server.storage.repositories import sites as site_repo
 from server.storage.repositories import surveys as survey_repo
+from server.storage.repositories import zones as zone_repo
 
 # A dense survey (points every metre or two) keeps its resolution with 1 m cells; points
 # closer than that are merged into one reference point at their mean position.
@@ -76,6 +80,13 @@ class MapCache:
 
     def invalidate(self, site_id: str) -> None:
         self._entries.pop(site_id, None)
+
+    def expire(self, site_id: str) -> None:
+        """Have the next reader check the site's versions against SQL: what changed is
+        loaded again, the rest is kept (a new zone does not rasterise the plans again)."""
+        entry = self._entries.get(site_id)
+        if entry is not None:
+            self._entries[site_id] = (-math.inf, entry[1])
 
     def fresh(self, site_id: str) -> SiteMaps | None:
         """The cached map set when it was checked against SQL less than
@@ -122,8 +133,15 @@ async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None
         # where each building sits and how it is turned: fixes in world coordinates
         + [f"{b.origin_lat},{b.origin_lon},{b.rotation_rad}" for _, b in floors]
     )
+    zones_version = await zone_repo.site_zones_version(s, site_id)
+    zones = None
+    if cached is not None and cached.zones.digest == zones_version and cached.floors == refs:
+        zones = cached.zones  # by floor index: kept while the floors are the same
+    if zones is None:
+        zones = zone_index(await zone_repo.site_zones(s, site_id), refs, zones_version)
     if cached is not None and cached.version == version:
-        return cached
+        # zones are no map: new ones leave the maps (and what is built of them) as they are
+        return cached if cached.zones is zones else replace(cached, zones=zones)
     # rasterising a mall floor takes a good part of a second: not on the event loop
     plans = await anyio.to_thread.run_sync(parse_plans, stored)
     grids = await anyio.to_thread.run_sync(
@@ -166,6 +184,20 @@ async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None
         fai=learned.fai,
         graphs=learned.graphs,
         scans=learned.scans,
+        zones=zones,
+    )
+
+
+def zone_index(rows: Sequence[models.Zone], floors: Sequence[FloorRef], version: str) -> ZoneIndex:
+    """A site's zones by floor index, under the ``version`` they were read at."""
+    floor_index = {f.floor_id: i for i, f in enumerate(floors)}
+    return ZoneIndex.of(
+        (
+            (floor_index[r.floor_id], r.floor_id, r.id, r.name, r.geometry)
+            for r in rows
+            if r.floor_id in floor_index
+        ),
+        version,
     )
 
 
@@ -263,7 +295,8 @@ async def with_graphs(maps: SiteMaps) -> SiteMaps:
     _GRAPHS.move_to_end(maps.version)
     while len(_GRAPHS) > GRAPH_CACHE_SIZE:
         _GRAPHS.popitem(last=False)
-    return found
+    # zones are no map (they leave the version as it is): the set's own, not the cached
+    return found if found.zones is maps.zones else replace(found, zones=maps.zones)
 
 
 def _has_space(maps: SiteMaps, floor: int) -> bool:

@@ -12,6 +12,7 @@ from sqlalchemy.ext.asyncio import AsyncEngine, AsyncSession, async_sessionmaker
 
 from server.config import Settings
 from server.services.errors import Conflict
+from server.services.history_writer import HistoryWriter
 from server.services.maps import MapCache
 from server.services.revocations import KeyWatches
 from server.services.session_cache import AnySessionCache, SessionCache
@@ -42,6 +43,9 @@ class Runtime:
     states: AnySessionCache = field(default_factory=lambda: SessionCache(0))
     # the live sockets opened with API keys, closed when their key stops working
     key_watches: KeyWatches = field(default_factory=KeyWatches)
+    # applied batches' fixes on their way to SQL (services.history_writer; the app runs
+    # its flushes); by default none are kept
+    history: HistoryWriter = field(default_factory=lambda: HistoryWriter(enabled=False))
 
     @asynccontextmanager
     async def read(self) -> AsyncIterator[AsyncSession]:
@@ -90,6 +94,7 @@ async def open_runtime(settings: Settings) -> AsyncIterator[Runtime]:
             batch_gate=anyio.Semaphore(settings.batch_concurrency),
             states=SessionCache(settings.session_cache_size),
             key_watches=key_watches,
+            history=HistoryWriter(enabled=settings.history_retention_days != 0),
         )
     finally:
         await key_watches.close()

@@ -22,12 +22,13 @@ from __future__ import annotations
 
 import hashlib
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any
 
 import numpy as np
+import orjson
 
 from server.positioning.engines.shared.site_maps import FloorRef, SiteMaps
 from server.positioning.engines.shared.spec import Engine
@@ -35,6 +36,13 @@ from server.positioning.model import state_codec
 from server.positioning.model.events import Event, Fix, ImuEvent
 from server.positioning.model.geo import heading_from_north_deg, to_world
 from server.positioning.model.state_codec import StateError
+from server.positioning.plan.zone_presence import (
+    NOTHING,
+    AfterFix,
+    FixPlace,
+    Presence,
+    ZoneEvent,
+)
 from server.storage.codec import (
     CodecError,
     array_to_str,
@@ -117,6 +125,7 @@ class LogEntry:
     body: bytes  # the answer's fixes, as the reply keeps them
     last_fix: bytes  # the newest fix of the batch, b"" for none
     touched_ms: int  # the session's touched_ms after the batch
+    zones: bytes = b""  # the session's zone presence after the batch (presence_to_bytes)
 
     def to_bytes(self) -> bytes:
         arrays: dict[str, np.ndarray] = {
@@ -125,6 +134,7 @@ class LogEntry:
             "body": np.frombuffer(self.body, dtype=np.uint8),
             "last_fix": np.frombuffer(self.last_fix, dtype=np.uint8),
             "touched_ms": np.array(self.touched_ms, dtype=np.int64),
+            "zones": np.frombuffer(self.zones, dtype=np.uint8),
         }
         for name, value in event_arrays(self.events).items():
             arrays[EVENTS_PREFIX + name] = value
@@ -145,6 +155,7 @@ class LogEntry:
                 body=a["body"].tobytes(),
                 last_fix=a["last_fix"].tobytes(),
                 touched_ms=int(a["touched_ms"]),
+                zones=a["zones"].tobytes() if "zones" in a else b"",
             )
         except (KeyError, TypeError, ValueError) as e:
             raise CodecError(f"not a log entry: {e!r}") from None
@@ -166,6 +177,7 @@ class SessionState:
     last_event_ms: int = 0  # the newest event time of the batches applied (0: none yet)
     # batches applied after ``engine_state``: their engine steps are still to be taken
     pending: tuple[LogEntry, ...] = ()
+    zones: bytes = b""  # the session's zone presence (presence_to_bytes)
 
     def applied(
         self, entry: LogEntry, replay_window: int, engine_state: object | None = None
@@ -183,6 +195,7 @@ class SessionState:
             touched_ms=entry.touched_ms,
             last_event_ms=max([self.last_event_ms, *map(event_end_ms, entry.events)]),
             pending=(*self.pending, entry) if engine_state is None else (),
+            zones=entry.zones,
         )
 
     def to_bytes(self, engine: Engine) -> bytes:
@@ -195,6 +208,7 @@ class SessionState:
             "touched_ms": np.array(self.touched_ms, dtype=np.int64),
             "last_event_ms": np.array(self.last_event_ms, dtype=np.int64),
             "last_fix": np.frombuffer(self.last_fix, dtype=np.uint8),
+            "zones": np.frombuffer(self.zones, dtype=np.uint8),
             "replies/seq": np.array([r.seq for r in self.replies], dtype=np.int64),
             "replies/digest": np.frombuffer(
                 b"".join(r.digest for r in self.replies), dtype=np.uint8
@@ -242,6 +256,7 @@ class SessionState:
             rebuilt_seq=int(a["rebuilt_seq"]) if "rebuilt_seq" in a else 0,
             touched_ms=int(a["touched_ms"]) if "touched_ms" in a else 0,
             last_event_ms=int(a["last_event_ms"]) if "last_event_ms" in a else 0,
+            zones=a["zones"].tobytes() if "zones" in a else b"",
         )
 
 
@@ -266,7 +281,61 @@ def events_digest(events: Sequence[Event]) -> bytes:
     return h.digest()
 
 
-def fix_to_wire(fix: Fix, maps: SiteMaps, engine: str) -> dict[str, Any]:
+def presence_to_bytes(presence: Mapping[str, Presence]) -> bytes:
+    """A session's zone presence as its state keeps it (b"" for none)."""
+    if not presence:
+        return b""
+    return orjson.dumps(
+        {key: [p.inside, p.since_ms, p.pending_ms, p.pending_n] for key, p in presence.items()}
+    )
+
+
+def presence_from_bytes(data: bytes) -> dict[str, Presence]:
+    if not data:
+        return {}
+    return {
+        key: Presence(bool(inside), int(since), int(pending), int(n))
+        for key, (inside, since, pending, n) in orjson.loads(data).items()
+    }
+
+
+def fix_places(fixes: Sequence[Fix]) -> list[FixPlace]:
+    return [FixPlace(f.t_ms, f.floor, f.x_m, f.y_m) for f in fixes]
+
+
+def zone_event_to_wire(event: ZoneEvent, maps: SiteMaps, reason: str = "crossed") -> dict[str, Any]:
+    """A zone event as fixes, the socket and webhooks carry it; ``reason``: ``crossed``
+    (its fixes crossed the border) or ``session_ended`` (the session ended inside)."""
+    zone = event.zone
+    return {
+        "type": event.kind,
+        "zone_id": zone.id,
+        "zone_name": zone.name,
+        "floor_id": zone.floor_id,
+        "level": maps.floors[zone.floor].level,
+        "t": event.t_ms,
+        "since": event.since_ms,
+        "dwell_s": event.dwell_s,
+        "reason": reason,
+    }
+
+
+def exits_at_end(state: SessionState, maps: SiteMaps, t_ms: int) -> list[dict[str, Any]]:
+    """The exits of a session that ends at ``t_ms`` inside zones (wire form), so that
+    whoever counts who is in a zone sees it leave."""
+    exits = []
+    for key, presence in presence_from_bytes(state.zones).items():
+        zone = maps.zones.by_key.get(key)
+        if zone is not None and presence.inside:
+            dwell_s = max(0.0, (t_ms - presence.since_ms) / 1000.0)
+            event = ZoneEvent("exit", zone, t_ms, t_ms, dwell_s)
+            exits.append(zone_event_to_wire(event, maps, "session_ended"))
+    return exits
+
+
+def fix_to_wire(fix: Fix, maps: SiteMaps, engine: str, zones: AfterFix = NOTHING) -> dict[str, Any]:
+    """A fix as the wire carries it (``FixOut``), with the zones the session is in after it
+    and the zone events it confirmed (``zone_presence``)."""
     ref = maps.floors[fix.floor] if 0 <= fix.floor < len(maps.floors) else None
     return {
         "t": fix.t_ms,
@@ -285,6 +354,8 @@ def fix_to_wire(fix: Fix, maps: SiteMaps, engine: str) -> dict[str, Any]:
         "engine": engine,
         "diagnostics": fix.diagnostics,
         **world_fields(fix.x_m, fix.y_m, fix.heading_rad, fix.accuracy_68_m, ref),
+        "zones": [z.id for z in zones.inside],
+        "zone_events": [zone_event_to_wire(e, maps) for e in zones.events],
     }
 
 

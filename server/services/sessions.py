@@ -46,7 +46,7 @@ import orjson
 
 from server.positioning.engines.registry import get_engine
 from server.positioning.model.walk import join_traces
-from server.services import auth, engine_settings, uploads
+from server.services import auth, engine_settings, uploads, webhooks
 from server.services.errors import Forbidden, Invalid, NotFound
 from server.services.maps import site_maps
 from server.services.runtime import Runtime
@@ -57,6 +57,7 @@ from server.services.session_records import (
     SessionState,
     StaleEngineState,
     active_since,
+    exits_at_end,
 )
 from server.storage import trace_codec
 from server.storage.codec import CodecError
@@ -389,12 +390,33 @@ async def end_session(rt: Runtime, session_id: str, token: str) -> str | None:
     upload_id = None
     if meta.contribute:
         upload_id = await _offer_walk(rt, session_id, meta, state)
+    exits = await _leave_zones(rt, session_id, meta, state)
     async with rt.transaction() as s:
         await repo.end_session_record(s, session_id)
     rt.states.drop(session_id)
     await rt.store.delete(session_id)
+    if exits:
+        message = {"seq": state.last_seq, "fixes": [], "zone_events": exits}
+        await rt.store.publish(session_id, orjson.dumps(message))
     await rt.store.publish(session_id, orjson.dumps({"closed": True}))
     return upload_id
+
+
+async def _leave_zones(
+    rt: Runtime, session_id: str, meta: SessionMeta, state: SessionState
+) -> list[dict[str, Any]]:
+    """The exits of the zones the session ends in, owed to the site's webhooks."""
+    if not state.zones:
+        return []
+    async with rt.transaction() as s:
+        maps = await site_maps(s, rt.maps, meta.site_id)
+    ended_ms = state.last_event_ms or now_ms()
+    exits = exits_at_end(state, maps, ended_ms)
+    last_fix = orjson.loads(state.last_fix) if state.last_fix else {}
+    await webhooks.owe_events(
+        rt, meta.site_id, session_id, state.last_seq, [{**last_fix, "zone_events": exits}]
+    )
+    return exits
 
 
 async def _offer_walk(

@@ -1,5 +1,6 @@
-"""SQL schema: sites, buildings, floors, emitters, survey points, radio and magnetic map
-versions, uploads, sessions, engine settings and API keys. Ids are 32-character hex UUIDs."""
+"""SQL schema: sites, buildings, floors, zones, emitters, survey points, radio and magnetic
+map versions, uploads, sessions, engine settings, API keys, webhooks and their deliveries.
+Ids are 32-character hex UUIDs."""
 
 from __future__ import annotations
 
@@ -21,6 +22,7 @@ from sqlalchemy import (
     Text,
     TypeDecorator,
     UniqueConstraint,
+    text,
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
@@ -96,6 +98,22 @@ class Floor(Base):
     level: Mapped[int] = mapped_column(Integer)
     name: Mapped[str | None] = mapped_column(String(200))
     plan_geojson: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+
+class Zone(Base):
+    """A named area of a floor (a shop, a room, a geofence): fixes say which zones they are
+    in, and sessions entering or leaving one make events (``services.zones``)."""
+
+    __tablename__ = "zones"
+    floor_id: Mapped[str] = mapped_column(
+        ForeignKey("floors.id", ondelete="CASCADE"), primary_key=True
+    )
+    id: Mapped[str] = mapped_column(String(64), primary_key=True)  # the feature's id
+    name: Mapped[str] = mapped_column(String(200))
+    # GeoJSON Polygon or MultiPolygon in metres of the floor frame
+    geometry: Mapped[dict[str, Any]] = mapped_column(JSON)
+    properties: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
 
 
@@ -279,6 +297,22 @@ class SessionRecord(Base):
     ended_at: Mapped[datetime | None] = mapped_column()
 
 
+class SessionFixes(Base):
+    """The fixes of one applied batch of a session, as its answer held them: the session's
+    history (``services.history``), kept ``history_retention_days`` from ``created_at``.
+    No foreign key: rows are written a second or so after their batch, in bulk
+    (``services.history_writer``), and outlive the session's live state."""
+
+    __tablename__ = "session_fixes"
+    session_id: Mapped[str] = mapped_column(String(32), primary_key=True)
+    seq: Mapped[int] = mapped_column(BigInteger, primary_key=True)
+    site_id: Mapped[str] = mapped_column(String(32), index=True)
+    t_first_ms: Mapped[int] = mapped_column(BigInteger)  # the batch's fixes' time span
+    t_last_ms: Mapped[int] = mapped_column(BigInteger)
+    fixes: Mapped[bytes] = mapped_column(LargeBinary)  # a JSON array of FixOut
+    created_at: Mapped[datetime] = mapped_column(default=utcnow, index=True)
+
+
 class EngineSetting(Base):
     """A site's engine parameters: overrides of an engine's defaults (a JSON object, as a
     session's ``params``) that every new session of the site with that engine starts
@@ -308,6 +342,53 @@ class ApiKey(Base):
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
     rotated_at: Mapped[datetime | None] = mapped_column()
     revoked_at: Mapped[datetime | None] = mapped_column()
+
+
+class Webhook(Base):
+    """An operator's receiver of a site's events (``services.webhooks``): every delivery
+    is signed with ``secret`` (kept here: the signature needs it)."""
+
+    __tablename__ = "webhooks"
+    id: Mapped[str] = mapped_column(String(32), primary_key=True, default=new_id)
+    site_id: Mapped[str] = mapped_column(ForeignKey("sites.id", ondelete="CASCADE"), index=True)
+    url: Mapped[str] = mapped_column(String(2000))
+    events: Mapped[str] = mapped_column(String(200))  # space-separated event types
+    secret: Mapped[str] = mapped_column(String(64))
+    description: Mapped[str] = mapped_column(String(200), default="")
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+
+class WebhookDelivery(Base):
+    """One event owed to one webhook: ``pending`` until its receiver answers 2xx
+    (``delivered``) or it runs out of attempts (``failed``); leased by one worker at a
+    time. ``event_key`` names the event, so that an event made twice (a batch answered
+    again) is owed once."""
+
+    __tablename__ = "webhook_deliveries"
+    __table_args__ = (
+        UniqueConstraint("webhook_id", "event_key"),
+        # what the workers poll for: the pending ones only, however many are settled
+        Index(
+            "ix_webhook_deliveries_due",
+            "next_attempt_at",
+            postgresql_where=text("status = 'pending'"),
+            sqlite_where=text("status = 'pending'"),
+        ),
+        Index("ix_webhook_deliveries_webhook_created", "webhook_id", "created_at"),
+    )
+    id: Mapped[str] = mapped_column(String(32), primary_key=True, default=new_id)
+    webhook_id: Mapped[str] = mapped_column(ForeignKey("webhooks.id", ondelete="CASCADE"))
+    event_key: Mapped[str] = mapped_column(String(200))
+    event_type: Mapped[str] = mapped_column(String(32))
+    payload: Mapped[bytes] = mapped_column(LargeBinary)  # the JSON body sent
+    status: Mapped[str] = mapped_column(String(16), default="pending")
+    attempts: Mapped[int] = mapped_column(Integer, default=0)
+    next_attempt_at: Mapped[datetime] = mapped_column(default=utcnow)
+    leased_until: Mapped[datetime | None] = mapped_column()
+    last_error: Mapped[str | None] = mapped_column(Text)
+    last_status_code: Mapped[int | None] = mapped_column(Integer)
+    delivered_at: Mapped[datetime | None] = mapped_column()
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
 
 
 Index("ix_survey_points_floor", SurveyPoint.floor_id)

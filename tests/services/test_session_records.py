@@ -3,7 +3,13 @@
 from __future__ import annotations
 
 from server.positioning.engines.registry import get_engine
-from server.services.session_records import SessionState
+from server.positioning.plan.zone_presence import Presence
+from server.services.session_records import (
+    LogEntry,
+    SessionState,
+    presence_from_bytes,
+    presence_to_bytes,
+)
 from server.storage.codec import decode_arrays, encode_arrays
 
 
@@ -15,3 +21,26 @@ def test_the_newest_event_time_survives_the_blob_and_older_blobs_have_none() -> 
     arrays = decode_arrays(blob)
     del arrays["last_event_ms"]  # as the servers before it wrote them
     assert SessionState.from_bytes(encode_arrays(arrays), spec).last_event_ms == 0
+
+
+def test_zone_presence_survives_the_blob_the_log_and_older_blobs_have_none() -> None:
+    spec = get_engine("wknn")
+    presence = {
+        "f/a": Presence(True, 1_700_000_000_000),
+        "f/b": Presence(False, 1_700_000_000_500, 1_700_000_001_000, 3),
+    }
+    zones = presence_to_bytes(presence)
+    assert presence_from_bytes(zones) == presence
+    assert presence_to_bytes({}) == b""
+    assert presence_from_bytes(b"") == {}
+    state = SessionState(3, spec.start(spec.params()), (), b"", zones=zones)
+    blob = state.to_bytes(spec)
+    assert SessionState.from_bytes(blob, spec).zones == zones
+    arrays = decode_arrays(blob)
+    del arrays["zones"]  # as the servers before zones wrote them
+    assert SessionState.from_bytes(encode_arrays(arrays), spec).zones == b""
+    # a logged batch carries the presence after it, and applying it takes that on
+    entry = LogEntry(4, b"\0" * 32, (), b"[]", b"", 0, presence_to_bytes({"f/a": presence["f/a"]}))
+    again = LogEntry.from_bytes(entry.to_bytes())
+    assert again == entry
+    assert state.applied(again, 8).zones == entry.zones

@@ -14,12 +14,14 @@ from server.storage.redis_session_store import RedisSessionStore
 from tests.support.toy_site import ToySite, rssi_at
 
 
-async def open_session(client: httpx.AsyncClient, site: ToySite) -> tuple[str, dict[str, str]]:
-    """A ``step_ekf`` session on ``site``, opened with its device key: its id and the
-    header of its token."""
+async def open_session(
+    client: httpx.AsyncClient, site: ToySite, engine: str = "step_ekf"
+) -> tuple[str, dict[str, str]]:
+    """A session on ``site`` (``step_ekf`` unless told), opened with its device key: its
+    id and the header of its token."""
     r = await client.post(
         "/v1/sessions",
-        json={"site_id": site.site_id, "engine": "step_ekf"},
+        json={"site_id": site.site_id, "engine": engine},
         headers=site.device,
     )
     assert r.status_code == 201, r.text

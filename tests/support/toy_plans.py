@@ -41,6 +41,11 @@ def box(x0: float, y0: float, x1: float, y1: float) -> list[list[list[float]]]:
     return [[[x0, y0], [x1, y0], [x1, y1], [x0, y1], [x0, y0]]]
 
 
+def square(x0: float, y0: float, size: float) -> dict[str, Any]:
+    """A GeoJSON Polygon: the square of side ``size`` m from (``x0``, ``y0``)."""
+    return {"type": "Polygon", "coordinates": box(x0, y0, x0 + size, y0 + size)}
+
+
 # 20 m x 10 m room, a thin wall at x = 10 with a 1 m door (y 4.5-5.5), a 2 m pillar
 ROOM = {
     "type": "FeatureCollection",

@@ -37,3 +37,6 @@ class LocateOut(Strict):
     level: int | None = Field(None, description="the floor's ordinal (0: ground floor)")
     accuracy_m: float | None = Field(None, description="the 68 % radius (m)")
     heading_deg: float | None = Field(None, description="heading from north (degrees)")
+    zones: list[str] = Field(
+        default_factory=list, description="ids of the zones the position lies in"
+    )

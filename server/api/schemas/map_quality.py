@@ -161,3 +161,58 @@ class SurveyPlanRead(Strict):
     type: Literal["FeatureCollection"] = "FeatureCollection"
     features: list[PlannedPoint]
     properties: SurveyPlanSummary
+
+
+class CoverageCells(Strict):
+    """Per figure, the grid's cells as rows (south to north) of columns (west to east):
+    ``readings[i][j]`` is the cell ``[x0 + j c, x0 + (j + 1) c) x [y0 + i c, y0 + (i + 1) c)``
+    with ``(x0, y0) = origin_m`` and ``c = cell_m``."""
+
+    in_area: list[list[bool]] = Field(
+        description="the cell overlaps the plan's walkable area (every cell without a plan)"
+    )
+    readings: list[list[int]] = Field(
+        description="RSS readings (all emitters) folded into the radio map's reference "
+        "points in the cell"
+    )
+    points: list[list[int]] = Field(description="survey points in the cell")
+    emitters: list[list[int]] = Field(
+        description="distinct emitters heard at the reference points in the cell"
+    )
+    var_db2: list[list[float | None]] = Field(
+        description="mean RSS variance (dB²) of the cell's reference point x emitter entries "
+        "with at least 2 readings; null without one"
+    )
+    age_days: list[list[float | None]] = Field(
+        description="days since the newest survey point of the cell was made; null without one"
+    )
+    nearest_rp_m: list[list[float | None]] = Field(
+        description="distance d from the cell's centre to the floor's nearest reference "
+        "point; null when the floor has none"
+    )
+    expected_error_m: list[list[float | None]] = Field(
+        description="RMS radial error of a radio fix at the cell's centre, sqrt(2σ² + d²): σ "
+        "the fix-error table's per-axis error of a scan matching the emitters heard at the "
+        "nearest reference point (the better of WiFi and BLE), d the distance to it (the "
+        "map has nothing nearer); null when the floor has no reference point"
+    )
+
+
+class CoverageGridRead(Strict):
+    """Where a floor's radio map is thin: a grid of square cells over its walkable area
+    (without a plan, over the box of its reference points and survey points)."""
+
+    floor_id: str
+    radio_map: MapVersionRef | None = Field(description="the building's latest radio map")
+    fix_error: Literal["learned", "default"] = Field(
+        description="learned: the fix-error table learned with the radio map; default: the "
+        "table used when none was learned (no map, or none learned for it)"
+    )
+    walkable_area_known: bool = Field(description="the grid is laid over the floor's plan")
+    origin_m: Annotated[tuple[float, float], LAX_ARRAY] = Field(
+        description="x, y of the south-west corner of cell [0][0] (m, floor frame)"
+    )
+    cell_m: float = Field(description="side of a cell (m)")
+    rows: int = Field(description="cells along y; 0 for a floor with neither plan nor data")
+    cols: int = Field(description="cells along x")
+    cells: CoverageCells

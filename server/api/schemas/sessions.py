@@ -18,6 +18,29 @@ MAX_IMU_ROWS_PER_BATCH = 60_000
 # ---------------------------------------------------------------- fixes
 
 
+class ZoneEventOut(Strict):
+    """A session entering or leaving a zone, confirmed by the fix that carries it."""
+
+    type: Literal["enter", "exit"]
+    zone_id: str
+    zone_name: str
+    floor_id: str
+    level: int = Field(description="the zone's floor's ordinal")
+    t: int = Field(description="time (ms) of the fix that confirmed it")
+    since: int = Field(
+        description="time (ms) of the first fix of the run that confirmed it: when the walker "
+        "crossed the border"
+    )
+    dwell_s: float | None = Field(
+        None, description="exit: how long the session was in the zone (s); null for enter"
+    )
+    reason: Literal["crossed", "session_ended"] = Field(
+        "crossed",
+        description="crossed: the fixes crossed the border; session_ended: the session "
+        "ended inside (webhooks and the live socket only)",
+    )
+
+
 class FixOut(Strict):
     t: int
     x_m: float
@@ -59,6 +82,15 @@ class FixOut(Strict):
         None,
         description="heading (degrees, clockwise from north by the building's rotation, "
         "[0, 360)); null without a heading",
+    )
+    zones: list[str] = Field(
+        default_factory=list,
+        description="ids of the zones the session is in after this fix (entered and not left: "
+        "a border crossing counts once the fixes have stayed across it for the dwell time or "
+        "distance)",
+    )
+    zone_events: list[ZoneEventOut] = Field(
+        default_factory=list, description="the zone entries and exits this fix confirmed"
     )
 
 

@@ -94,8 +94,8 @@ function finder(paths) {
   };
 }
 
-/** The optional routes this server has: {sessionList, sessionTrack, uploadList}, each
- * null or {template, params}. */
+/** The optional routes this server has: {sessionList, sessionTrack, sessionHistory,
+ * uploadList}, each null or {template, params}. */
 export function capabilities() {
   offered ??= fetch(url("openapi.json"))
     .then((r) => (r.ok ? r.json() : { paths: {} }))
@@ -105,6 +105,7 @@ export function capabilities() {
       return {
         sessionList: find("/v1/sessions", "/v1/sites/{site_id}/sessions", "/v1/floors/{floor_id}/sessions"),
         sessionTrack: find("/v1/sessions/{session_id}/track", "/v1/sessions/{session_id}/fixes"),
+        sessionHistory: find("/v1/sessions/{session_id}/history"),
         uploadList: find("/v1/uploads", "/v1/sites/{site_id}/uploads"),
       };
     });

@@ -4,6 +4,9 @@
 import { ApiError, capabilities, follow, get, key, request } from "./api.js";
 import { ago, fill, h, num, percent, shortId } from "./dom.js";
 import { FloorMap } from "./plan.js";
+import { HistoryPanel } from "./history.js";
+import { Heatmap } from "./heatmap.js";
+import { ZoneLayer } from "./zones.js";
 
 const COLOURS = ["#d6336c", "#1c7ed6", "#f08c00", "#2f9e44", "#7048e8", "#0c8599", "#e8590c", "#5c940d"];
 const LIST_REFRESH_MS = 5000;
@@ -13,7 +16,9 @@ const LAYER_NAMES = [
   ["walls", "Walls", true],
   ["doors", "Doors", true],
   ["beacons", "Beacons (plan points)", true],
-  ["coverage", "Radio map coverage", true],
+  ["heatmap", "Coverage heatmap", true],
+  ["zones", "Zones", true],
+  ["coverage", "Radio map coverage", false], // off under the heatmap: their colours mix
   ["magnetic", "Magnetic grid", false],
   ["emitters", "Located emitters", true],
   ["tracks", "Tracks", true],
@@ -64,6 +69,8 @@ function qualityFacts(q, placement) {
 
 export async function floorPage(main, { id }, query, signal) {
   const map = new FloorMap();
+  const heatmap = new Heatmap(map.layers.heatmap);
+  const zones = new ZoneLayer(map.layers.zones, () => map.dot);
   const crumbs = h("nav", { class: "crumbs", "aria-label": "breadcrumb" }, h("a", { href: "#/" }, "Sites"));
   const title = h("h1", {}, "Floor");
   const levels = h("nav", { class: "levels", "aria-label": "levels" });
@@ -79,7 +86,7 @@ export async function floorPage(main, { id }, query, signal) {
       "div",
       { class: "floor-grid" },
       h("div", { class: "floor-map" }, map.element, planNote),
-      h("aside", { class: "floor-side" }, section("Layers", layersBox), section("Live sessions", liveBox), section("Map quality", qualityBox)),
+      h("aside", { class: "floor-side" }, section("Layers", layersBox), section("Coverage heatmap", heatmap.element), section("Zones", zones.element), section("Live sessions", liveBox), section("Map quality", qualityBox)),
     ),
   );
   for (const [name, text, on] of LAYER_NAMES) {
@@ -92,7 +99,7 @@ export async function floorPage(main, { id }, query, signal) {
   const floor = await get(`/v1/floors/${id}`, {}, { signal });
   title.textContent = `Level ${floor.level}${floor.name ? ` · ${floor.name}` : ""}`;
   document.title = `${title.textContent} · indoorpos`;
-  const live = liveSessions(liveBox, map, floor, query, signal);
+  const live = liveSessions(liveBox, map, floor, query, signal, zones);
 
   const context = (async () => {
     const building = await get(`/v1/buildings/${floor.building_id}`, {}, { signal });
@@ -142,14 +149,19 @@ export async function floorPage(main, { id }, query, signal) {
   const report = (box) => (error) => {
     if (error.name !== "AbortError") box.append(h("p", { class: "error" }, error.message));
   };
+  const zoneDrawing = plan.catch(() => {}).then(() => zones.load(id, { signal })).catch(report(zones.element));
+  // where the radio map is thin, cell by cell (framed by the plan, when there is one)
+  const coverage = plan.catch(() => {}).then(() => heatmap.load(id, { signal })).catch(report(heatmap.element));
   await Promise.all([context.catch(report(crumbs)), plan.catch(report(planNote)), quality.catch((e) => {
     if (e.name !== "AbortError") fill(qualityBox, h("p", { class: "error" }, e.message));
   })]);
+  await coverage;
+  await zoneDrawing;
 }
 
 // ------------------------------------------------------------------ live sessions
 
-function liveSessions(box, map, floor, query, signal) {
+function liveSessions(box, map, floor, query, signal, zones) {
   const followed = new Map(); // session id -> {colour, handle, row, ...}
   const rows = h("ul", { class: "sessions" });
   const listNote = h("p", { class: "muted" });
@@ -159,6 +171,7 @@ function liveSessions(box, map, floor, query, signal) {
   let caps;
 
   const onFloor = (fix) => (fix.floor_id ? fix.floor_id === floor.id : fix.floor === null || fix.floor === undefined || fix.floor === floor.level);
+  const replay = new HistoryPanel(map, onFloor, signal); // a followed session's past fixes, by a time slider
 
   function render(entry) {
     const fix = entry.lastFix;
@@ -180,6 +193,7 @@ function liveSessions(box, map, floor, query, signal) {
         "span",
         { class: "row-actions" },
         caps?.sessionTrack ? h("button", { type: "button", onclick: () => loadTrack(entry) }, "Track") : "",
+        caps?.sessionHistory ? h("button", { type: "button", class: "history-open", onclick: () => replay.open(entry.id, entry.colour, entry.token) }, "History") : "",
         h("button", { type: "button", onclick: () => unfollow(entry.id) }, "Stop"),
       ),
     );
@@ -203,6 +217,7 @@ function liveSessions(box, map, floor, query, signal) {
     if (followed.has(id) || signal.aborted) return;
     const entry = { id, colour: COLOURS[followed.size % COLOURS.length], state: "connecting", detail: "", lastFix: null, row: h("li", { "data-session": id }) };
     followed.set(id, entry);
+    entry.token = token;
     rows.append(entry.row);
     entry.handle = follow(id, token || key.get(), {
       state(state, detail) {
@@ -219,7 +234,8 @@ function liveSessions(box, map, floor, query, signal) {
         entry.lastFix = fix;
         entry.receivedAt = Date.now();
         const here = onFloor(fix);
-        map.place(id, entry.colour, here ? fix : null);
+        if (!replay.holds(id)) map.place(id, entry.colour, here ? fix : null);
+        zones.occupy(id, here ? fix.zones : []);
         if (here) map.addToTrack(id, entry.colour, [fix]);
         render(entry);
       },
@@ -233,6 +249,7 @@ function liveSessions(box, map, floor, query, signal) {
     entry.handle.stop();
     entry.row.remove();
     map.forget(id);
+    replay.forget(id);
     followed.delete(id);
   }
 
@@ -256,7 +273,7 @@ function liveSessions(box, map, floor, query, signal) {
     tokenInput,
     h("button", { type: "submit" }, "Follow"),
   );
-  fill(box, listNote, form, rows);
+  fill(box, listNote, form, rows, replay.element);
 
   for (const id of (query.get("follow") ?? "").split(",")) if (/^[0-9a-f]{32}$/.test(id)) start(id, "");
 

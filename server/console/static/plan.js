@@ -6,7 +6,7 @@ import { h, num, s } from "./dom.js";
 
 const WALKABLE = new Set(["walkable", "outline"]);
 const BARRIERS = new Set(["wall", "unit", "obstacle"]);
-const LAYERS = ["walkable", "walls", "doors", "beacons", "coverage", "magnetic", "emitters", "tracks", "live"];
+const LAYERS = ["walkable", "heatmap", "zones", "walls", "doors", "beacons", "coverage", "magnetic", "emitters", "tracks", "live"];
 const NICE_M = [0.5, 1, 2, 5, 10, 20, 50, 100, 200, 500, 1000];
 const MAX_TRACK = 2000;
 

@@ -183,7 +183,7 @@ def checked_kind(index: int, feature: Mapping[str, Any]) -> str | None:
         raise PlanError(
             f"{at}.geometry.type", f"a {kind} is {type_names(kind)}, not {geometry_type!r}"
         )
-    _check_coordinates(f"{at}.geometry.coordinates", geometry_type, geometry.get("coordinates"))
+    check_coordinates(f"{at}.geometry.coordinates", geometry_type, geometry.get("coordinates"))
     shape = shapely.geometry.shape(dict(geometry))
     if not shapely.is_valid(shape):
         raise PlanError(
@@ -202,7 +202,7 @@ def _kind_list() -> str:
 _POSITION_DEPTH = {"LineString": 1, "MultiLineString": 2, "Polygon": 2, "MultiPolygon": 3}
 
 
-def _check_coordinates(at: str, geometry_type: str, coordinates: Any) -> None:
+def check_coordinates(at: str, geometry_type: str, coordinates: Any) -> None:
     """RFC 7946 coordinates of a line or area geometry: lists nested to the type's depth,
     positions of two or three finite numbers, lines of two positions or more, rings of
     four or more with the last equal to the first."""

@@ -79,7 +79,7 @@ def validate_plan(
     if not isinstance(features, Sequence) or isinstance(features, str):
         raise PlanError("features", "a FeatureCollection needs a list of features")
     parts = read(geojson, strict=True)
-    _check_frame(features, origin_deg)
+    check_frame(features, origin_deg)
     if parts.areas:
         walkable_area(parts)
     elif parts.solids or parts.thin or parts.doors:
@@ -98,7 +98,7 @@ def validate_plan(
     return {**geojson, "features": out}
 
 
-def _check_frame(features: Sequence[Any], origin_deg: tuple[float, float] | None) -> None:
+def check_frame(features: Sequence[Any], origin_deg: tuple[float, float] | None) -> None:
     """PlanError when the coordinates look like longitude/latitude degrees, or the area
     and line features span more than ``MAX_PLAN_SPAN_M`` (module docstring)."""
     shaped: list[FloatArray] = []  # the area and line features' positions

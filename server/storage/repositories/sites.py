@@ -8,7 +8,14 @@ from typing import Any
 from sqlalchemy import delete, select
 from sqlalchemy.ext.asyncio import AsyncSession
 
-from server.storage.models import Building, Floor, SessionContribution, SessionRecord, Site
+from server.storage.models import (
+    Building,
+    Floor,
+    SessionContribution,
+    SessionFixes,
+    SessionRecord,
+    Site,
+)
 from server.storage.repositories.pages import Key, Page, keyset_page
 
 
@@ -39,10 +46,11 @@ async def get_site(s: AsyncSession, site_id: str) -> Site | None:
 
 async def delete_site(s: AsyncSession, site_id: str) -> None:
     """Delete the site; the database's cascades take everything that belongs to it. The
-    batches its contributing sessions kept (no foreign key: they outlive a session's
-    row until it ends) go first."""
+    batches its contributing sessions kept and its sessions' history (no foreign keys:
+    they outlive a session's row until it ends) go first."""
     of_site = select(SessionRecord.id).where(SessionRecord.site_id == site_id)
     await s.execute(delete(SessionContribution).where(SessionContribution.session_id.in_(of_site)))
+    await s.execute(delete(SessionFixes).where(SessionFixes.site_id == site_id))
     await s.execute(delete(Site).where(Site.id == site_id))
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from datetime import datetime
 from typing import Any
 
 from sqlalchemy import func, insert, select
@@ -21,6 +22,17 @@ async def add_survey_points(s: AsyncSession, rows: Sequence[dict[str, Any]]) -> 
 async def list_survey_points(s: AsyncSession, building_id: str) -> Sequence[SurveyPoint]:
     stmt = select(SurveyPoint).where(SurveyPoint.building_id == building_id)
     return (await s.scalars(stmt.order_by(SurveyPoint.id))).all()
+
+
+async def survey_point_places(
+    s: AsyncSession, floor_id: str
+) -> list[tuple[float, float, datetime]]:
+    """Where and when each survey point of a floor was made (x, y, creation time),
+    without its readings."""
+    stmt = select(SurveyPoint.x_m, SurveyPoint.y_m, SurveyPoint.created_at).where(
+        SurveyPoint.floor_id == floor_id
+    )
+    return [(x, y, created) for x, y, created in (await s.execute(stmt)).all()]
 
 
 async def survey_readings_with_devices(

@@ -11,6 +11,7 @@ from server.positioning.model.geo import GeoReference
 from server.positioning.plan.anchors import Anchor
 from server.positioning.plan.floor_plan import FloorPlan
 from server.positioning.plan.navigation_graph import FloorGraph
+from server.positioning.plan.zones import NO_ZONES, ZoneIndex
 from server.positioning.radio import fix_error
 from server.positioning.radio.accuracy_indicators import FaiMaps
 from server.positioning.radio.fingerprints import RadioMap
@@ -57,3 +58,5 @@ class SiteMaps:
     # hPa between adjacent floors (barometer.floor_spacing, from the map's walks that
     # changed floor); None: barometer.DEFAULT_SPACING_HPA
     floor_spacing_hpa: float | None = None
+    # the site's zones (no engine reads them: the service says which a fix is in)
+    zones: ZoneIndex = NO_ZONES
