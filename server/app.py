@@ -50,9 +50,11 @@ DESCRIPTION = (
 )
 
 
-# what any route may answer besides its own success (server.api.errors makes each of them)
+# what any route may answer besides its own success (server.api.errors makes each of them);
+# JSON also where a route's own answer is not (the GeoJSON exports)
+ERROR_OUT = {"application/json": {"schema": {"$ref": "#/components/schemas/ErrorOut"}}}
 ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
-    status: {"model": ErrorOut, "description": description}
+    status: {"model": ErrorOut, "description": description, "content": ERROR_OUT}
     for status, description in {
         400: "the body could not be read",
         401: "no valid key or session token",
@@ -105,10 +107,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 tasks.start_soon(run_worker)
             else:
                 stopped.set()
-            # sessions' history to SQL about every second, and once more at shutdown
-            tasks.start_soon(runtime.history.run, runtime.transaction)
             yield
-            runtime.history.close()
             # the worker ends its transaction and stops; cancelled if it takes too long
             stop.set()
             with anyio.move_on_after(WORKER_STOP_S):

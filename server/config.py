@@ -170,10 +170,13 @@ class Settings(BaseSettings):
     history_retention_days: float | None = Field(
         30.0,
         ge=0,
+        le=36_500,  # a hundred years; `forever` keeps them for good
+        allow_inf_nan=False,
         description="how long every session's fixes are kept after they were made, for "
         "its history and exports (GET /v1/sessions/{id}/history, track.geojson, "
         "track.mfjson), whether or not the session ended; the worker deletes older ones. "
-        "0 keeps none (nothing is written); none (or forever) keeps them for good",
+        "0 keeps none (nothing is written); none (or forever) keeps them for good; "
+        "otherwise at most 36500 (a hundred years)",
     )
     upload_visibility_s: float = Field(
         120.0,

@@ -24,6 +24,7 @@ def upgrade() -> None:
         sa.Column("site_id", sa.String(length=32), nullable=False),
         sa.Column("t_first_ms", sa.BigInteger(), nullable=False),
         sa.Column("t_last_ms", sa.BigInteger(), nullable=False),
+        sa.Column("n_fixes", sa.Integer(), nullable=False),
         sa.Column("fixes", sa.LargeBinary(), nullable=False),
         sa.Column("created_at", sa.DateTime(timezone=True), nullable=False),
         sa.PrimaryKeyConstraint("session_id", "seq", name=op.f("pk_session_fixes")),

@@ -30,7 +30,7 @@ from server.api.deps import (
     page_query,
 )
 from server.api.gated_route import GatedRoute
-from server.api.schemas.common import ID_PATTERN
+from server.api.schemas.common import EARLIEST_MS, ID_PATTERN, LATEST_MS
 from server.api.schemas.history import SessionHistory, TrackGeoJSON, TrackMovingFeatures
 from server.api.schemas.pages import CREATED, encode_cursor
 from server.api.schemas.sessions import (
@@ -266,7 +266,27 @@ async def get_track(
     return SessionTrack(items=items, count=len(items), max_fixes=rt.settings.session_track_len)
 
 
-@router.get("/{session_id}/history")
+FromQuery = Annotated[
+    int | None,
+    Query(
+        alias="from",
+        ge=EARLIEST_MS,
+        lt=LATEST_MS,
+        description="fixes at or after this time only, ms since the epoch",
+    ),
+]
+ToQuery = Annotated[
+    int | None,
+    Query(
+        alias="to",
+        ge=EARLIEST_MS,
+        lt=LATEST_MS,
+        description="fixes at or before this time only, ms since the epoch",
+    ),
+]
+
+
+@router.get("/{session_id}/history", response_model=SessionHistory)
 async def get_history(
     session_id: IdPath,
     rt: RuntimeDep,
@@ -278,20 +298,32 @@ async def get_history(
         int,
         Query(ge=1, le=MAX_TRACK, description="most fixes wanted (a page holds whole batches)"),
     ] = 1000,
-) -> SessionHistory:
-    """Every fix the session made, kept for the history's retention (the first batches
-    may have gone before it), a page at a time in seq order: for its token while it
-    lives, for a key with the viewer scope for its site also once it ended."""
+    from_ms: FromQuery = None,
+    to_ms: ToQuery = None,
+) -> Response:
+    """Every fix the session made (between ``from`` and ``to``, when given), kept for the
+    history's retention (the first batches may have gone before it), a page at a time in
+    seq order: for its token while it lives, for a key with the viewer scope for its site
+    also once it ended.
+
+    While the session lives, a page stops before a batch that follows a gap in seq and
+    was written in the last two seconds (another process may not have written the batch
+    before it yet), and says no ``more``: ask again with the same ``after_seq`` a moment
+    later. A process cut off from SQL for longer still writes its batches later, behind
+    a cursor that moved on: ``last_seq`` is not a safe tail cursor for a live session;
+    read again from an earlier seq, or after the session ends. The fixes are served as
+    the batches answered them."""
     with session_context(session_id):
-        found = await history.page(rt, session_id, token, after_seq, limit)
-    items = [FixOut.model_validate(f) for f in found.fixes]
-    return SessionHistory(
-        items=items,
-        count=len(items),
-        last_seq=found.last_seq,
-        more=found.more,
-        retention_days=rt.settings.history_retention_days,
-    )
+        within = history.window(from_ms, to_ms)
+        found = await history.page(rt, session_id, token, after_seq, limit, within)
+    answer = {
+        "items": orjson.Fragment(found.fixes),
+        "count": found.count,
+        "last_seq": found.last_seq,
+        "more": found.more,
+        "retention_days": rt.settings.history_retention_days,
+    }
+    return Response(orjson.dumps(answer), media_type="application/json")
 
 
 class GeoJSONResponse(JSONResponse):
@@ -301,9 +333,17 @@ class GeoJSONResponse(JSONResponse):
     media_type = "application/geo+json"
 
 
-async def _export(rt: Runtime, session_id: str, token: str, form: history.Form) -> Response:
+async def _export(
+    rt: Runtime,
+    session_id: str,
+    token: str,
+    form: history.Form,
+    from_ms: int | None,
+    to_ms: int | None,
+) -> Response:
     with session_context(session_id):
-        body = await history.export(rt, session_id, token, form)
+        within = history.window(from_ms, to_ms)
+        body = await history.export(rt, session_id, token, form, within)
     disposition = f'attachment; filename="session-{session_id}.{form}"'
     headers = {"Content-Disposition": disposition}
     return Response(body, media_type=GeoJSONResponse.media_type, headers=headers)
@@ -312,11 +352,19 @@ async def _export(rt: Runtime, session_id: str, token: str, form: history.Form) 
 @router.get(
     "/{session_id}/track.geojson", response_model=TrackGeoJSON, response_class=GeoJSONResponse
 )
-async def get_track_geojson(session_id: IdPath, rt: RuntimeDep, token: BearerDep) -> Response:
-    """The session's history (as GET /v1/sessions/{id}/history, the same readers) as
-    RFC 7946 GeoJSON in WGS84: a LineString per run of fixes on one floor, with each
-    vertex's time and accuracy. 409 naming the building when it had no geo-reference."""
-    return await _export(rt, session_id, token, "geojson")
+async def get_track_geojson(
+    session_id: IdPath,
+    rt: RuntimeDep,
+    token: BearerDep,
+    from_ms: FromQuery = None,
+    to_ms: ToQuery = None,
+) -> Response:
+    """The session's history (as GET /v1/sessions/{id}/history, the same readers; between
+    ``from`` and ``to`` when given) as RFC 7946 GeoJSON in WGS84: a LineString per run of
+    fixes on one floor, with each vertex's time and accuracy. At most 100,000 fixes (422
+    past them: ask for less with ``from`` and ``to``); 409 naming the building when it
+    had no geo-reference."""
+    return await _export(rt, session_id, token, "geojson", from_ms, to_ms)
 
 
 @router.get(
@@ -324,11 +372,19 @@ async def get_track_geojson(session_id: IdPath, rt: RuntimeDep, token: BearerDep
     response_model=TrackMovingFeatures,
     response_class=GeoJSONResponse,
 )
-async def get_track_mfjson(session_id: IdPath, rt: RuntimeDep, token: BearerDep) -> Response:
-    """The session's history as OGC Moving Features JSON (a MovingPoint with the fixes'
-    times, linear interpolation; accuracy and floor as temporal properties), in WGS84.
-    409 naming the building when it had no geo-reference."""
-    return await _export(rt, session_id, token, "mfjson")
+async def get_track_mfjson(
+    session_id: IdPath,
+    rt: RuntimeDep,
+    token: BearerDep,
+    from_ms: FromQuery = None,
+    to_ms: ToQuery = None,
+) -> Response:
+    """The session's history (between ``from`` and ``to`` when given) as OGC Moving
+    Features JSON (a MovingPoint with the fixes' times, linear interpolation; a single
+    fix's instant, discrete; accuracy and floor as temporal properties), in WGS84. At
+    most 100,000 fixes (422 past them); 409 naming the building when it had no
+    geo-reference."""
+    return await _export(rt, session_id, token, "mfjson", from_ms, to_ms)
 
 
 @router.delete("/{session_id}", status_code=status.HTTP_204_NO_CONTENT)

@@ -43,8 +43,8 @@ class Runtime:
     states: AnySessionCache = field(default_factory=lambda: SessionCache(0))
     # the live sockets opened with API keys, closed when their key stops working
     key_watches: KeyWatches = field(default_factory=KeyWatches)
-    # applied batches' fixes on their way to SQL (services.history_writer; the app runs
-    # its flushes); by default none are kept
+    # applied batches' fixes on their way to SQL (services.history_writer; open_runtime
+    # runs its flushes); by default none are kept
     history: HistoryWriter = field(default_factory=lambda: HistoryWriter(enabled=False))
 
     @asynccontextmanager
@@ -81,8 +81,9 @@ async def open_runtime(settings: Settings) -> AsyncIterator[Runtime]:
     uploads = make_upload_queue(settings.redis_url, settings.upload_visibility_s)
     limits = make_rate_limiter(settings.redis_url)
     key_watches = KeyWatches()
+    history = HistoryWriter(enabled=settings.history_retention_days != 0)
     try:
-        yield Runtime(
+        rt = Runtime(
             settings=settings,
             engine=engine,
             sql=db.session_factory(engine),
@@ -94,8 +95,17 @@ async def open_runtime(settings: Settings) -> AsyncIterator[Runtime]:
             batch_gate=anyio.Semaphore(settings.batch_concurrency),
             states=SessionCache(settings.session_cache_size),
             key_watches=key_watches,
-            history=HistoryWriter(enabled=settings.history_retention_days != 0),
+            history=history,
         )
+        async with anyio.create_task_group() as tasks:
+            if history.enabled:
+                # sessions' history to SQL about every second, and once more at the end
+                # (the task group waits for it)
+                tasks.start_soon(history.run, rt.transaction)
+            try:
+                yield rt
+            finally:
+                history.close()
     finally:
         await key_watches.close()
         await limits.close()

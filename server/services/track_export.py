@@ -11,9 +11,12 @@ MF-JSON (OGC 19-045r3, the Prism encoding): a FeatureCollection holding one movi
 feature, the session: a ``MovingPoint`` temporal geometry (``datetimes``, ``coordinates``,
 linear ``interpolation``), temporal properties (the 68 % radius, linear; the floor's level
 and id, stepwise), and its trajectory as a GeoJSON LineString. The standard asks for
-distinct, increasing times and at least two of them: of fixes made at the same
-millisecond the last is kept, and fewer than two times give a collection without a
-feature.
+distinct, increasing times: of fixes made at the same millisecond the last is kept. A
+single time is one instant (``Discrete`` interpolation, a Point trajectory); no fixes, a
+collection without a feature. A temporal property's values are all of its type (numbers,
+text): one that some fixes lack (an accuracy not known, say) has its own ``datetimes``,
+those of the fixes that have it, and is left out when none has it. Positions are in
+CRS84, MF-JSON's default, so the feature names no ``crs`` (RFC 7946 has none either).
 
 A fix without a WGS84 position (its building had no geo-reference when it was made)
 cannot be in either: ``NoWorldPosition`` names its building.
@@ -26,7 +29,6 @@ from collections.abc import Iterable, Mapping, Sequence
 from datetime import UTC, datetime
 from typing import Any
 
-CRS84 = "urn:ogc:def:crs:OGC:1.3:CRS84"
 GREGORIAN = "http://www.opengis.net/def/uom/ISO-8601/0/Gregorian"
 DIGITS = 7  # of a degree: about a centimetre
 
@@ -98,20 +100,58 @@ def _one_per_time(fixes: Sequence[Fix]) -> list[Fix]:
     return [f for i, f in enumerate(fixes) if i + 1 == len(fixes) or fixes[i + 1]["t"] != f["t"]]
 
 
+# MF-JSON temporal properties: (name, what it is, interpolation between its values);
+# "MTR" is the UN/CEFACT code of the metre
+TEMPORAL_PROPERTIES: tuple[tuple[str, dict[str, str], str], ...] = (
+    (
+        "accuracy_m",
+        {"type": "Measure", "form": "MTR", "description": "radius holding 68 % of the errors"},
+        "Linear",
+    ),
+    ("level", {"type": "Measure", "description": "the floor's ordinal (0: ground floor)"}, "Step"),
+    ("floor_id", {"type": "Text"}, "Step"),
+)
+
+
+def _temporal_properties(kept: Sequence[Fix], datetimes: list[str]) -> list[dict[str, Any]]:
+    """The fixes' properties over time: those every fix has share the fixes'
+    ``datetimes``; one that some lack has its own, of the fixes that have it."""
+    whole: dict[str, Any] = {"datetimes": datetimes}
+    groups = [whole]
+    for name, kind, interpolation in TEMPORAL_PROPERTIES:
+        having = [i for i, f in enumerate(kept) if f.get(name) is not None]
+        if not having:
+            continue
+        values = {
+            **kind,
+            "values": [kept[i][name] for i in having],
+            "interpolation": interpolation if len(having) > 1 else "Discrete",
+        }
+        if len(having) == len(kept):
+            whole[name] = values
+        else:
+            groups.append({"datetimes": [datetimes[i] for i in having], name: values})
+    return [group for group in groups if len(group) > 1]
+
+
 def mfjson_track(session_id: str, fixes: Iterable[Fix]) -> dict[str, Any]:
     """The fixes as an MF-JSON FeatureCollection of one moving feature (module
     docstring)."""
     kept = _one_per_time(_in_time_order(fixes))
-    if len(kept) < 2:
+    if not kept:
         return {"type": "FeatureCollection", "features": []}
     datetimes = [iso_ms(int(f["t"])) for f in kept]
     coordinates = [_position(f) for f in kept]
     lons = [c[0] for c in coordinates]
     lats = [c[1] for c in coordinates]
+    trajectory: dict[str, Any] = (
+        {"type": "LineString", "coordinates": coordinates}
+        if len(kept) > 1
+        else {"type": "Point", "coordinates": coordinates[0]}
+    )
     feature = {
         "type": "Feature",
         "id": session_id,
-        "crs": {"type": "Name", "properties": {"name": CRS84}},
         "trs": {"type": "Link", "properties": {"type": "OGCDEF", "href": GREGORIAN}},
         "time": [datetimes[0], datetimes[-1]],
         "bbox": [min(lons), min(lats), max(lons), max(lats)],
@@ -119,32 +159,10 @@ def mfjson_track(session_id: str, fixes: Iterable[Fix]) -> dict[str, Any]:
             "type": "MovingPoint",
             "datetimes": datetimes,
             "coordinates": coordinates,
-            "interpolation": "Linear",
+            "interpolation": "Linear" if len(kept) > 1 else "Discrete",
         },
-        "temporalProperties": [
-            {
-                "datetimes": datetimes,
-                "accuracy_m": {
-                    "type": "Measure",
-                    "form": "MTR",  # UN/CEFACT: metre
-                    "values": [f.get("accuracy_m") for f in kept],
-                    "interpolation": "Linear",
-                    "description": "radius holding 68 % of the errors",
-                },
-                "level": {
-                    "type": "Measure",
-                    "values": [f.get("level") for f in kept],
-                    "interpolation": "Step",
-                    "description": "the floor's ordinal (0: ground floor)",
-                },
-                "floor_id": {
-                    "type": "Text",
-                    "values": [f.get("floor_id") for f in kept],
-                    "interpolation": "Step",
-                },
-            }
-        ],
-        "geometry": {"type": "LineString", "coordinates": coordinates},
+        "temporalProperties": _temporal_properties(kept, datetimes),
+        "geometry": trajectory,
         "properties": {"session_id": session_id},
     }
     return {"type": "FeatureCollection", "features": [feature]}

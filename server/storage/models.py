@@ -307,8 +307,10 @@ class SessionFixes(Base):
     session_id: Mapped[str] = mapped_column(String(32), primary_key=True)
     seq: Mapped[int] = mapped_column(BigInteger, primary_key=True)
     site_id: Mapped[str] = mapped_column(String(32), index=True)
-    t_first_ms: Mapped[int] = mapped_column(BigInteger)  # the batch's fixes' time span
+    # the batch's fixes' time span (ms since the epoch): what a time window reads
+    t_first_ms: Mapped[int] = mapped_column(BigInteger)
     t_last_ms: Mapped[int] = mapped_column(BigInteger)
+    n_fixes: Mapped[int] = mapped_column(Integer)  # a page counts fixes before it reads them
     fixes: Mapped[bytes] = mapped_column(LargeBinary)  # a JSON array of FixOut
     created_at: Mapped[datetime] = mapped_column(default=utcnow, index=True)
 

@@ -47,8 +47,15 @@ async def test_the_history_slider_moves_the_dot_back_in_time(
     assert first_t < live_t
     assert int(await page.get_attribute(".history", "data-t") or 0) == first_t
     assert (await page.get_attribute(dot, "cx"), await page.get_attribute(dot, "cy")) != live_xy
-    # live fixes leave the dot where the slider put it
-    await page.wait_for_timeout(2000)
+    # live fixes leave the dot where the slider put it: one comes (the row's last fix
+    # moves on), the dot stays
+    row = f'ul.sessions li[data-session="{walker.id}"]'
+    row_t = int(await page.get_attribute(row, "data-t") or 0)
+    await page.wait_for_function(
+        "([selector, t]) => Number(document.querySelector(selector)?.dataset.t ?? 0) > t",
+        arg=[row, row_t],
+        timeout=LIVE_TIMEOUT_MS,
+    )
     assert int(await page.get_attribute(group, "data-t") or 0) == first_t
     await tab.screenshot("floor-history")
 

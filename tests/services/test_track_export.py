@@ -78,7 +78,54 @@ def test_positions_are_rounded_to_about_a_centimetre() -> None:
 
 def test_no_fixes_no_features() -> None:
     assert geojson_track(SID, []) == {"type": "FeatureCollection", "features": []}
-    assert mfjson_track(SID, [fix(T0, 10.0, 50.0)]) == {"type": "FeatureCollection", "features": []}
+    assert mfjson_track(SID, []) == {"type": "FeatureCollection", "features": []}
+
+
+def test_a_single_fix_is_one_discrete_instant_in_mfjson() -> None:
+    document = mfjson_track(SID, [fix(T0, 10.0, 50.0), fix(T0, 10.00001, 50.0, accuracy=3.0)])
+    (feature,) = document["features"]
+    when = ["2023-11-14T22:13:20.000Z"]
+    assert feature["temporalGeometry"] == {
+        "type": "MovingPoint",
+        "datetimes": when,
+        "coordinates": [[10.00001, 50.0]],
+        "interpolation": "Discrete",
+    }
+    (properties,) = feature["temporalProperties"]
+    assert properties["datetimes"] == when
+    assert properties["accuracy_m"]["values"] == [3.0]
+    assert {properties[name]["interpolation"] for name in ("accuracy_m", "level", "floor_id")} == {
+        "Discrete"
+    }
+    assert feature["geometry"] == {"type": "Point", "coordinates": [10.00001, 50.0]}
+    assert feature["time"] == [when[0], when[0]]
+    assert feature["bbox"] == [10.00001, 50.0, 10.00001, 50.0]
+    FeatureCollection.model_validate(document)
+
+
+def test_a_property_some_fixes_lack_has_its_own_times_in_mfjson() -> None:
+    fixes = [
+        {**fix(T0, 10.0, 50.0), "accuracy_m": None},
+        fix(T0 + 1000, 10.00001, 50.0, accuracy=3.0),
+        {**fix(T0 + 2000, 10.00002, 50.0), "accuracy_m": None},
+        fix(T0 + 3000, 10.00003, 50.0, accuracy=5.0),
+    ]
+    (feature,) = mfjson_track(SID, fixes)["features"]
+    every, accuracy = feature["temporalProperties"]
+    assert len(every["datetimes"]) == 4
+    assert set(every) == {"datetimes", "level", "floor_id"}
+    assert accuracy["datetimes"] == ["2023-11-14T22:13:21.000Z", "2023-11-14T22:13:23.000Z"]
+    assert accuracy["accuracy_m"]["values"] == [3.0, 5.0]  # numbers only, as 19-045r3 asks
+    assert accuracy["accuracy_m"]["interpolation"] == "Linear"
+    # a property none of them has is left out
+    nowhere = [{**f, "accuracy_m": None} for f in fixes]
+    (feature,) = mfjson_track(SID, nowhere)["features"]
+    (every,) = feature["temporalProperties"]
+    assert "accuracy_m" not in every
+    for group in feature["temporalProperties"]:
+        for name, values in group.items():
+            if name != "datetimes":
+                assert None not in values["values"]
 
 
 def test_fixes_without_a_world_position_name_their_building() -> None:
@@ -121,6 +168,6 @@ def test_mfjson_is_one_moving_point_with_its_properties_over_time() -> None:
     assert feature["time"] == [times[0], times[-1]]
     assert feature["bbox"] == [10.0, 50.0, 10.00003, 50.00001]
     assert feature["geometry"] == {"type": "LineString", "coordinates": coordinates}
-    assert feature["crs"]["properties"]["name"] == "urn:ogc:def:crs:OGC:1.3:CRS84"
+    assert "crs" not in feature  # CRS84 is MF-JSON's default; RFC 7946 has no crs
     # what of it is GeoJSON is valid GeoJSON (MF-JSON extends it)
     FeatureCollection.model_validate(document)

@@ -15,13 +15,19 @@ Position = tuple[float, float]
 
 
 class SessionHistory(Strict):
+    """A page of a session's history. The route writes the stored fixes as they were
+    answered; this model documents them and is not run over the answer."""
+
     items: list[FixOut] = Field(description="fixes of whole batches, oldest first")
     count: int
     last_seq: int | None = Field(
         description="seq of the page's last batch: after_seq of the next page (null: an empty "
         "page; ask again with the same after_seq for batches applied since)"
     )
-    more: bool = Field(description="batches past last_seq are kept already")
+    more: bool = Field(
+        description="the next page can be read already (false: none is kept yet, or a "
+        "batch of a live session may still be on its way to SQL: ask again later)"
+    )
     retention_days: float | None = Field(
         description="how long fixes are kept after they were made (INDOORPOS_HISTORY_"
         "RETENTION_DAYS; null: for good)"
@@ -74,9 +80,11 @@ class TrackGeoJSON(Strict):
 class TrackMovingFeatures(Strict):
     """OGC Moving Features JSON (19-045r3, Prism): one Feature, the session, with a
     ``temporalGeometry`` of type ``MovingPoint`` (``datetimes``, ``coordinates`` [lon, lat],
-    ``interpolation`` Linear), ``temporalProperties`` (``accuracy_m``, ``level``,
-    ``floor_id``), ``crs``, ``trs``, ``time``, ``bbox`` and its trajectory as a GeoJSON
-    ``geometry``; none when fewer than two fixes were kept."""
+    ``interpolation`` Linear; a single fix: one instant, Discrete), ``temporalProperties``
+    (``accuracy_m``, ``level``, ``floor_id``; one whose value some fixes lack has its own
+    ``datetimes``), ``trs``, ``time``, ``bbox`` and its trajectory as a GeoJSON
+    ``geometry`` (a Point for a single fix); none without fixes. Coordinates are in
+    CRS84, MF-JSON's default."""
 
     type: Literal["FeatureCollection"]
     features: list[dict[str, Any]]

@@ -38,16 +38,17 @@ async function errorOf(response) {
   return new ApiError(response.status, message);
 }
 
-/** GET a JSON document with the key; ApiError on any non-2xx answer (a 401 also tells
- * the page, which asks for a key again). */
-export async function get(path, query, { signal } = {}) {
+/** GET a JSON document with the key (or with `credential`, a session's token, say);
+ * ApiError on any non-2xx answer (a 401 for the key also tells the page, which asks for
+ * a key again). */
+export async function get(path, query, { signal, credential } = {}) {
   const response = await fetch(url(path, query), {
-    headers: { Authorization: `Bearer ${key.get() ?? ""}`, Accept: "application/json" },
+    headers: { Authorization: `Bearer ${credential || key.get() || ""}`, Accept: "application/json" },
     signal,
   });
   if (!response.ok) {
     const error = await errorOf(response);
-    if (response.status === 401) window.dispatchEvent(new CustomEvent("key-refused", { detail: error.message }));
+    if (response.status === 401 && !credential) window.dispatchEvent(new CustomEvent("key-refused", { detail: error.message }));
     throw error;
   }
   return response.json();

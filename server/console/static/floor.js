@@ -233,6 +233,7 @@ function liveSessions(box, map, floor, query, signal, zones) {
       fix(fix) {
         entry.lastFix = fix;
         entry.receivedAt = Date.now();
+        entry.row.dataset.t = fix.t; // the last fix's time, whatever the dot shows
         const here = onFloor(fix);
         if (!replay.holds(id)) map.place(id, entry.colour, here ? fix : null);
         zones.occupy(id, here ? fix.zones : []);

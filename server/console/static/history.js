@@ -3,35 +3,22 @@
 // moves the session's dot back through them. While the slider is not at its newest fix,
 // live fixes leave the dot where the slider put it (`holds`).
 
-import { ApiError, key, url } from "./api.js";
+import { capabilities, get, request } from "./api.js";
 import { h, num, shortId } from "./dom.js";
+import { MAX_TRACK } from "./plan.js";
 
 const PAGE = 1000;
-const MAX_FIXES = 20000; // the newest are kept past this
-
-async function page(sessionId, credential, afterSeq, signal) {
-  const response = await fetch(url(`/v1/sessions/${sessionId}/history`, { after_seq: afterSeq, limit: PAGE }), {
-    headers: { Authorization: `Bearer ${credential}`, Accept: "application/json" },
-    signal,
-  });
-  if (!response.ok) {
-    let message = `${response.status} ${response.statusText}`;
-    try {
-      message = (await response.json()).message ?? message;
-    } catch {
-      // not JSON: the status line
-    }
-    throw new ApiError(response.status, message);
-  }
-  return response.json();
-}
+const MAX_FIXES = MAX_TRACK; // the newest are kept past this, as the track keeps them
 
 /** Every fix of the session's history (at most MAX_FIXES, the newest), oldest first. */
 export async function loadHistory(sessionId, credential, signal) {
+  const route = (await capabilities()).sessionHistory;
+  if (!route) throw new Error("this server keeps no history of sessions");
   const fixes = [];
   let after = 0;
   for (;;) {
-    const body = await page(sessionId, credential, after, signal);
+    const { path, query } = request(route, { session_id: sessionId }, { after_seq: after, limit: PAGE });
+    const body = await get(path, query, { signal, credential });
     fixes.push(...body.items);
     if (fixes.length > MAX_FIXES) fixes.splice(0, fixes.length - MAX_FIXES);
     if (!body.more || body.last_seq === null) return fixes;
@@ -44,9 +31,10 @@ export class HistoryPanel {
   constructor(map, onFloor, signal) {
     this.map = map;
     this.onFloor = onFloor;
-    this.signal = signal;
     this.element = h("div", { class: "history", hidden: true });
     this.shown = null; // {id, colour, fixes, index}
+    this.loading = null; // the AbortController of the history being loaded
+    signal.addEventListener("abort", () => this.loading?.abort());
   }
 
   /** Whether live fixes must leave this session's dot alone (the slider is back in time). */
@@ -56,22 +44,28 @@ export class HistoryPanel {
 
   /** Load the session's history and show its slider (`credential`: its token, else the key). */
   async open(id, colour, credential) {
-    this.close();
+    this.close(); // and the loading of another's (or the same) history stops
+    const loading = new AbortController();
+    this.loading = loading;
     this.element.hidden = false;
     this.element.replaceChildren(h("p", { class: "muted" }, `loading the history of ${shortId(id)}…`));
     let fixes;
     try {
-      fixes = await loadHistory(id, credential || key.get(), this.signal);
+      fixes = await loadHistory(id, credential, loading.signal);
     } catch (error) {
-      if (error.name === "AbortError") return;
+      if (loading.signal.aborted) return;
       this.element.replaceChildren(h("p", { class: "error" }, `history: ${error.message}`), this.#closeButton());
       return;
+    } finally {
+      if (this.loading === loading) this.loading = null;
     }
+    if (loading.signal.aborted) return;
     fixes.sort((a, b) => a.t - b.t);
     if (!fixes.length) {
       this.element.replaceChildren(h("p", { class: "muted" }, `${shortId(id)} has no fixes kept yet.`), this.#closeButton());
       return;
     }
+    // the track already holds the fixes it loaded and those that came live: one per time
     this.map.addToTrack(id, colour, fixes.filter(this.onFloor));
     this.shown = { id, colour, fixes, index: fixes.length - 1 };
     const slider = h("input", {
@@ -114,6 +108,8 @@ export class HistoryPanel {
   }
 
   close() {
+    this.loading?.abort();
+    this.loading = null;
     this.shown = null;
     this.element.hidden = true;
     delete this.element.dataset.session;

@@ -8,7 +8,8 @@ const WALKABLE = new Set(["walkable", "outline"]);
 const BARRIERS = new Set(["wall", "unit", "obstacle"]);
 const LAYERS = ["walkable", "heatmap", "zones", "walls", "doors", "beacons", "coverage", "magnetic", "emitters", "tracks", "live"];
 const NICE_M = [0.5, 1, 2, 5, 10, 20, 50, 100, 200, 500, 1000];
-const MAX_TRACK = 2000;
+// the fixes a session's track keeps: its history's (history.js) as well as its live ones
+export const MAX_TRACK = 20000;
 
 function rings(geometry) {
   if (!geometry) return [];
@@ -325,12 +326,17 @@ export class FloorMap {
     }
   }
 
-  /** Add fixes of this floor to a session's track (kept in time order, the last
-   * MAX_TRACK). */
-  addToTrack(id, colour, fixes) {
+  /** Add fixes of this floor to a session's track (kept in time order, one per time, the
+   * last MAX_TRACK); with `replace`, they are its whole track. */
+  addToTrack(id, colour, fixes, { replace = false } = {}) {
     const entry = this.#session(id, colour);
-    entry.fixes.push(...fixes);
-    entry.fixes.sort((a, b) => a.t - b.t);
+    const last = entry.fixes.at(-1);
+    if (!replace && fixes.length === 1 && (!last || fixes[0].t > last.t)) entry.fixes.push(fixes[0]); // a live fix
+    else {
+      const byTime = new Map(replace ? [] : entry.fixes.map((f) => [f.t, f]));
+      for (const f of fixes) byTime.set(f.t, f);
+      entry.fixes = [...byTime.values()].sort((a, b) => a.t - b.t);
+    }
     if (entry.fixes.length > MAX_TRACK) entry.fixes.splice(0, entry.fixes.length - MAX_TRACK);
     entry.track.setAttribute("points", entry.fixes.map((f) => `${f.x_m},${f.y_m}`).join(" "));
   }

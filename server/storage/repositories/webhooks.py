@@ -7,9 +7,9 @@ from datetime import datetime, timedelta
 from typing import Any
 
 from sqlalchemy import delete, func, select, update
-from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.ext.asyncio import AsyncSession
 
+from server.storage.inserts import insert_ignoring
 from server.storage.models import Webhook, WebhookDelivery
 from server.storage.repositories.pages import Key, Page, keyset_page
 
@@ -71,14 +71,7 @@ async def delivery_page(
 async def add_deliveries(s: AsyncSession, rows: Sequence[Mapping[str, Any]]) -> int:
     """Insert deliveries, skipping any whose (webhook, event) is owed already; how many
     were new."""
-    if not rows:
-        return 0
-    dialect = s.bind.dialect.name
-    insert = postgresql.insert if dialect == "postgresql" else sqlite.insert
-    stmt = insert(WebhookDelivery).values(list(rows))
-    stmt = stmt.on_conflict_do_nothing(index_elements=["webhook_id", "event_key"])
-    result = await s.execute(stmt)
-    return max(int(getattr(result, "rowcount", 0) or 0), 0)
+    return await insert_ignoring(s, WebhookDelivery, rows, ("webhook_id", "event_key"))
 
 
 def _unleased(now: datetime) -> Any:
