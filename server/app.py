@@ -36,7 +36,7 @@ from server.api.schemas.errors import ErrorOut
 from server.config import Settings, get_settings
 from server.positioning.filters import particle_kernels
 from server.services import telemetry
-from server.services.runtime import open_runtime
+from server.services.runtime import open_runtime, writing_history
 from server.storage import db
 
 # how long shutdown waits for the in-process worker to finish what it is doing (a queue
@@ -84,7 +84,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         if settings.resolved_database_url.startswith("sqlite"):
             # embedded mode keeps itself migrated; the production shape runs `indoorpos migrate`
             await anyio.to_thread.run_sync(db.migrate, settings.resolved_database_url)
-        async with open_runtime(settings) as runtime, anyio.create_task_group() as tasks:
+        async with (
+            open_runtime(settings) as runtime,
+            writing_history(runtime),
+            anyio.create_task_group() as tasks,
+        ):
             app.state.runtime = runtime
             # the compiled particle-filter loops, in the background (seconds when their disk
             # cache is cold): a session that needs one first waits for it, neither start-up

@@ -43,8 +43,9 @@ class Runtime:
     states: AnySessionCache = field(default_factory=lambda: SessionCache(0))
     # the live sockets opened with API keys, closed when their key stops working
     key_watches: KeyWatches = field(default_factory=KeyWatches)
-    # applied batches' fixes on their way to SQL (services.history_writer; open_runtime
-    # runs its flushes); by default none are kept
+    # applied batches' fixes on their way to SQL (services.history_writer): the app installs
+    # one that keeps them and runs its flushes (``writing_history``); by default none are
+    # kept (a runtime whose writer nobody runs would hold them for ever)
     history: HistoryWriter = field(default_factory=lambda: HistoryWriter(enabled=False))
 
     @asynccontextmanager
@@ -81,9 +82,8 @@ async def open_runtime(settings: Settings) -> AsyncIterator[Runtime]:
     uploads = make_upload_queue(settings.redis_url, settings.upload_visibility_s)
     limits = make_rate_limiter(settings.redis_url)
     key_watches = KeyWatches()
-    history = HistoryWriter(enabled=settings.history_retention_days != 0)
     try:
-        rt = Runtime(
+        yield Runtime(
             settings=settings,
             engine=engine,
             sql=db.session_factory(engine),
@@ -95,23 +95,30 @@ async def open_runtime(settings: Settings) -> AsyncIterator[Runtime]:
             batch_gate=anyio.Semaphore(settings.batch_concurrency),
             states=SessionCache(settings.session_cache_size),
             key_watches=key_watches,
-            history=history,
         )
-        async with anyio.create_task_group() as tasks:
-            if history.enabled:
-                # sessions' history to SQL about every second, and once more at the end
-                # (the task group waits for it)
-                tasks.start_soon(history.run, rt.transaction)
-            try:
-                yield rt
-            finally:
-                history.close()
     finally:
         await key_watches.close()
         await limits.close()
         await uploads.close()
         await store.close()
         await engine.dispose()
+
+
+@asynccontextmanager
+async def writing_history(rt: Runtime) -> AsyncIterator[None]:
+    """Keep the applied batches' fixes (unless ``history_retention_days`` is 0), written
+    to SQL about every second and once more when the block ends (what runs an api
+    process; ``open_runtime`` alone, as the commands use it, keeps no history)."""
+    if rt.settings.history_retention_days == 0:
+        yield
+        return
+    rt.history = HistoryWriter(enabled=True)
+    async with anyio.create_task_group() as tasks:
+        tasks.start_soon(rt.history.run, rt.transaction)
+        try:
+            yield
+        finally:
+            rt.history.close()
 
 
 async def check_ready(rt: Runtime) -> None:

@@ -85,17 +85,27 @@ async def get_floor(s: AsyncSession, floor_id: str) -> Floor:
     return floor
 
 
+async def floor_and_building(s: AsyncSession, floor_id: str) -> tuple[Floor, Building]:
+    floor = await get_floor(s, floor_id)
+    return floor, await get_building(s, floor.building_id)
+
+
+def origin_deg(building: Building) -> tuple[float, float] | None:
+    """The building's origin (latitude, longitude in degrees), when it has one: what tells
+    a plan in degrees from one in metres (``geojson_validation``)."""
+    if building.origin_lat is None or building.origin_lon is None:
+        return None
+    return building.origin_lat, building.origin_lon
+
+
 async def put_floor_plan(s: AsyncSession, floor_id: str, plan: dict[str, Any]) -> Floor:
     """Store a floor's plan once it passes ``geojson_validation.validate_plan`` (with the
     building's geo-reference, if any, to tell degrees from metres); Invalid naming the
     feature and the property otherwise. IMDF-style features are stored with the kind
     they map to. The building's current radio map version is built again by the worker
     (its floor graphs follow the plan)."""
-    floor = await get_floor(s, floor_id)
-    building = await get_building(s, floor.building_id)
-    origin = None
-    if building.origin_lat is not None and building.origin_lon is not None:
-        origin = (building.origin_lat, building.origin_lon)
+    floor, building = await floor_and_building(s, floor_id)
+    origin = origin_deg(building)
     try:
         # a mall's floor takes ~0.1 s of shapely work: off the event loop
         checked = await anyio.to_thread.run_sync(validate_plan, plan, origin)

@@ -14,7 +14,7 @@ from server.positioning.plan.geojson_format import PlanError
 from server.positioning.plan.geojson_validation import check_frame
 from server.positioning.plan.zones import ZoneFeature, as_feature, zones_from_geojson
 from server.services.errors import Invalid
-from server.services.sites import get_building, get_floor
+from server.services.sites import floor_and_building, origin_deg
 from server.storage import models
 from server.storage.repositories import zones as repo
 
@@ -44,14 +44,10 @@ async def put_floor_zones(
     """Replace the floor's zones with those of ``collection`` (floor metres; with the
     building's geo-reference, coordinates that look like degrees are refused); Invalid
     naming the field at fault."""
-    floor = await get_floor(s, floor_id)
-    building = await get_building(s, floor.building_id)
-    origin = None
-    if building.origin_lat is not None and building.origin_lon is not None:
-        origin = (building.origin_lat, building.origin_lon)
+    _, building = await floor_and_building(s, floor_id)
     try:
         read = zones_from_geojson(collection)
-        check_frame([as_feature(z) for z in read.zones], origin)
+        check_frame([as_feature(z) for z in read.zones], origin_deg(building))
     except PlanError as exc:
         raise Invalid(exc.reason, field=exc.field) from None
     rows = [
@@ -65,7 +61,6 @@ async def put_floor_zones(
 
 
 async def get_floor_zones(s: AsyncSession, floor_id: str) -> FloorZones:
-    floor = await get_floor(s, floor_id)  # NotFound for a floor that is not there
-    building = await get_building(s, floor.building_id)
+    _, building = await floor_and_building(s, floor_id)  # NotFound for a floor not there
     rows = await repo.floor_zones(s, floor_id)
     return FloorZones(floor_id, building.site_id, tuple(_feature(r) for r in rows))
