@@ -27,6 +27,7 @@ from server.api import (
     locate,
     metrics,
     quality,
+    routes,
     sessions,
     uploads,
     webhooks,
@@ -142,6 +143,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         uploads,
         quality,
         zones,
+        routes,
         webhooks,
         metrics,
     )

@@ -185,6 +185,8 @@ async def _load_site_maps(s: AsyncSession, site_id: str, cached: SiteMaps | None
         graphs=learned.graphs,
         scans=learned.scans,
         zones=zones,
+        plan_geojson=tuple(stored),
+        plan_digest=plan_digest(stored),
     )
 
 

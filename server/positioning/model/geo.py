@@ -52,3 +52,12 @@ def heading_from_north_deg(heading_rad: float, rotation_rad: float) -> float:
     [0, 360), for a building whose y axis has the bearing ``rotation_rad``."""
     degrees = math.degrees(heading_rad + rotation_rad) % 360.0
     return 0.0 if degrees >= 360.0 else degrees  # a tiny negative sum rounds up to 360
+
+
+def to_local(lat_deg: float, lon_deg: float, ref: GeoReference) -> tuple[float, float]:
+    """The local ``(x_m, y_m)`` of a WGS84 point: the inverse of :func:`to_world`."""
+    east, north, _ = pymap3d.geodetic2enu(
+        lat_deg, lon_deg, 0.0, ref.origin_lat_deg, ref.origin_lon_deg, 0.0
+    )
+    c, s = math.cos(ref.rotation_rad), math.sin(ref.rotation_rad)
+    return float(east * c - north * s), float(east * s + north * c)

@@ -103,7 +103,9 @@ def _is_zone(feature: Mapping[str, Any], properties: Mapping[str, Any]) -> bool:
     return not (isinstance(geometry, Mapping) and text(geometry.get("type")) not in AREA_TYPES)
 
 
-def _name(properties: Mapping[str, Any]) -> str | None:
+def feature_name(properties: Mapping[str, Any]) -> str | None:
+    """A feature's name: ``name`` (or ``alt_name``), a string or IMDF labels (English
+    first); None without one."""
     for key in ("name", "alt_name"):
         value = properties.get(key)
         if isinstance(value, str) and value.strip():
@@ -166,7 +168,7 @@ def zones_from_geojson(collection: Mapping[str, Any]) -> ReadZones:
             raise PlanError(
                 f"{at}.geometry", f"not a valid {geometry_type} ({shapely.is_valid_reason(shape)})"
             )
-        name = _name(properties)
+        name = feature_name(properties)
         if name is not None and len(name) > NAME_MAX:
             raise PlanError(f"{at}.properties.name", f"at most {NAME_MAX} characters")
         plain = {"type": geometry_type, "coordinates": geometry["coordinates"]}

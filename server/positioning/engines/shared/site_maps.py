@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 from server.positioning.magnetic.field_grid import MagneticMap
 from server.positioning.model.geo import GeoReference
@@ -60,3 +61,7 @@ class SiteMaps:
     floor_spacing_hpa: float | None = None
     # the site's zones (no engine reads them: the service says which a fix is in)
     zones: ZoneIndex = NO_ZONES
+    # per floor index: the plan as sent (GeoJSON), and a digest of them all (the routing
+    # graph is built once per digest; no engine reads them)
+    plan_geojson: tuple[Mapping[str, Any] | None, ...] = ()
+    plan_digest: str = ""

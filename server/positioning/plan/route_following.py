@@ -1,0 +1,239 @@
+"""Navigation: a walker's progress along a route, fix by fix, with re-routing and arrival.
+
+Each fix is placed on the route: on the leg it is following (or the next one, once the
+fix is on the next leg's floor: a ``floor_change`` event), at the nearest point of the
+leg's polyline. ``off_route_m`` is the distance to it. The walker is off the route when
+that exceeds ``Settings.off_route_m``; it is re-routed (from the fix, a ``rerouted``
+event) only once its fixes have said so without a break for ``Settings.reroute_after_s``
+and ``Settings.reroute_fixes`` fixes (a hysteresis like the zones' in ``zone_presence``:
+one wild fix, or a wobble across the threshold, re-routes nothing). It arrives (an
+``arrived`` event, and navigation ends) when a fix on the last leg is within
+``Settings.arrival_m`` of the destination, along the route or in a straight line.
+
+The next instruction is withheld ("Continue") while the fix's 68 % radius is larger than
+the distance to the step it announces: until the filter is sure which side of a turn the
+walker is, it says nothing it might have to take back.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from server.positioning.plan.route_steps import Step
+
+FloatArray = NDArray[np.float64]
+
+OFF_ROUTE_M = 5.0
+ARRIVAL_M = 3.0
+REROUTE_AFTER_S = 4.0
+REROUTE_FIXES = 3
+
+
+@dataclass(frozen=True)
+class Settings:
+    """What a navigating session asked for."""
+
+    off_route_m: float = OFF_ROUTE_M
+    arrival_m: float = ARRIVAL_M
+    reroute_after_s: float = REROUTE_AFTER_S
+    reroute_fixes: int = REROUTE_FIXES
+    accessible: bool = False
+
+
+@dataclass(frozen=True, eq=False)
+class Guide:
+    """A route as navigation follows it: each leg's floor and polyline, the seconds of
+    each floor change, and the steps."""
+
+    floors: tuple[int, ...]
+    legs: tuple[FloatArray, ...]
+    change_s: tuple[float, ...]
+    steps: tuple[Step, ...]
+    walk_speed_m_s: float
+
+    @property
+    def leg_lengths(self) -> list[float]:
+        return [float(np.sum(np.linalg.norm(np.diff(xy, axis=0), axis=1))) for xy in self.legs]
+
+    @property
+    def length_m(self) -> float:
+        return sum(self.leg_lengths)
+
+
+@dataclass(frozen=True)
+class Progress:
+    """Where a walker stands on its route: ``leg`` followed, ``along_m`` walked from the
+    route's start, ``step`` the index of the last step passed, the off-route run
+    (``off_since_ms`` -1: none) and how many times it was re-routed."""
+
+    leg: int = 0
+    along_m: float = 0.0
+    step: int = 0
+    off_since_ms: int = -1
+    off_n: int = 0
+    reroutes: int = 0
+    arrived: bool = False
+
+
+@dataclass(frozen=True)
+class FixAt:
+    t_ms: int
+    floor: int
+    x_m: float
+    y_m: float
+    radius_68_m: float | None = None
+
+
+@dataclass(frozen=True)
+class Event:
+    kind: str  # "rerouted", "floor_change", "arrived"
+    t_ms: int
+    detail: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class Report:
+    """What one fix says of the navigation (the wire's ``navigation`` object is made of
+    it)."""
+
+    progress: Progress
+    guide: Guide
+    on_route: bool
+    off_route_m: float | None
+    snapped: tuple[int, float, float]  # floor, x, y on the route
+    remaining_m: float
+    remaining_s: float
+    current: Step
+    next: Step | None
+    distance_to_next_m: float | None
+    withheld: bool
+    events: tuple[Event, ...]
+
+
+def place(xy: FloatArray, point: Sequence[float]) -> tuple[float, float, FloatArray]:
+    """The nearest point of a polyline ``xy`` (m, 2) to ``point``: its distance, how far
+    along the polyline it lies, and the point."""
+    p = np.asarray(point, dtype=np.float64)
+    if xy.shape[0] == 1:
+        return float(np.linalg.norm(p - xy[0])), 0.0, xy[0].copy()
+    a, b = xy[:-1], xy[1:]
+    ab = b - a
+    length2 = np.sum(ab * ab, axis=1)
+    t = np.clip(np.sum((p - a) * ab, axis=1) / np.where(length2 > 0, length2, 1.0), 0.0, 1.0)
+    at = a + t[:, None] * ab
+    gap = np.linalg.norm(at - p, axis=1)
+    k = int(np.argmin(gap))
+    seg = np.sqrt(length2)
+    along = float(seg[:k].sum() + t[k] * seg[k])
+    return float(gap[k]), along, at[k]
+
+
+def follow(
+    guide: Guide,
+    progress: Progress,
+    fix: FixAt,
+    settings: Settings,
+    reroute: Callable[[FixAt], Guide | None],
+) -> Report:
+    """Advance ``progress`` by one fix (module docstring); ``reroute`` makes a new route
+    from a fix (None when there is none: the old one is kept)."""
+    events: list[Event] = []
+    if progress.arrived:  # navigation is over: nothing more to say
+        reroute = _no_reroute
+    leg = progress.leg
+    on_next = leg + 1 < len(guide.legs) and fix.floor == guide.floors[leg + 1]
+    if fix.floor != guide.floors[leg] and on_next:
+        events.append(Event("floor_change", fix.t_ms, {"from_leg": leg, "to_leg": leg + 1}))
+        leg += 1
+    starts = np.concatenate([[0.0], np.cumsum(guide.leg_lengths)])
+    if fix.floor == guide.floors[leg]:
+        gap, along_leg, at = place(guide.legs[leg], (fix.x_m, fix.y_m))
+        off: float | None = gap
+    else:
+        off, along_leg, at = None, progress.along_m - starts[leg], guide.legs[leg][0]
+        along_leg = max(0.0, along_leg)
+    along = float(starts[leg] + along_leg)
+    on_route = off is not None and off <= settings.off_route_m
+    off_since, off_n = (-1, 0) if on_route else (
+        progress.off_since_ms if progress.off_since_ms >= 0 else fix.t_ms,
+        progress.off_n + 1,
+    )  # fmt: skip
+    state = replace(progress, leg=leg, along_m=along, off_since_ms=off_since, off_n=off_n)
+    held = off_since >= 0 and (fix.t_ms - off_since) / 1000.0 >= settings.reroute_after_s
+    if held and off_n >= settings.reroute_fixes:
+        fresh = reroute(fix)
+        if fresh is not None:
+            events.append(
+                Event(
+                    "rerouted",
+                    fix.t_ms,
+                    {"off_route_m": off, "length_m": fresh.length_m, "off_since": off_since},
+                )
+            )
+            restart = Progress(reroutes=progress.reroutes + 1)
+            report = follow(fresh, restart, fix, settings, _no_reroute)
+            return replace(report, events=(*events, *report.events))
+    last = len(guide.legs) - 1
+    remaining = max(0.0, guide.length_m - along)
+    if progress.arrived:
+        state = replace(state, arrived=True, along_m=guide.length_m)
+        remaining = 0.0
+    elif leg == last and fix.floor == guide.floors[last]:
+        straight = float(np.hypot(*(guide.legs[last][-1] - (fix.x_m, fix.y_m))))
+        if min(remaining, straight) <= settings.arrival_m:
+            state = replace(state, arrived=True, along_m=guide.length_m)
+            events.append(Event("arrived", fix.t_ms, {"remaining_m": remaining}))
+            remaining = 0.0
+    step = _passed(guide.steps, state)
+    state = replace(state, step=step)
+    nxt = guide.steps[step + 1] if step + 1 < len(guide.steps) and not state.arrived else None
+    to_next = max(0.0, nxt.along_m - state.along_m) if nxt is not None else None
+    withheld = bool(
+        nxt is not None
+        and to_next is not None
+        and fix.radius_68_m is not None
+        and math.isfinite(fix.radius_68_m)
+        and fix.radius_68_m > to_next
+    )
+    changes_left = sum(guide.change_s[leg:]) if not state.arrived else 0.0
+    return Report(
+        progress=state,
+        guide=guide,
+        on_route=on_route,
+        off_route_m=off,
+        snapped=(guide.floors[leg], float(at[0]), float(at[1])),
+        remaining_m=remaining,
+        remaining_s=remaining / guide.walk_speed_m_s + changes_left,
+        current=guide.steps[step],
+        next=nxt,
+        distance_to_next_m=to_next,
+        withheld=withheld,
+        events=tuple(events),
+    )
+
+
+def _no_reroute(_: FixAt) -> Guide | None:
+    return None
+
+
+def _passed(steps: Sequence[Step], progress: Progress) -> int:
+    """The last step the walker has passed: on an earlier leg (a floor change is passed
+    once the walker is on the next leg), or on its leg at or before where it stands;
+    never one before the step it had passed already."""
+    found = progress.step
+    for k in range(progress.step, len(steps)):
+        s = steps[k]
+        change = s.to_level is not None
+        if s.leg < progress.leg or (
+            s.leg == progress.leg and not change and s.along_m <= progress.along_m + 1e-9
+        ):
+            found = k
+        elif s.leg > progress.leg or change:
+            break
+    return found

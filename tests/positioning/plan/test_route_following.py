@@ -1,0 +1,118 @@
+"""Navigation along a route, fix by fix: progress and the next step, the instruction
+withheld while the fix is less sure than the turn is near, re-routing only after the
+hysteresis, floor changes and one arrival."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given
+from hypothesis import strategies as st
+
+from server.positioning.plan.route_following import (
+    FixAt,
+    Guide,
+    Progress,
+    Settings,
+    follow,
+    place,
+)
+from server.positioning.plan.route_steps import route_steps
+from server.positioning.plan.routes import FloorChange, Leg, Route
+
+# east 20 m, then north 10 m on floor 0; lift to floor 1; east 5 m
+ROUTE = Route(
+    legs=(
+        Leg(0, np.array([[0.0, 0.0], [20.0, 0.0], [20.0, 10.0]])),
+        Leg(1, np.array([[20.0, 10.0], [25.0, 10.0]])),
+    ),
+    changes=(FloorChange("elevator", "Lift", 0, 1, 38.0),),
+)
+
+
+def _guide(route: Route = ROUTE) -> Guide:
+    steps = route_steps(route, [0, 1])
+    return Guide(
+        floors=tuple(leg.floor for leg in route.legs),
+        legs=tuple(leg.xy for leg in route.legs),
+        change_s=tuple(c.seconds for c in route.changes),
+        steps=tuple(steps),
+        walk_speed_m_s=1.2,
+    )
+
+
+def _never(_: FixAt) -> Guide | None:
+    raise AssertionError("re-routed")
+
+
+def test_the_steps_of_the_route() -> None:
+    kinds = [s.kind for s in _guide().steps]
+    assert kinds == ["start", "left", "lift_up", "straight", "arrive"]
+    assert [s.along_m for s in _guide().steps] == [0.0, 20.0, 30.0, 30.0, 35.0]
+
+
+def test_progress_and_the_next_instruction() -> None:
+    guide, settings = _guide(), Settings()
+    report = follow(guide, Progress(), FixAt(0, 0, 12.0, 1.0, 2.0), settings, _never)
+    assert report.on_route and abs(report.off_route_m - 1.0) < 1e-9  # type: ignore[operator]
+    assert report.progress.along_m == 12.0
+    assert report.next is not None and report.next.kind == "left"
+    assert report.distance_to_next_m == 8.0
+    assert not report.withheld
+    assert report.snapped == (0, 12.0, 0.0)
+    assert abs(report.remaining_m - 23.0) < 1e-9
+    assert abs(report.remaining_s - (23.0 / 1.2 + 38.0)) < 1e-9
+    # a fix less sure (68 %: 9 m) than the turn is near (8 m): "continue"
+    unsure = follow(guide, Progress(), FixAt(0, 0, 12.0, 1.0, 9.0), settings, _never)
+    assert unsure.withheld
+
+
+@given(st.floats(-4.9, 4.9), st.integers(1, 20))
+def test_one_wild_fix_or_a_wobble_does_not_reroute(offset: float, n: int) -> None:
+    guide, settings = _guide(), Settings(off_route_m=5.0, reroute_after_s=4.0, reroute_fixes=3)
+    progress = Progress()
+    for k in range(n):
+        wild = 30.0 if k % 3 == 1 else offset  # every third fix far off, the others near
+        report = follow(guide, progress, FixAt(1000 * k, 0, 0.5 * k, wild), settings, _never)
+        progress = report.progress
+    assert progress.reroutes == 0
+
+
+def test_a_walk_off_the_route_reroutes_once_after_the_hysteresis() -> None:
+    guide, settings = _guide(), Settings(off_route_m=5.0, reroute_after_s=4.0, reroute_fixes=3)
+    fresh = _guide(Route((Leg(0, np.array([[5.0, -10.0], [20.0, 10.0]])),), ()))
+    calls: list[FixAt] = []
+
+    def reroute(fix: FixAt) -> Guide:
+        calls.append(fix)
+        return fresh
+
+    progress, events = Progress(), []
+    for k in range(10):  # walks south, away from the route, 1.5 m a second
+        report = follow(
+            guide, progress, FixAt(1000 * k, 0, 5.0, -float(k) * 1.5), settings, reroute
+        )
+        progress = report.progress
+        events += [e.kind for e in report.events]
+        guide = report.guide
+    assert events == ["rerouted"]
+    assert len(calls) == 1 and calls[0].t_ms == 8000  # off since 4 s (6 m), held 4 s more
+    assert progress.reroutes == 1
+
+
+def test_a_floor_change_then_one_arrival() -> None:
+    guide, settings = _guide(), Settings(arrival_m=1.0)
+    progress, events = Progress(), []
+    walk = [(0, 10.0, 0.0), (0, 20.0, 5.0), (0, 20.0, 10.0), (1, 21.0, 10.0), (1, 24.5, 10.0),
+            (1, 25.0, 10.0)]  # fmt: skip
+    for k, (floor, x, y) in enumerate(walk):
+        report = follow(guide, progress, FixAt(1000 * k, floor, x, y, 0.5), settings, _never)
+        progress = report.progress
+        events += [e.kind for e in report.events]
+    assert events == ["floor_change", "arrived"]
+    assert progress.arrived and progress.leg == 1
+    assert report.next is None and report.remaining_m == 0.0
+
+
+def test_place_on_a_polyline() -> None:
+    gap, along, at = place(np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0]]), (12.0, 4.0))
+    assert (gap, along, at.tolist()) == (2.0, 14.0, [10.0, 4.0])
