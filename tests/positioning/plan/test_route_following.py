@@ -53,9 +53,12 @@ def test_the_steps_of_the_route() -> None:
 def test_progress_and_the_next_instruction() -> None:
     guide, settings = _guide(), Settings()
     report = follow(guide, Progress(), FixAt(0, 0, 12.0, 1.0, 2.0), settings, _never)
-    assert report.on_route and abs(report.off_route_m - 1.0) < 1e-9  # type: ignore[operator]
+    assert report.on_route
+    assert report.off_route_m is not None
+    assert abs(report.off_route_m - 1.0) < 1e-9
     assert report.progress.along_m == 12.0
-    assert report.next is not None and report.next.kind == "left"
+    assert report.next is not None
+    assert report.next.kind == "left"
     assert report.distance_to_next_m == 8.0
     assert not report.withheld
     assert report.snapped == (0, 12.0, 0.0)
@@ -95,7 +98,8 @@ def test_a_walk_off_the_route_reroutes_once_after_the_hysteresis() -> None:
         events += [e.kind for e in report.events]
         guide = report.guide
     assert events == ["rerouted"]
-    assert len(calls) == 1 and calls[0].t_ms == 8000  # off since 4 s (6 m), held 4 s more
+    assert len(calls) == 1
+    assert calls[0].t_ms == 8000
     assert progress.reroutes == 1
 
 
@@ -109,8 +113,10 @@ def test_a_floor_change_then_one_arrival() -> None:
         progress = report.progress
         events += [e.kind for e in report.events]
     assert events == ["floor_change", "arrived"]
-    assert progress.arrived and progress.leg == 1
-    assert report.next is None and report.remaining_m == 0.0
+    assert progress.arrived
+    assert progress.leg == 1
+    assert report.next is None
+    assert report.remaining_m == 0.0
 
 
 def test_place_on_a_polyline() -> None:
