@@ -13,6 +13,13 @@ has one door ``door_width_m`` wide onto a straight stretch of corridor, and wall
 room outlines with a gap at each door plus the building's outline. Room widths and door
 positions are drawn from the generator, so each floor of each seed differs.
 
+A staircase and a lift join the floors: the same square on every floor, inside the
+corridor loop (the stairs at the south end of the west corridor, the lift at the north end
+of the east one), 2 m on a side (``_SHAFT_M``; the corridor's width if that is less). They
+lie in corridor area, so they change neither the walkable area nor the walls; the plan
+marks them as ``"stairs"`` and ``"elevator"`` features with an ``id`` and a ``name`` shared
+by all floors. The walkable graph stays on each floor.
+
 The walkable graph has nodes on the corridor centre-lines (loop corners, junctions with
 side corridors, the foot of each door), at each door, one metre inside each door, and at
 each room's centre; edges run along centre-lines and from a corridor through its door to
@@ -39,6 +46,7 @@ Use = Literal["room", "corridor"]
 _DOOR_MARGIN_M = 0.3  # between a door's jamb and the corner of its room
 _MIN_FACING_M = 3.0  # the least stretch of wall a room shares with its corridor
 _INSIDE_M = 1.0  # the graph node just inside a door
+_SHAFT_M = 2.0  # side of the stairs' and the lift's squares
 _DECIMALS = 3  # coordinates on the wire: millimetres
 
 
@@ -72,6 +80,16 @@ class Rect:
         return [[round(x, _DECIMALS), round(y, _DECIMALS)] for x, y in corners]
 
 
+@dataclass(frozen=True, slots=True)
+class Shaft:
+    """A way between floors, the same square on every floor: the stairs or the lift."""
+
+    id: str
+    kind: Literal["stairs", "elevator"]
+    name: str
+    rect: Rect  # inside a corridor
+
+
 @dataclass(frozen=True, eq=False)
 class Floor:
     """One floor: walkable rectangles, walls, doors and the walkable graph.
@@ -92,6 +110,8 @@ class Floor:
         Walkable graph nodes.
     edges : ndarray, shape (n_edges, 2)
         Node index pairs, each edge once.
+    shafts : tuple of Shaft
+        The stairs and the lift, at the same place on every floor.
     """
 
     level: int
@@ -102,6 +122,7 @@ class Floor:
     door_width_m: float
     nodes: FloatArray
     edges: IntArray
+    shafts: tuple[Shaft, ...] = ()
 
     @property
     def edge_lengths_m(self) -> FloatArray:
@@ -177,9 +198,10 @@ class Floor:
         """The floor plan as a GeoJSON FeatureCollection in the local metric frame.
 
         Features carry ``properties.kind``: ``"walkable"`` Polygons (with ``use`` room or
-        corridor), ``"wall"`` LineStrings (the outline as one closed ring) and ``"door"``
+        corridor), ``"wall"`` LineStrings (the outline as one closed ring), ``"door"``
         LineStrings: each door's opening, ``door_width_m`` long, lying on its wall line
-        across the gap the walls leave for it (with ``width_m``).
+        across the gap the walls leave for it (with ``width_m``), and a ``"stairs"`` and
+        an ``"elevator"`` Polygon (with ``id`` and ``name``, the same on every floor).
         """
         features: list[dict[str, Any]] = []
         for i, rect in enumerate(self.walkable):
@@ -211,6 +233,14 @@ class Floor:
                     "type": "Feature",
                     "geometry": {"type": "LineString", "coordinates": _coords(opening)},
                     "properties": {"kind": "door", "width_m": self.door_width_m},
+                }
+            )
+        for shaft in self.shafts:
+            features.append(
+                {
+                    "type": "Feature",
+                    "geometry": {"type": "Polygon", "coordinates": [shaft.rect.ring()]},
+                    "properties": {"kind": shaft.kind, "name": shaft.name, "id": shaft.id},
                 }
             )
         return {
@@ -354,6 +384,21 @@ def _floor(
     outline = np.array([[0.0, 0.0], [W, 0.0], [W, H], [0.0, H], [0.0, 0.0]])
     walls = _walls(outline, rooms, door_w)
     nodes, edges = _graph(rooms, side_x, c_lo, c_hi, c_west, c_east)
+    s = min(_SHAFT_M, cw)  # squares across the corridor, at the ends of its straight stretch
+    shafts = (
+        Shaft(
+            "stairs-1",
+            "stairs",
+            "Stairs",
+            Rect(c_west - s / 2, y_lo, c_west + s / 2, y_lo + s, "corridor"),
+        ),
+        Shaft(
+            "lift-1",
+            "elevator",
+            "Lift",
+            Rect(c_east - s / 2, y_hi - s, c_east + s / 2, y_hi, "corridor"),
+        ),
+    )
     return Floor(
         level=level,
         walkable=(*corridors, *(r.rect for r in rooms)),
@@ -363,6 +408,7 @@ def _floor(
         door_width_m=door_w,
         nodes=nodes,
         edges=edges,
+        shafts=shafts,
     )
 
 

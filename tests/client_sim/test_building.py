@@ -112,11 +112,17 @@ def test_same_seed_same_building_other_seed_other_building() -> None:
     assert not np.array_equal(a.floors[0].doors, a.floors[1].doors)  # floors differ too
 
 
-def test_plan_is_geojson_with_the_three_kinds() -> None:
+def test_plan_is_geojson_with_its_kinds() -> None:
     floor = build().floor(1)
     plan = floor.plan_geojson()
     assert plan["type"] == "FeatureCollection"
-    geometry_of = {"walkable": "Polygon", "wall": "LineString", "door": "LineString"}
+    geometry_of = {
+        "walkable": "Polygon",
+        "wall": "LineString",
+        "door": "LineString",
+        "stairs": "Polygon",
+        "elevator": "Polygon",
+    }
     kinds = set()
     for feature in plan["features"]:
         assert feature["type"] == "Feature"
@@ -124,11 +130,11 @@ def test_plan_is_geojson_with_the_three_kinds() -> None:
         kinds.add(kind)
         geometry = feature["geometry"]
         assert geometry["type"] == geometry_of[kind]
-        if kind == "walkable":
+        if kind in ("walkable", "stairs", "elevator"):
             ring = geometry["coordinates"][0]
             assert ring[0] == ring[-1]
             assert len(ring) == 5
-    assert kinds == {"walkable", "wall", "door"}
+    assert kinds == {"walkable", "wall", "door", "stairs", "elevator"}
     walls = [f for f in plan["features"] if f["properties"]["kind"] == "wall"]
     assert len(walls) == len(floor.walls) - 3  # the outline's four sides are one ring
     assert walls[0]["geometry"]["coordinates"][0] == walls[0]["geometry"]["coordinates"][-1]

@@ -15,11 +15,14 @@ point.
 
 Shape. A leg's vertex path zig-zags on the grid; it is pulled straight
 (string-pulling): from each kept point, the farthest later point of the path that it
-sees is kept next, where seeing means a segment that crosses no wall and keeps, at each
-of its samples, the clearance the path itself kept between the two points (at most
-``CLEARANCE_GOAL_M``, less one raster cell): a straightened route is never nearer to a
-wall than the grid route was. Its length is what is walked; its duration that length over
-the walking speed plus the links' seconds.
+sees is kept next, where seeing means a segment that crosses no wall, keeps, at each of
+its samples, the clearance the path itself kept between the two points (at most
+``CLEARANCE_GOAL_M``, less one raster cell), and costs no more than the path between them
+(its metres penalised near walls as the graph's edges are, ``routing_graph``): a
+straightened route is never nearer to a wall than the grid route was, nor does it leave
+the middle of a corridor that the grid route kept to (a route from beside one wall of a
+corridor to beside the other does not cross it on a long diagonal). Its length is what is
+walked; its duration that length over the walking speed plus the links' seconds.
 """
 
 from __future__ import annotations
@@ -47,6 +50,7 @@ from server.positioning.plan.routing_graph import (
     FloorWalk,
     Link,
     RoutingGraph,
+    wall_penalty,
 )
 
 FloatArray = NDArray[np.float64]
@@ -355,6 +359,7 @@ def pulled_straight(walk: FloorWalk, xy: FloatArray) -> FloatArray:
     if xy.shape[0] <= 2:
         return xy
     clear = np.minimum(walk.clearance_at(xy), CLEARANCE_GOAL_M) - walk.plan.cell_m
+    walked = np.concatenate([[0.0], np.cumsum(_penalised_m(walk, xy[:-1], xy[1:]))])
     # only the corners of the grid path can be kept: the points between them are in line
     heading = np.diff(xy, axis=0)
     heading /= np.linalg.norm(heading, axis=1)[:, None]
@@ -370,6 +375,8 @@ def pulled_straight(walk: FloorWalk, xy: FloatArray) -> FloatArray:
             chunk = min(2 * chunk, _PULL_CHUNK)  # most runs end near: test a few first
             running = np.minimum.accumulate(clear[corner[i] : corner[js[-1]] + 1])
             ok = _sees(walk, xy[corner[i]], xy[corner[js]], running[corner[js] - corner[i]])
+            a = np.repeat(xy[corner[i]][None, :], js.size, axis=0)
+            ok &= _penalised_m(walk, a, xy[corner[js]]) <= walked[corner[js]] - walked[corner[i]]
             if ok.all():
                 best, j0 = int(js[-1]), int(js[-1]) + 1
                 continue
@@ -388,6 +395,19 @@ def _deduplicated(xy: FloatArray) -> FloatArray:
         return xy
     moved = np.r_[True, np.any(np.diff(xy, axis=0) != 0.0, axis=1)]
     return xy[moved]
+
+
+def _penalised_m(walk: FloorWalk, a: FloatArray, b: FloatArray) -> FloatArray:
+    """The lengths of the segments ``a -> b``, shape (m,), penalised near walls as the
+    graph's edge costs are (``routing_graph.wall_penalty``, averaged over samples)."""
+    length = np.linalg.norm(b - a, axis=1)
+    samples = min(200, max(2, math.ceil(float(np.max(length, initial=0.0)) / _SAMPLE_M) + 1))
+    t = np.linspace(0.0, 1.0, samples)[:, None, None]
+    points = (a + t * (b - a)).reshape(-1, 2)
+    penalty = wall_penalty(walk.clearance_at(points)).reshape(samples, -1)
+    mean = (penalty[:-1] + penalty[1:]).sum(axis=0) / (2 * (samples - 1))
+    out: FloatArray = length * (1.0 + mean)
+    return out
 
 
 def _sees(walk: FloorWalk, a: FloatArray, bs: FloatArray, need: FloatArray) -> NDArray[np.bool_]:

@@ -255,7 +255,7 @@ def floor_walk(
     raster = clearance_raster(plan)
     probe = FloorWalk(floor, level, building_id, plan, xy, np.zeros(0), csr_matrix((0, 0)), raster)
     clearance = probe.clearance_at(xy)
-    penalty = WALL_PENALTY * np.maximum(0.0, 1.0 - clearance / CLEARANCE_GOAL_M)
+    penalty = wall_penalty(clearance)
     seconds = np.linalg.norm(xy[b] - xy[a], axis=1) / WALK_SPEED_M_S
     seconds *= 1.0 + (penalty[a] + penalty[b]) / 2.0
     n = xy.shape[0]
@@ -264,6 +264,12 @@ def floor_walk(
         shape=(n, n),
     )
     return FloorWalk(floor, level, building_id, plan, xy, clearance, costs, raster)
+
+
+def wall_penalty(clearance_m: FloatArray) -> FloatArray:
+    """``k p`` of the module docstring at points of clearance ``clearance_m``, shape (m,)."""
+    penalty: FloatArray = WALL_PENALTY * np.maximum(0.0, 1.0 - clearance_m / CLEARANCE_GOAL_M)
+    return penalty
 
 
 def clearance_raster(plan: FloorPlan) -> NDArray[np.float32]:
@@ -285,7 +291,10 @@ def clearance_raster(plan: FloorPlan) -> NDArray[np.float32]:
         ok = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
         blocked = blocked.copy()
         blocked[iy[ok], ix[ok]] = True
-    distance = ndimage.distance_transform_edt(~blocked) * plan.cell_m
+    # beyond the raster nothing is walkable: a border of blocked cells, or the EDT would
+    # measure from the blocked cells inside only (no wall along the raster's far edges)
+    open_ = np.pad(~blocked, 1, constant_values=False)
+    distance = ndimage.distance_transform_edt(open_)[1:-1, 1:-1] * plan.cell_m
     return np.asarray(np.maximum(distance - plan.cell_m / 2, 0.0), dtype=np.float32)
 
 
