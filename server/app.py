@@ -26,6 +26,7 @@ from server.api import (
     live,
     locate,
     metrics,
+    navigation,
     quality,
     routes,
     sessions,
@@ -144,6 +145,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         quality,
         zones,
         routes,
+        navigation,
         webhooks,
         metrics,
     )

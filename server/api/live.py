@@ -12,6 +12,8 @@ Messages out: ``{"type": "ready"}`` once the socket follows the session (fixes
 of batches posted after it are never missed), ``{"type": "fix", "seq", "fix"}``,
 ``{"type": "zone", "session_id", "seq", "event"}`` after the fix that confirmed a zone
 entry or exit (``event`` as the fix's ``zone_events`` hold it),
+``{"type": "navigation", "session_id", "seq", "event"}`` after a fix whose navigation
+re-routed, changed floor or arrived (``event`` as its ``navigation.events`` hold it),
 ``{"type": "batch_result", ...}`` (the fields of a batch's HTTP answer) for batches sent
 over the socket, and ``{"type": "error", "status", "detail", "message"}`` (with the
 ``seq`` of the batch it answers, when it answers one).
@@ -176,6 +178,8 @@ async def _follow(
                         await sock.send({"type": "fix", "seq": message["seq"], "fix": fix})
                         for event in fix.get("zone_events", ()):
                             await sock.send(zone_message(session_id, message["seq"], event))
+                        for event in (fix.get("navigation") or {}).get("events", ()):
+                            await sock.send(navigation_message(session_id, message["seq"], event))
                     for event in message.get("zone_events", ()):  # the session ended inside
                         await sock.send(zone_message(session_id, message["seq"], event))
                 await websocket.close(code=1000)
@@ -196,6 +200,12 @@ async def _follow(
         with contextlib.suppress(*GONE):
             await _read(sock, rt, session_id, secret, owner)
         tg.cancel_scope.cancel()
+
+
+def navigation_message(session_id: str, seq: int, event: dict[str, Any]) -> dict[str, Any]:
+    """A navigation event (rerouted, floor_change, arrived) as the socket sends it, after
+    the fix that made it."""
+    return {"type": "navigation", "session_id": session_id, "seq": seq, "event": event}
 
 
 def zone_message(session_id: str, seq: int, event: dict[str, Any]) -> dict[str, Any]:

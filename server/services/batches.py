@@ -42,7 +42,7 @@ from server.positioning.model.events import (
 from server.positioning.model.params import Params
 from server.positioning.model.walk import trace_from_events
 from server.positioning.plan import zone_presence
-from server.services import engine_settings, limits, telemetry, webhooks
+from server.services import engine_settings, limits, navigation_state, telemetry, webhooks
 from server.services.device_offsets import on_common_level
 from server.services.errors import Conflict, Invalid
 from server.services.maps import site_maps, with_graphs
@@ -170,7 +170,7 @@ async def _attempt(
         return _Retry.READ
     if seq <= state.last_seq:
         replayed = _replay(state, seq, digest, not_used)
-        if webhooks.has_zone_events(replayed.fixes):  # owed again: the first answer was lost
+        if webhooks.has_events(replayed.fixes):  # owed again: the first answer was lost
             await webhooks.owe_events(
                 rt, meta.site_id, session_id, seq, orjson.loads(replayed.fixes)
             )
@@ -218,7 +218,11 @@ async def _attempt(
     presence, in_zones = zone_presence.follow(
         presence_from_bytes(state.zones), fix_places(fixes), maps.zones, _dwell(rt)
     )
+    navigation, guidance = await navigation_state.navigate(maps, state.navigation, fixes)
     wire = [fix_to_wire(f, maps, meta.engine, z) for f, z in zip(fixes, in_zones, strict=True)]
+    for fix_wire, guide in zip(wire, guidance, strict=True):
+        if guide is not None:
+            fix_wire["navigation"] = guide
     each = [orjson.dumps(f) for f in wire]  # for the track; the reply is their list
     body = b"[" + b",".join(each) + b"]"
     now = now_ms()
@@ -231,6 +235,7 @@ async def _attempt(
         each[-1] if each else b"",
         now if touch else state.touched_ms,
         presence_to_bytes(presence),
+        navigation,
     )
     # step() stepped through the logged batches: the new state holds them
     new_state = replace(state, pending=()).applied(
@@ -258,7 +263,8 @@ async def _attempt(
     if ok:
         rt.states.put(session_id, version + 1, meta, new_state, written=True)
         rt.history.record(session_id, seq, meta.site_id, wire, body)  # written within ~1 s
-        if any(z.events for z in in_zones):  # owed before the batch is answered
+        # owed before the batch is answered
+        if any(z.events for z in in_zones) or any(g and g["events"] for g in guidance):
             await webhooks.owe_events(rt, meta.site_id, session_id, seq, wire)
         if touch:  # the row says the session is alive, should the store lose it
             async with rt.transaction() as s:

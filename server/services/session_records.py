@@ -126,6 +126,7 @@ class LogEntry:
     last_fix: bytes  # the newest fix of the batch, b"" for none
     touched_ms: int  # the session's touched_ms after the batch
     zones: bytes = b""  # the session's zone presence after the batch (presence_to_bytes)
+    navigation: bytes = b""  # the session's navigation after the batch (navigation_state)
 
     def to_bytes(self) -> bytes:
         arrays: dict[str, np.ndarray] = {
@@ -135,6 +136,7 @@ class LogEntry:
             "last_fix": np.frombuffer(self.last_fix, dtype=np.uint8),
             "touched_ms": np.array(self.touched_ms, dtype=np.int64),
             "zones": np.frombuffer(self.zones, dtype=np.uint8),
+            "navigation": np.frombuffer(self.navigation, dtype=np.uint8),
         }
         for name, value in event_arrays(self.events).items():
             arrays[EVENTS_PREFIX + name] = value
@@ -156,6 +158,7 @@ class LogEntry:
                 last_fix=a["last_fix"].tobytes(),
                 touched_ms=int(a["touched_ms"]),
                 zones=a["zones"].tobytes() if "zones" in a else b"",
+                navigation=a["navigation"].tobytes() if "navigation" in a else b"",
             )
         except (KeyError, TypeError, ValueError) as e:
             raise CodecError(f"not a log entry: {e!r}") from None
@@ -178,6 +181,7 @@ class SessionState:
     # batches applied after ``engine_state``: their engine steps are still to be taken
     pending: tuple[LogEntry, ...] = ()
     zones: bytes = b""  # the session's zone presence (presence_to_bytes)
+    navigation: bytes = b""  # where the session is navigating to (navigation_state)
 
     def applied(
         self, entry: LogEntry, replay_window: int, engine_state: object | None = None
@@ -196,6 +200,7 @@ class SessionState:
             last_event_ms=max([self.last_event_ms, *map(event_end_ms, entry.events)]),
             pending=(*self.pending, entry) if engine_state is None else (),
             zones=entry.zones,
+            navigation=entry.navigation,
         )
 
     def to_bytes(self, engine: Engine) -> bytes:
@@ -209,6 +214,7 @@ class SessionState:
             "last_event_ms": np.array(self.last_event_ms, dtype=np.int64),
             "last_fix": np.frombuffer(self.last_fix, dtype=np.uint8),
             "zones": np.frombuffer(self.zones, dtype=np.uint8),
+            "navigation": np.frombuffer(self.navigation, dtype=np.uint8),
             "replies/seq": np.array([r.seq for r in self.replies], dtype=np.int64),
             "replies/digest": np.frombuffer(
                 b"".join(r.digest for r in self.replies), dtype=np.uint8
@@ -257,6 +263,7 @@ class SessionState:
             touched_ms=int(a["touched_ms"]) if "touched_ms" in a else 0,
             last_event_ms=int(a["last_event_ms"]) if "last_event_ms" in a else 0,
             zones=a["zones"].tobytes() if "zones" in a else b"",
+            navigation=a["navigation"].tobytes() if "navigation" in a else b"",
         )
 
 
@@ -356,6 +363,7 @@ def fix_to_wire(fix: Fix, maps: SiteMaps, engine: str, zones: AfterFix = NOTHING
         **world_fields(fix.x_m, fix.y_m, fix.heading_rad, fix.accuracy_68_m, ref),
         "zones": [z.id for z in zones.inside],
         "zone_events": [zone_event_to_wire(e, maps) for e in zones.events],
+        "navigation": None,  # set by the batch while the session navigates
     }
 
 

@@ -287,16 +287,22 @@ def _not_live(session_id: str) -> NotFound:
 async def _viewer_key(rt: Runtime, session_id: str, secret: str) -> SessionMeta:
     """The session's meta for an API key that may view the session's site; Forbidden for
     anything else (a device key reads only the sessions it holds the tokens of)."""
+    return await site_key(rt, session_id, secret, "viewer")
+
+
+async def site_key(rt: Runtime, session_id: str, secret: str, scope: str) -> SessionMeta:
+    """The session's meta for an API key with ``scope`` for the session's site; Forbidden
+    for anything else."""
     async with rt.read() as s:
         principal = await auth.authenticate(s, rt.settings, secret)
     if principal is None:
         raise no_session()
-    principal.require("viewer")
+    principal.require(scope)
     stored = await rt.store.get(session_id)
     if stored is None:
         raise _not_live(session_id)
     meta = SessionMeta.from_bytes(stored.meta)
-    principal.require("viewer", meta.site_id, missing=_not_live(session_id))
+    principal.require(scope, meta.site_id, missing=_not_live(session_id))
     return meta
 
 

@@ -1,5 +1,5 @@
-"""Webhooks: an operator's receivers of a site's zone events, and the deliveries they are
-owed (``services.webhook_delivery`` sends them).
+"""Webhooks: an operator's receivers of a site's zone and navigation events, and the
+deliveries they are owed (``services.webhook_delivery`` sends them).
 
 An event is owed to every webhook of its site that asked for its type, as one delivery
 row (``WebhookDelivery``), written before the batch that made it is answered. The row is
@@ -13,6 +13,10 @@ The body of a delivery is JSON::
      "site_id", "session_id", "seq", "zone": {"id", "name", "floor_id", "level"},
      "t": <ms>, "since": <ms>, "dwell_s": <s or null>,
      "position": {"x_m", "y_m", "floor_id", "level", "lat", "lon", "accuracy_m"}}
+
+or, for a navigation event (``navigation.rerouted``, ``navigation.floor_change``,
+``navigation.arrived``), ``"navigation"`` (the event as the fix carries it) and ``"t"``
+in place of the zone's fields.
 
 signed as described in :func:`signature`.
 """
@@ -156,18 +160,26 @@ async def list_deliveries(
     return await repo.delivery_page(s, webhook_id, status, after, limit)
 
 
-def has_zone_events(fixes_json: bytes) -> bool:
-    """Whether a batch's answer (its fixes as JSON) holds a zone event, without parsing
-    it (``zone_events`` is empty in most)."""
-    return b'"zone_events":[{' in fixes_json
+def has_events(fixes_json: bytes) -> bool:
+    """Whether a batch's answer (its fixes as JSON) holds a zone or navigation event,
+    without parsing it (``zone_events`` and ``navigation.events`` are empty in most)."""
+    return b'"zone_events":[{' in fixes_json or b'"events":[{' in fixes_json
 
 
 async def owe_events(
     rt: Runtime, site_id: str, session_id: str, seq: int, fixes: Sequence[Mapping[str, Any]]
 ) -> int:
-    """Owe the zone events of a batch's ``fixes`` (wire form) to the site's webhooks that
-    asked for them; how many deliveries are new."""
-    events = [(fix, event) for fix in fixes for event in fix.get("zone_events", ())]
+    """Owe the zone and navigation events of a batch's ``fixes`` (wire form) to the site's
+    webhooks that asked for them; how many deliveries are new."""
+    events = [
+        (fix, f"zone.{event['type']}", event)
+        for fix in fixes
+        for event in fix.get("zone_events", ())
+    ] + [
+        (fix, f"navigation.{event['type']}", event)
+        for fix in fixes
+        for event in (fix.get("navigation") or {}).get("events", ())
+    ]
     # a site has few webhooks (MAX_PER_SITE) and a batch few events: one statement
     if not events:
         return 0
@@ -175,10 +187,10 @@ async def owe_events(
         hooks = await repo.site_webhooks(s, site_id)
         now = utcnow()
         rows = [
-            _delivery(hook, site_id, session_id, seq, fix, event, now)
+            _delivery(hook, site_id, session_id, seq, fix, kind, event, now)
             for hook in hooks
-            for fix, event in events
-            if f"zone.{event['type']}" in hook.events.split()
+            for fix, kind, event in events
+            if kind in hook.events.split()
         ]
         return await repo.add_deliveries(s, rows)
 
@@ -189,33 +201,41 @@ def _delivery(
     session_id: str,
     seq: int,
     fix: Mapping[str, Any],
+    event_type: str,
     event: Mapping[str, Any],
     now: datetime,
 ) -> dict[str, Any]:
     delivery_id = new_id()
-    event_type = f"zone.{event['type']}"
-    body = {
+    body: dict[str, Any] = {
         "id": delivery_id,
         "type": event_type,
         "created": now.isoformat(),
         "site_id": site_id,
         "session_id": session_id,
         "seq": seq,
-        "zone": {
-            "id": event["zone_id"],
-            "name": event["zone_name"],
-            "floor_id": event["floor_id"],
-            "level": event["level"],
-        },
-        "t": event["t"],
-        "since": event["since"],
-        "dwell_s": event["dwell_s"],
-        "reason": event.get("reason", "crossed"),
-        "position": {
-            k: fix.get(k) for k in ("x_m", "y_m", "floor_id", "level", "lat", "lon", "accuracy_m")
-        },
     }
-    key = f"{session_id}:{event['floor_id']}/{event['zone_id']}:{event['type']}:{event['since']}"
+    if event_type.startswith("zone."):
+        body |= {
+            "zone": {
+                "id": event["zone_id"],
+                "name": event["zone_name"],
+                "floor_id": event["floor_id"],
+                "level": event["level"],
+            },
+            "t": event["t"],
+            "since": event["since"],
+            "dwell_s": event["dwell_s"],
+            "reason": event.get("reason", "crossed"),
+        }
+        key = (
+            f"{session_id}:{event['floor_id']}/{event['zone_id']}:{event['type']}:{event['since']}"
+        )
+    else:
+        body |= {"navigation": dict(event), "t": event["t"]}
+        key = f"{session_id}:navigation:{event['type']}:{event['route_version']}:{event['t']}"
+    body["position"] = {
+        k: fix.get(k) for k in ("x_m", "y_m", "floor_id", "level", "lat", "lon", "accuracy_m")
+    }
     return {
         "id": delivery_id,
         "webhook_id": hook.id,

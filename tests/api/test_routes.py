@@ -10,39 +10,13 @@ import httpx
 import pytest
 
 from tests.support.toy_plans import square
-from tests.support.toy_site import WIDTH_M, ToySite, build_toy_site, toy_plan
-
-
-def _linked_plan() -> dict[str, Any]:
-    """The toy floor with a lift at its west end and stairs at its east end, and a
-    point of interest."""
-    plan = toy_plan()
-    plan["features"] += [
-        {
-            "type": "Feature",
-            "id": "lift",
-            "properties": {"kind": "elevator", "name": "Lift"},
-            "geometry": square(1, 4, 2),
-        },
-        {
-            "type": "Feature",
-            "id": "stairs",
-            "properties": {"kind": "stairs", "name": "Stairs"},
-            "geometry": square(WIDTH_M - 4, 4, 2),
-        },
-        {
-            "type": "Feature",
-            "properties": {"kind": "poi", "name": "Information desk"},
-            "geometry": {"type": "Point", "coordinates": [10.0, 8.0]},
-        },
-    ]
-    return plan
+from tests.support.toy_site import ToySite, build_toy_site, linked_toy_plan
 
 
 async def _site(client: httpx.AsyncClient, admin: dict[str, str]) -> ToySite:
     site = await build_toy_site(client, admin)
     for floor_id in site.floor_ids.values():
-        r = await client.put(f"/v1/floors/{floor_id}/plan", json=_linked_plan(), headers=admin)
+        r = await client.put(f"/v1/floors/{floor_id}/plan", json=linked_toy_plan(), headers=admin)
         assert r.status_code in (200, 201), r.text
     return site
 

@@ -75,7 +75,13 @@ async def _hook(client: httpx.AsyncClient, site_id: str, receiver: Receiver) -> 
     assert r.status_code == 201, r.text
     created: dict[str, Any] = r.json()
     assert created["secret"].startswith("whsec_")
-    assert created["events"] == ["zone.enter", "zone.exit"]
+    assert created["events"] == [  # every kind of event unless told
+        "navigation.arrived",
+        "navigation.floor_change",
+        "navigation.rerouted",
+        "zone.enter",
+        "zone.exit",
+    ]
     return created
 
 

@@ -46,6 +46,37 @@ def toy_plan() -> dict[str, Any]:
     return {"type": "FeatureCollection", "features": [feature]}
 
 
+def linked_toy_plan() -> dict[str, Any]:
+    """The toy floor with a lift at its west end and stairs at its east end (the same ids
+    on every floor) and a point of interest, the information desk at (10, 8)."""
+    plan = toy_plan()
+    plan["features"] += [
+        {
+            "type": "Feature",
+            "id": "lift",
+            "properties": {"kind": "elevator", "name": "Lift"},
+            "geometry": _square(1, 4, 2),
+        },
+        {
+            "type": "Feature",
+            "id": "stairs",
+            "properties": {"kind": "stairs", "name": "Stairs"},
+            "geometry": _square(WIDTH_M - 4, 4, 2),
+        },
+        {
+            "type": "Feature",
+            "properties": {"kind": "poi", "name": "Information desk"},
+            "geometry": {"type": "Point", "coordinates": [10.0, 8.0]},
+        },
+    ]
+    return plan
+
+
+def _square(x0: float, y0: float, size: float) -> dict[str, Any]:
+    ring = [[x0, y0], [x0 + size, y0], [x0 + size, y0 + size], [x0, y0 + size], [x0, y0]]
+    return {"type": "Polygon", "coordinates": [ring]}
+
+
 async def device_headers(
     client: httpx.AsyncClient,
     admin: dict[str, str],

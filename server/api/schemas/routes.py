@@ -5,9 +5,9 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import Field, model_validator
+from pydantic import ConfigDict, Field, model_validator
 
-from server.api.schemas.common import Coordinate, Id, Name, Strict, StrictIn
+from server.api.schemas.common import Coordinate, FiniteFloat, Id, Name, Strict, StrictIn
 
 Latitude = Annotated[float, Field(ge=-90, le=90, allow_inf_nan=False)]
 Longitude = Annotated[float, Field(ge=-180, le=180, allow_inf_nan=False)]
@@ -131,3 +131,67 @@ class RouteOut(Strict):
     legs: list[LegOut] = Field(description="one per floor walked, in order")
     floor_changes: list[FloorChangeOut]
     steps: list[StepOut]
+
+
+class NavigationSettingsIn(StrictIn):
+    off_route_m: FiniteFloat = Field(
+        5.0, gt=0, le=100, description="a fix farther than this from the route is off it (m)"
+    )
+    arrival_m: FiniteFloat = Field(
+        3.0, gt=0, le=50, description="within this of the destination the walker has arrived (m)"
+    )
+    reroute_after_s: FiniteFloat = Field(
+        4.0,
+        ge=0,
+        le=120,
+        description="off the route this long, and for three fixes or more, re-routes (s)",
+    )
+    accessible: bool = Field(False, description="lifts, ramps and level ways only")
+
+
+class NavigationIn(StrictIn):
+    destination: RouteEndIn
+    settings: NavigationSettingsIn = NavigationSettingsIn()
+
+    @model_validator(mode="after")
+    def _no_session(self) -> NavigationIn:
+        if self.destination.session_id is not None:
+            raise ValueError("destination: a session is an origin only")
+        return self
+
+
+class NavigationEventOut(Strict):
+    model_config = ConfigDict(extra="allow")
+    type: Literal["rerouted", "floor_change", "arrived"]
+    t: int
+    route_version: int
+
+
+class NavigationProgressOut(Strict):
+    """What each fix of a navigating session carries in ``navigation``."""
+
+    status: Literal["navigating", "arrived"]
+    destination: DestinationOut
+    remaining_m: float = Field(description="metres left along the route")
+    remaining_s: float = Field(description="seconds left: walking, and the floor changes left")
+    on_route: bool
+    off_route_m: float | None = Field(description="the fix's distance to the route (m)")
+    step_index: int = Field(description="the last step passed, into the route's steps")
+    current_step: StepOut
+    next_step: StepOut | None
+    distance_to_next_m: float | None
+    instruction: str = Field(
+        description='"In 12 m, turn left"; "Continue" while the fix\'s 68 % radius is larger '
+        "than the distance to the step it would announce"
+    )
+    withheld: bool = Field(description="the next step is not announced yet (see instruction)")
+    snapped: PlaceOut = Field(description="the fix on the route, for display")
+    route_version: int = Field(description="how many times the session was re-routed")
+    events: list[NavigationEventOut]
+
+
+class NavigationOut(Strict):
+    route: RouteOut
+    navigation: NavigationProgressOut | None = Field(
+        description="where the session's latest fix stands on the route"
+    )

@@ -10,6 +10,7 @@ from pydantic import Field, field_validator
 from server.api.schemas.common import LAX_ARRAY, DeviceModel, Id, Strict, StrictIn
 from server.api.schemas.events import EventIn, ImuIn
 from server.api.schemas.pages import NextCursor, PageCount
+from server.api.schemas.routes import NavigationProgressOut
 
 MAX_EVENTS_PER_BATCH = 2000
 # a batch holds a minute of raw motion samples of all five sensors at 200 Hz
@@ -91,6 +92,11 @@ class FixOut(Strict):
     )
     zone_events: list[ZoneEventOut] = Field(
         default_factory=list, description="the zone entries and exits this fix confirmed"
+    )
+    navigation: NavigationProgressOut | None = Field(
+        None,
+        description="while the session navigates (PUT /v1/sessions/{id}/navigation): where "
+        "this fix stands on the route, the next instruction, and the events it made",
     )
 
 

@@ -10,8 +10,20 @@ from pydantic import AnyHttpUrl, Field, UrlConstraints
 from server.api.schemas.common import Strict, StrictIn
 from server.api.schemas.pages import NextCursor, PageCount
 
-EventType = Literal["zone.enter", "zone.exit"]
-EVENT_TYPES: tuple[EventType, ...] = ("zone.enter", "zone.exit")
+EventType = Literal[
+    "zone.enter",
+    "zone.exit",
+    "navigation.rerouted",
+    "navigation.floor_change",
+    "navigation.arrived",
+]
+EVENT_TYPES: tuple[EventType, ...] = (
+    "zone.enter",
+    "zone.exit",
+    "navigation.rerouted",
+    "navigation.floor_change",
+    "navigation.arrived",
+)
 DeliveryStatus = Literal["pending", "delivered", "failed"]
 WebhookUrl = Annotated[AnyHttpUrl, UrlConstraints(max_length=2000)]
 

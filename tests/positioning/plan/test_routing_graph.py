@@ -11,7 +11,7 @@ import pytest
 import shapely
 from scipy.sparse.csgraph import connected_components
 
-from client_sim.building import SyntheticBuilding, synthesize_building
+from client_sim.building import Shaft, SyntheticBuilding, synthesize_building
 from server.positioning.plan.floor_plan import crosses_wall, walkable_at
 from server.positioning.plan.geojson_plan import plan_from_geojson
 from server.positioning.plan.routing_graph import (
@@ -107,7 +107,7 @@ def test_the_simulators_stairs_join_consecutive_levels_and_its_lift_every_pair(
     assert links_of(building_graph, "stairs") == {(0, 1), (1, 2)}
     assert links_of(building_graph, "elevator") == {(0, 1), (0, 2), (1, 2)}
     assert len(building_graph.links) == 5
-    shafts = {s.kind: s for s in building.floors[0].shafts}
+    shafts: dict[str, Shaft] = {s.kind: s for s in building.floors[0].shafts}
     assert all(f.shafts == building.floors[0].shafts for f in building.floors)
     for link in building_graph.links:
         shaft = shafts[link.kind]
