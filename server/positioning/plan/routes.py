@@ -50,7 +50,6 @@ from server.positioning.plan.routing_graph import (
     FloorWalk,
     Link,
     RoutingGraph,
-    wall_penalty,
 )
 
 FloatArray = NDArray[np.float64]
@@ -399,12 +398,12 @@ def _deduplicated(xy: FloatArray) -> FloatArray:
 
 def _penalised_m(walk: FloorWalk, a: FloatArray, b: FloatArray) -> FloatArray:
     """The lengths of the segments ``a -> b``, shape (m,), penalised near walls as the
-    graph's edge costs are (``routing_graph.wall_penalty``, averaged over samples)."""
+    graph's edge costs are (``FloorWalk.penalty_at``, averaged over samples)."""
     length = np.linalg.norm(b - a, axis=1)
     samples = min(200, max(2, math.ceil(float(np.max(length, initial=0.0)) / _SAMPLE_M) + 1))
     t = np.linspace(0.0, 1.0, samples)[:, None, None]
     points = (a + t * (b - a)).reshape(-1, 2)
-    penalty = wall_penalty(walk.clearance_at(points)).reshape(samples, -1)
+    penalty = walk.penalty_at(points).reshape(samples, -1)
     mean = (penalty[:-1] + penalty[1:]).sum(axis=0) / (2 * (samples - 1))
     out: FloatArray = length * (1.0 + mean)
     return out
