@@ -41,12 +41,14 @@ from scipy.sparse.csgraph import dijkstra
 from shapely.geometry.base import BaseGeometry
 
 from server.positioning.plan.floor_plan import crosses_wall, walkable_at
+from server.positioning.plan.route_kernels import segment_profiles
 from server.positioning.plan.routing_graph import (
     ACCESSIBLE_KINDS,
     CLEARANCE_GOAL_M,
     LINK_REACH_M,
     SPACING_M,
     WALK_SPEED_M_S,
+    WALL_PENALTY,
     FloorWalk,
     Link,
     RoutingGraph,
@@ -358,7 +360,7 @@ def pulled_straight(walk: FloorWalk, xy: FloatArray) -> FloatArray:
     if xy.shape[0] <= 2:
         return xy
     clear = np.minimum(walk.clearance_at(xy), CLEARANCE_GOAL_M) - walk.plan.cell_m
-    walked = np.concatenate([[0.0], np.cumsum(_penalised_m(walk, xy[:-1], xy[1:]))])
+    walked = np.concatenate([[0.0], np.cumsum(_profile(walk, xy[:-1], xy[1:])[1])])
     # only the corners of the grid path can be kept: the points between them are in line
     heading = np.diff(xy, axis=0)
     heading /= np.linalg.norm(heading, axis=1)[:, None]
@@ -372,10 +374,7 @@ def pulled_straight(walk: FloorWalk, xy: FloatArray) -> FloatArray:
         while j0 < m:
             js = np.arange(j0, min(m, j0 + chunk))
             chunk = min(2 * chunk, _PULL_CHUNK)  # most runs end near: test a few first
-            running = np.minimum.accumulate(clear[corner[i] : corner[js[-1]] + 1])
-            ok = _sees(walk, xy[corner[i]], xy[corner[js]], running[corner[js] - corner[i]])
-            a = np.repeat(xy[corner[i]][None, :], js.size, axis=0)
-            ok &= _penalised_m(walk, a, xy[corner[js]]) <= walked[corner[js]] - walked[corner[i]]
+            ok = _sees(walk, xy, clear, walked, corner[i], corner[js])
             if ok.all():
                 best, j0 = int(js[-1]), int(js[-1]) + 1
                 continue
@@ -396,27 +395,33 @@ def _deduplicated(xy: FloatArray) -> FloatArray:
     return xy[moved]
 
 
-def _penalised_m(walk: FloorWalk, a: FloatArray, b: FloatArray) -> FloatArray:
-    """The lengths of the segments ``a -> b``, shape (m,), penalised near walls as the
-    graph's edge costs are (``FloorWalk.penalty_at``, averaged over samples)."""
-    length = np.linalg.norm(b - a, axis=1)
-    samples = min(200, max(2, math.ceil(float(np.max(length, initial=0.0)) / _SAMPLE_M) + 1))
-    t = np.linspace(0.0, 1.0, samples)[:, None, None]
-    points = (a + t * (b - a)).reshape(-1, 2)
-    penalty = walk.penalty_at(points).reshape(samples, -1)
-    mean = (penalty[:-1] + penalty[1:]).sum(axis=0) / (2 * (samples - 1))
-    out: FloatArray = length * (1.0 + mean)
-    return out
+def _profile(walk: FloorWalk, a: FloatArray, b: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """The segments ``a -> b`` (shapes (m, 2)): their lowest clearance, and their lengths
+    penalised near walls as the graph's edges are (``FloorWalk.penalty_at`` averaged over
+    samples ``_SAMPLE_M`` apart; ``route_kernels``)."""
+    plan = walk.plan
+    low, mean = segment_profiles(
+        a, b, walk.clearance_raster, walk.penalty_raster, float(plan.origin_m[0]),
+        float(plan.origin_m[1]), float(plan.cell_m), _SAMPLE_M, WALL_PENALTY,
+    )  # fmt: skip
+    penalised: FloatArray = np.linalg.norm(b - a, axis=1) * (1.0 + mean)
+    return low, penalised
 
 
-def _sees(walk: FloorWalk, a: FloatArray, bs: FloatArray, need: FloatArray) -> NDArray[np.bool_]:
-    """Whether the segments ``a -> bs[k]`` cross no wall and keep clearance ``need[k]``."""
-    starts = np.repeat(a[None, :], bs.shape[0], axis=0)
-    ok: NDArray[np.bool_] = ~crosses_wall(walk.plan, starts, bs)
-    length = float(np.max(np.linalg.norm(bs - a, axis=1)))
-    samples = min(200, max(2, math.ceil(length / _SAMPLE_M) + 1))
-    t = np.linspace(0.0, 1.0, samples)[:, None, None]
-    points = (a + t * (bs - a)).reshape(-1, 2)
-    lowest = walk.clearance_at(points).reshape(samples, -1).min(axis=0)
-    ok &= lowest >= need
+def _sees(
+    walk: FloorWalk,
+    xy: FloatArray,
+    clear: FloatArray,
+    walked: FloatArray,
+    i: int,
+    js: NDArray[np.int64],
+) -> NDArray[np.bool_]:
+    """Whether the segments ``xy[i] -> xy[js]`` cross no wall, keep the clearance the path
+    kept between their ends (``clear``: its lowest there) and cost no more than the path
+    did (``walked``: its penalised metres so far)."""
+    a = np.repeat(xy[i][None, :], js.size, axis=0)
+    ok: NDArray[np.bool_] = ~crosses_wall(walk.plan, a, xy[js])
+    low, penalised = _profile(walk, a, xy[js])
+    need = np.minimum.accumulate(clear[i : js[-1] + 1])[js - i]
+    ok &= (low >= need) & (penalised <= walked[js] - walked[i])
     return ok
