@@ -7,6 +7,7 @@ from __future__ import annotations
 from typing import Any
 
 import httpx
+from fastapi import FastAPI
 
 from tests.support.sessions import open_session, scan
 from tests.support.toy_site import ToySite, build_toy_site, device_headers, linked_toy_plan
@@ -75,6 +76,29 @@ async def test_a_walk_along_the_route_arrives_once(
     assert fix.get("navigation") is None  # navigation ended with the arrival
     r = await client.get(url, headers=token)
     assert r.status_code == 404, r.text
+
+
+async def test_another_process_goes_on_with_the_navigation(
+    client: httpx.AsyncClient, admin: dict[str, str], app: FastAPI
+) -> None:
+    """The navigation is in the session's snapshot and log: a process that did not write
+    the session (its copy dropped) reads it from the store and goes on."""
+    site = await _site(client, admin)
+    session_id, token = await open_session(client, site, engine="wknn")
+    walker = Walker(client, session_id, token)
+    await walker.at(3.0, 8.0)
+    destination = {"floor_id": site.floor_ids[0], "x_m": 17.0, "y_m": 8.0}
+    r = await client.put(
+        f"/v1/sessions/{session_id}/navigation", json={"destination": destination}, headers=token
+    )
+    assert r.status_code == 200, r.text
+    remaining = []
+    for x in (5.0, 7.0, 9.0):
+        app.state.runtime.states.drop(session_id)  # as a replica that holds no copy
+        nav = (await walker.at(x, 8.0))["navigation"]
+        remaining.append(nav["remaining_m"])
+    assert remaining == sorted(remaining, reverse=True)
+    assert remaining[-1] < 10.0
 
 
 async def test_a_wrong_turn_reroutes_once(client: httpx.AsyncClient, admin: dict[str, str]) -> None:
