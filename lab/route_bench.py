@@ -100,7 +100,8 @@ def route_bench(
         vertices, edges, graph_mb``), ``build_s, links, portals, graph_mb,
         build_peak_mb``, ``largest_floor, queries, seed``; per kind (``same_floor``,
         ``cross_floor``): ``_queries, _found, _no_route``, ``_p50_ms, _p95_ms, _p99_ms,
-        _max_ms`` of the routes found (wall clock; ``_cpu_p50_ms, _cpu_p95_ms`` their CPU time), ``_no_route_p50_ms, _no_route_max_ms``,
+        _max_ms`` of the routes found (wall clock), ``_cpu_p50_ms, _cpu_p95_ms`` (their
+        CPU time), ``_no_route_p50_ms, _no_route_max_ms``,
         ``_length_median_m``; ``same_floor_detour_median, same_floor_detour_p95``;
         ``target_p95_ms, target_met`` (None: no same-floor route found).
     """

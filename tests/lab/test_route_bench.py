@@ -14,7 +14,7 @@ from lab.route_bench import route_bench
 KINDS = ("same_floor", "cross_floor")
 PER_KIND = (
     "queries", "found", "no_route", "p50_ms", "p95_ms", "p99_ms", "max_ms",
-    "no_route_p50_ms", "no_route_max_ms", "length_median_m",
+    "cpu_p50_ms", "cpu_p95_ms", "no_route_p50_ms", "no_route_max_ms", "length_median_m",
 )  # fmt: skip
 
 
