@@ -25,6 +25,7 @@ from server.services.errors import Forbidden, NotFound
 from server.services.maps import site_maps, with_graphs
 from server.services.navigation_state import (
     Navigation,
+    Unreadable,
     advance,
     from_bytes,
     route_wire,
@@ -71,7 +72,12 @@ async def _write(
         engine_maps = await with_graphs(maps) if meta.engine in NEEDS_GRAPHS else maps
         params = engine_settings.session_params(meta.engine, meta.params)
         engine_state = await anyio.to_thread.run_sync(caught_up, state, meta, engine_maps, params)
-        new_state = replace(state, engine_state=engine_state, pending=(), navigation=to_bytes(nav))
+        new_state = replace(
+            state,
+            engine_state=engine_state,
+            pending=(),
+            navigation=to_bytes(nav, [f.floor_id for f in maps.floors]),
+        )
         spec = get_engine(meta.engine)
         written = await rt.store.compare_and_set(
             session_id, version, new_state.to_bytes(spec), rt.settings.session_idle_s
@@ -83,7 +89,8 @@ async def _write(
 
 
 def _fix_at(maps: SiteMaps, fix: dict[str, Any]) -> FixAt:
-    floor = next(i for i, f in enumerate(maps.floors) if f.floor_id == fix["floor_id"])
+    """A fix of the wire as the navigation reads one (floor -1: a floor the site lost)."""
+    floor = next((i for i, f in enumerate(maps.floors) if f.floor_id == fix["floor_id"]), -1)
     return FixAt(
         int(fix["t"]), floor, float(fix["x_m"]), float(fix["y_m"]), fix.get("accuracy_68_m")
     )
@@ -150,9 +157,12 @@ async def read(rt: Runtime, session_id: str, secret: str) -> dict[str, Any]:
     NotFound when it is not navigating."""
     owner = await authorize_reader(rt, session_id, secret)
     _, meta, state = await load_state(rt, session_id, secret if owner else None)
-    nav = from_bytes(state.navigation)
-    if nav is None:
-        raise NotFound("the session is not navigating", field="session_id")
     async with rt.transaction() as s:
         maps = await site_maps(s, rt.maps, meta.site_id)
+    try:
+        nav = from_bytes(state.navigation, [f.floor_id for f in maps.floors])
+    except Unreadable:
+        nav = None  # its next batch ends it
+    if nav is None:
+        raise NotFound("the session is not navigating", field="session_id")
     return _answer(maps, nav, orjson.loads(state.last_fix) if state.last_fix else None)

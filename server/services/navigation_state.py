@@ -11,10 +11,13 @@ progress along it.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
+from functools import cached_property
 from typing import Any
 
+import anyio
 import numpy as np
 import orjson
 
@@ -48,6 +51,8 @@ from server.services.routes import (
     where,
 )
 
+logger = logging.getLogger("indoorpos.navigation")
+
 LAYOUT = 1
 REROUTE_REACH_M = 15.0  # how far from walkable space a fix may be and still be routed from
 
@@ -68,7 +73,7 @@ class Navigation:
     progress: Progress
     started_ms: int
 
-    @property
+    @cached_property
     def guide(self) -> Guide:
         return guide_of(self.route, self.steps)
 
@@ -84,12 +89,16 @@ def guide_of(route: Route, steps: Sequence[Step]) -> Guide:
         change_s=tuple(c.seconds for c in route.changes),
         steps=tuple(steps),
         walk_speed_m_s=WALK_SPEED_M_S,
+        change_kinds=tuple(c.kind for c in route.changes),
     )
 
 
-def to_bytes(nav: Navigation | None) -> bytes:
+def to_bytes(nav: Navigation | None, floor_ids: Sequence[str]) -> bytes:
+    """The navigation as the session keeps it; floors by id (``floor_ids``: the site's
+    floors by index), so that it outlives a change of the site's floors."""
     if nav is None:
         return b""
+    ids = list(floor_ids)
     return orjson.dumps(
         {
             "layout": LAYOUT,
@@ -97,45 +106,69 @@ def to_bytes(nav: Navigation | None) -> bytes:
             "name": nav.name,
             "settings": asdict(nav.settings),
             "target": {
-                "floor": nav.target_floor,
+                "floor": ids[nav.target_floor],
                 "vertices": list(nav.target_vertices),
                 "xy": list(nav.target_xy) if nav.target_xy is not None else None,
                 "digest": nav.graph_digest,
             },
-            "legs": [{"floor": leg.floor, "xy": leg.xy.tolist()} for leg in nav.route.legs],
-            "changes": [asdict(c) for c in nav.route.changes],
-            "steps": [asdict(s) for s in nav.steps],
+            "legs": [{"floor": ids[leg.floor], "xy": leg.xy.tolist()} for leg in nav.route.legs],
+            "changes": [
+                asdict(c) | {"from_floor": ids[c.from_floor], "to_floor": ids[c.to_floor]}
+                for c in nav.route.changes
+            ],
+            "steps": [asdict(st) | {"floor": ids[st.floor]} for st in nav.steps],
             "progress": asdict(nav.progress),
             "started_ms": nav.started_ms,
         }
     )
 
 
-def from_bytes(data: bytes) -> Navigation | None:
-    """None for no navigation, or one written under another layout (it ends)."""
+class Unreadable(ValueError):
+    """A navigation that cannot go on: written under another layout, or on a floor the
+    site no longer has."""
+
+
+def from_bytes(data: bytes, floor_ids: Sequence[str]) -> Navigation | None:
+    """The navigation the session keeps (None: none); Unreadable for one that cannot go
+    on."""
     if not data:
         return None
-    a = orjson.loads(data)
-    if a.get("layout") != LAYOUT:
-        return None
-    target = a["target"]
-    route = Route(
-        legs=tuple(Leg(leg["floor"], np.array(leg["xy"], dtype=np.float64)) for leg in a["legs"]),
-        changes=tuple(FloorChange(**c) for c in a["changes"]),
-    )
-    return Navigation(
-        destination=a["destination"],
-        name=a["name"],
-        settings=Settings(**a["settings"]),
-        target_floor=target["floor"],
-        target_vertices=tuple(target["vertices"]),
-        target_xy=tuple(target["xy"]) if target["xy"] is not None else None,
-        graph_digest=target["digest"],
-        route=route,
-        steps=tuple(Step(**s) for s in a["steps"]),
-        progress=Progress(**a["progress"]),
-        started_ms=a["started_ms"],
-    )
+    index = {floor_id: i for i, floor_id in enumerate(floor_ids)}
+    try:
+        a = orjson.loads(data)
+        if a.get("layout") != LAYOUT:
+            raise Unreadable(f"a navigation of layout {a.get('layout')}, not {LAYOUT}")
+        target = a["target"]
+        route = Route(
+            legs=tuple(
+                Leg(index[leg["floor"]], np.array(leg["xy"], dtype=np.float64)) for leg in a["legs"]
+            ),
+            changes=tuple(
+                FloorChange(
+                    **(c | {"from_floor": index[c["from_floor"]], "to_floor": index[c["to_floor"]]})
+                )
+                for c in a["changes"]
+            ),
+        )
+        return Navigation(
+            destination=a["destination"],
+            name=a["name"],
+            settings=Settings(**a["settings"]),
+            target_floor=index[target["floor"]],
+            target_vertices=tuple(target["vertices"]),
+            target_xy=tuple(target["xy"]) if target["xy"] is not None else None,
+            graph_digest=target["digest"],
+            route=route,
+            steps=tuple(Step(**(st | {"floor": index[st["floor"]]})) for st in a["steps"]),
+            progress=Progress(**a["progress"]),
+            started_ms=a["started_ms"],
+        )
+    except KeyError as e:
+        raise Unreadable(
+            f"a navigation on a floor the site no longer has, or not one: {e}"
+        ) from None
+    except (TypeError, ValueError, orjson.JSONDecodeError) as e:
+        raise Unreadable(f"not a navigation: {e}") from None
 
 
 def fix_at(fix: Fix) -> FixAt:
@@ -166,11 +199,9 @@ def advance(
             return guide_of(route, route_steps_of(maps, route, now.name))
 
         report = follow(now.guide, now.progress, fix, now.settings, reroute)
-        route = fresh.get("route", now.route)
-        steps = report.guide.steps
-        current = Navigation(
-            now.destination, now.name, now.settings, now.target_floor, now.target_vertices,
-            now.target_xy, now.graph_digest, route, tuple(steps), report.progress, now.started_ms,
+        current = replace(
+            now, route=fresh.get("route", now.route), steps=report.guide.steps,
+            progress=report.progress,
         )  # fmt: skip
         out.append(report_to_wire(maps, current, report))
         if report.progress.arrived:
@@ -205,15 +236,17 @@ def instruction(report: Report) -> str:
 
 
 def event_to_wire(maps: SiteMaps, nav: Navigation, event: Event) -> dict[str, Any]:
-    detail: dict[str, Any] = {"type": event.kind, "t": event.t_ms, "route_version": 0}
-    detail["route_version"] = nav.progress.reroutes
+    """A navigation event as fixes, the socket and webhooks carry it."""
+    detail: dict[str, Any] = {
+        "type": event.kind,
+        "t": event.t_ms,
+        "route_version": nav.progress.reroutes,
+    }
     if event.kind == "floor_change":
-        change = nav.route.changes[event.detail["from_leg"]] if nav.route.changes else None
-        legs = nav.route.legs
         detail |= {
-            "kind": change.kind if change else None,
-            "from_level": maps.floors[legs[event.detail["from_leg"]].floor].level,
-            "to_level": maps.floors[legs[event.detail["to_leg"]].floor].level,
+            "kind": event.detail["kind"],
+            "from_level": maps.floors[event.detail["from_floor"]].level,
+            "to_level": maps.floors[event.detail["to_floor"]].level,
         }
     elif event.kind == "rerouted":
         detail |= {"off_route_m": event.detail["off_route_m"], "length_m": event.detail["length_m"]}
@@ -258,11 +291,29 @@ async def navigate(
     maps: SiteMaps, data: bytes, fixes: Sequence[Fix]
 ) -> tuple[bytes, list[dict[str, Any] | None]]:
     """A batch's part of the navigation: the state after its fixes and each fix's
-    ``navigation`` object (None: not navigating). Inline on the event loop: following a
-    route costs tens of microseconds a fix; a re-route (a search: milliseconds) is rare."""
-    nav = from_bytes(data)
+    ``navigation`` object (None: not navigating). Following a route costs about a hundred
+    microseconds a fix, on the event loop; a batch that may re-route (its walker already
+    off the route, or enough fixes to start and finish a run) runs in a worker thread, as
+    a route search takes milliseconds. A navigation that cannot go on (a floor the site
+    lost, a layout of another server) or that fails ends, logged: it never holds up the
+    session's batches."""
+    floor_ids = [f.floor_id for f in maps.floors]
+    try:
+        nav = from_bytes(data, floor_ids)
+    except Unreadable as e:
+        logger.warning("navigation ended: %s", e)
+        return b"", [None] * len(fixes)
     if nav is None or not fixes:
-        return (data if nav is not None else b""), [None] * len(fixes)
-    graph = await routing(maps)
-    after, wires = advance(nav, maps, graph, [fix_at(f) for f in fixes])
-    return to_bytes(after), wires
+        return data, [None] * len(fixes)
+    places = [fix_at(f) for f in fixes]
+    try:
+        graph = await routing(maps)
+        may_reroute = nav.progress.off_since_ms >= 0 or len(places) >= nav.settings.reroute_fixes
+        if may_reroute:
+            after, wires = await anyio.to_thread.run_sync(advance, nav, maps, graph, places)
+        else:
+            after, wires = advance(nav, maps, graph, places)
+        return to_bytes(after, floor_ids), wires
+    except Exception:  # a bug here must not stick the session: every retry would fail
+        logger.exception("navigation ended by an error")
+        return b"", [None] * len(fixes)

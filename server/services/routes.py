@@ -27,6 +27,7 @@ from server.positioning.plan.routes import (
     find_route,
     point_endpoint,
 )
+from server.positioning.plan.routing_graph import LAYOUT as GRAPH_LAYOUT
 from server.positioning.plan.routing_graph import (
     FloorInput,
     Place,
@@ -102,7 +103,8 @@ async def routing(maps: SiteMaps) -> RoutingGraph:
                 )
                 for i, f in enumerate(maps.floors)
             ]
-            found = await anyio.to_thread.run_sync(lambda: routing_graph(floors, maps.plan_digest))
+            digest = f"{maps.plan_digest}/{GRAPH_LAYOUT}"
+            found = await anyio.to_thread.run_sync(lambda: routing_graph(floors, digest))
             _GRAPHS[key] = found
             while len(_GRAPHS) > GRAPH_CACHE_SIZE:
                 dropped, _ = _GRAPHS.popitem(last=False)
@@ -192,8 +194,10 @@ def fix_endpoint(
     """A fix (wire form) as a route's start, snapped within its 95 % radius (at most
     15 m) to walkable space."""
     if not fix or fix.get("floor_id") is None:
-        raise NotFound("the session has no fix on a floor yet", field=field)
-    floor = _floor_index(maps, fix["floor_id"], field)
+        raise NotFound("the session's latest fix is on no floor of the site", field=field)
+    floor = next((i for i, f in enumerate(maps.floors) if f.floor_id == fix["floor_id"]), None)
+    if floor is None:
+        raise NotFound("the session's latest fix is on a floor the site no longer has", field=field)
     reach = min(15.0, float(fix.get("accuracy_95_m") or 5.0))
     try:
         return point_endpoint(graph, floor, (fix["x_m"], fix["y_m"]), field, reach_m=reach)

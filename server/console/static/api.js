@@ -38,20 +38,32 @@ async function errorOf(response) {
   return new ApiError(response.status, message);
 }
 
-/** GET a JSON document with the key (or with `credential`, a session's token, say);
- * ApiError on any non-2xx answer (a 401 for the key also tells the page, which asks for
- * a key again). */
-export async function get(path, query, { signal, credential } = {}) {
-  const response = await fetch(url(path, query), {
-    headers: { Authorization: `Bearer ${credential || key.get() || ""}`, Accept: "application/json" },
-    signal,
-  });
+// the JSON of a 2xx answer (null when it has none), else an ApiError (a 401 for the key
+// also tells the page, which asks for a key again)
+async function answer(response, credential) {
   if (!response.ok) {
     const error = await errorOf(response);
     if (response.status === 401 && !credential) window.dispatchEvent(new CustomEvent("key-refused", { detail: error.message }));
     throw error;
   }
-  return response.json();
+  return response.status === 204 ? null : response.json();
+}
+
+const headersFor = (credential) => ({ Authorization: `Bearer ${credential || key.get() || ""}`, Accept: "application/json" });
+
+/** GET a JSON document with the key (or with `credential`, a session's token, say);
+ * ApiError on any non-2xx answer. */
+export async function get(path, query, { signal, credential } = {}) {
+  return answer(await fetch(url(path, query), { headers: headersFor(credential), signal }), credential);
+}
+
+/** Send a JSON body (POST, PUT; none for DELETE) with the key or `credential`; the
+ * answer's JSON (null when it has none); ApiError on any non-2xx answer. */
+export async function send(method, path, body, { signal, credential } = {}) {
+  const headers = headersFor(credential);
+  if (body !== undefined) headers["Content-Type"] = "application/json";
+  const payload = body === undefined ? undefined : JSON.stringify(body);
+  return answer(await fetch(url(path), { method, headers, body: payload, signal }), credential);
 }
 
 const MAX_PAGES = 20;
@@ -96,7 +108,8 @@ function finder(paths) {
 }
 
 /** The optional routes this server has: {sessionList, sessionTrack, sessionHistory,
- * uploadList}, each null or {template, params}. */
+ * uploadList}, each null or {template, params}; and whether it plans routes
+ * (`routePlanning`) and guides sessions (`navigation`). */
 export function capabilities() {
   offered ??= fetch(url("openapi.json"))
     .then((r) => (r.ok ? r.json() : { paths: {} }))
@@ -108,6 +121,8 @@ export function capabilities() {
         sessionTrack: find("/v1/sessions/{session_id}/track", "/v1/sessions/{session_id}/fixes"),
         sessionHistory: find("/v1/sessions/{session_id}/history"),
         uploadList: find("/v1/uploads", "/v1/sites/{site_id}/uploads"),
+        routePlanning: Boolean(doc.paths?.["/v1/sites/{site_id}/routes"]?.post),
+        navigation: Boolean(doc.paths?.["/v1/sessions/{session_id}/navigation"]?.put),
       };
     });
   return offered;

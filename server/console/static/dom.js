@@ -58,3 +58,12 @@ export function percent(share) {
 export function shortId(id) {
   return id ? `${id.slice(0, 8)}…` : "";
 }
+
+/** "45 s", "3 min 20 s", "1 h 05 min", from seconds; an em dash for null. */
+export function duration(seconds) {
+  if (seconds === null || seconds === undefined || !Number.isFinite(seconds)) return "—";
+  const s = Math.max(0, Math.round(seconds));
+  if (s < 60) return `${s} s`;
+  if (s < 3600) return `${Math.floor(s / 60)} min${s % 60 ? ` ${s % 60} s` : ""}`;
+  return `${Math.floor(s / 3600)} h ${String(Math.floor((s % 3600) / 60)).padStart(2, "0")} min`;
+}

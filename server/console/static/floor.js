@@ -1,5 +1,6 @@
-// A floor: its plan to scale, the map-quality layers, and the live positions of the
-// sessions followed (over the live socket) with their accuracy circles and tracks.
+// A floor: its plan to scale, the map-quality layers, the live positions of the
+// sessions followed (over the live socket) with their accuracy circles, tracks and
+// navigation, and routes picked on it.
 
 import { ApiError, capabilities, follow, get, key, request } from "./api.js";
 import { ago, fill, h, num, percent, shortId } from "./dom.js";
@@ -7,6 +8,8 @@ import { FloorMap } from "./plan.js";
 import { HistoryPanel } from "./history.js";
 import { Heatmap } from "./heatmap.js";
 import { ZoneLayer } from "./zones.js";
+import { NavigationView } from "./navigation.js";
+import { RouteTool } from "./routes.js";
 
 const COLOURS = ["#d6336c", "#1c7ed6", "#f08c00", "#2f9e44", "#7048e8", "#0c8599", "#e8590c", "#5c940d"];
 const LIST_REFRESH_MS = 5000;
@@ -21,6 +24,7 @@ const LAYER_NAMES = [
   ["coverage", "Radio map coverage", false], // off under the heatmap: their colours mix
   ["magnetic", "Magnetic grid", false],
   ["emitters", "Located emitters", true],
+  ["routes", "Routes", true],
   ["tracks", "Tracks", true],
   ["live", "Live positions", true],
 ];
@@ -78,6 +82,7 @@ export async function floorPage(main, { id }, query, signal) {
   const layersBox = h("div", { class: "layers" });
   const qualityBox = h("div", { class: "quality" }, h("p", { class: "muted" }, "loading…"));
   const liveBox = h("div", { class: "live" });
+  const routeBox = h("div", { class: "routes" });
   fill(
     main,
     crumbs,
@@ -86,7 +91,7 @@ export async function floorPage(main, { id }, query, signal) {
       "div",
       { class: "floor-grid" },
       h("div", { class: "floor-map" }, map.element, planNote),
-      h("aside", { class: "floor-side" }, section("Layers", layersBox), section("Coverage heatmap", heatmap.element), section("Zones", zones.element), section("Live sessions", liveBox), section("Map quality", qualityBox)),
+      h("aside", { class: "floor-side" }, section("Layers", layersBox), section("Route", routeBox), section("Coverage heatmap", heatmap.element), section("Zones", zones.element), section("Live sessions", liveBox), section("Map quality", qualityBox)),
     ),
   );
   for (const [name, text, on] of LAYER_NAMES) {
@@ -99,7 +104,10 @@ export async function floorPage(main, { id }, query, signal) {
   const floor = await get(`/v1/floors/${id}`, {}, { signal });
   title.textContent = `Level ${floor.level}${floor.name ? ` · ${floor.name}` : ""}`;
   document.title = `${title.textContent} · indoorpos`;
-  const live = liveSessions(liveBox, map, floor, query, signal, zones);
+  const tool = new RouteTool(map, floor);
+  routeBox.append(tool.element);
+  const navigation = new NavigationView(map, floor, tool, signal);
+  const live = liveSessions(liveBox, map, floor, query, signal, zones, navigation);
 
   const context = (async () => {
     const building = await get(`/v1/buildings/${floor.building_id}`, {}, { signal });
@@ -115,6 +123,9 @@ export async function floorPage(main, { id }, query, signal) {
         .map((f) => h("a", { href: `#/floors/${f.id}`, class: f.id === id ? "current" : "", "aria-current": f.id === id ? "page" : undefined }, String(f.level))),
     );
     live.siteKnown(site.id);
+    const offered = await capabilities();
+    tool.siteKnown(site.id, offered.routePlanning);
+    navigation.offer(offered.navigation);
   })();
 
   const plan = (async () => {
@@ -124,6 +135,7 @@ export async function floorPage(main, { id }, query, signal) {
     }
     const counts = map.setPlan(await get(`/v1/floors/${id}/plan`, {}, { signal }));
     const parts = [`${counts.walkable} walkable areas`, `${counts.walls} walls`, `${counts.doors} doors`, `${counts.beacons} points`];
+    if (counts.connectors) parts.push(`${counts.connectors} stairs, lifts, escalators or ramps`);
     if (counts.other) parts.push(`${counts.other} features without a kind the positioning knows (dashed)`);
     planNote.textContent = parts.join(", ");
   })();
@@ -149,6 +161,7 @@ export async function floorPage(main, { id }, query, signal) {
   const report = (box) => (error) => {
     if (error.name !== "AbortError") box.append(h("p", { class: "error" }, error.message));
   };
+  plan.catch(() => {}).then(() => tool.render()); // the route's marks are sized by the plan
   const zoneDrawing = plan.catch(() => {}).then(() => zones.load(id, { signal })).catch(report(zones.element));
   // where the radio map is thin, cell by cell (framed by the plan, when there is one)
   const coverage = plan.catch(() => {}).then(() => heatmap.load(id, { signal })).catch(report(heatmap.element));
@@ -161,7 +174,7 @@ export async function floorPage(main, { id }, query, signal) {
 
 // ------------------------------------------------------------------ live sessions
 
-function liveSessions(box, map, floor, query, signal, zones) {
+function liveSessions(box, map, floor, query, signal, zones, navigation) {
   const followed = new Map(); // session id -> {colour, handle, row, ...}
   const rows = h("ul", { class: "sessions" });
   const listNote = h("p", { class: "muted" });
@@ -189,9 +202,11 @@ function liveSessions(box, map, floor, query, signal, zones) {
       h("span", { class: `state state-${entry.state}` }, entry.state),
       h("span", { class: "where" }, where),
       entry.detail ? h("span", { class: "detail" }, entry.detail) : "",
+      navigation.line(entry),
       h(
         "span",
         { class: "row-actions" },
+        navigation.button(entry),
         caps?.sessionTrack ? h("button", { type: "button", onclick: () => loadTrack(entry) }, "Track") : "",
         caps?.sessionHistory ? h("button", { type: "button", class: "history-open", onclick: () => replay.open(entry.id, entry.colour, entry.token) }, "History") : "",
         h("button", { type: "button", onclick: () => unfollow(entry.id) }, "Stop"),
@@ -238,6 +253,7 @@ function liveSessions(box, map, floor, query, signal, zones) {
         if (!replay.holds(id)) map.place(id, entry.colour, here ? fix : null);
         zones.occupy(id, here ? fix.zones : []);
         if (here) map.addToTrack(id, entry.colour, [fix]);
+        navigation.update(entry, fix);
         render(entry);
       },
     });
@@ -251,6 +267,7 @@ function liveSessions(box, map, floor, query, signal, zones) {
     entry.row.remove();
     map.forget(id);
     replay.forget(id);
+    navigation.forget(id);
     followed.delete(id);
   }
 
@@ -265,7 +282,10 @@ function liveSessions(box, map, floor, query, signal, zones) {
       class: "follow",
       onsubmit: (event) => {
         event.preventDefault();
-        start(idInput.value.trim().toLowerCase(), tokenInput.value.trim());
+        const id = idInput.value.trim().toLowerCase();
+        const token = tokenInput.value.trim();
+        if (token && followed.has(id) && followed.get(id).token !== token) unfollow(id); // again, with its token's rights
+        start(id, token);
         idInput.value = "";
         tokenInput.value = "";
       },

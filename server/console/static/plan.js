@@ -6,7 +6,10 @@ import { h, num, s } from "./dom.js";
 
 const WALKABLE = new Set(["walkable", "outline"]);
 const BARRIERS = new Set(["wall", "unit", "obstacle"]);
-const LAYERS = ["walkable", "heatmap", "zones", "walls", "doors", "beacons", "coverage", "magnetic", "emitters", "tracks", "live"];
+// ways between floors, which routes take (server/positioning/plan/routing_graph.py)
+const CONNECTORS = new Set(["stairs", "elevator", "escalator", "ramp"]);
+const LAYERS = ["walkable", "heatmap", "zones", "walls", "doors", "beacons", "coverage", "magnetic", "emitters", "routes", "tracks", "live"];
+const PICK_SLOP_PX = 5; // a click that moved the pointer more than this is a drag
 const NICE_M = [0.5, 1, 2, 5, 10, 20, 50, 100, 200, 500, 1000];
 // the fixes a session's track keeps: its history's (history.js) as well as its live ones
 export const MAX_TRACK = 20000;
@@ -79,6 +82,7 @@ export class FloorMap {
     this.view = null; // viewBox [x, y, width, height], SVG units (y flipped)
     this.sessions = new Map();
     this.hasPlan = false;
+    this.picker = null; // what a click on the floor (not a drag) is for: see pick()
     this.#interact();
     new ResizeObserver(() => this.#scale()).observe(this.svg);
   }
@@ -145,13 +149,16 @@ export class FloorMap {
       { passive: false },
     );
     let drag = null;
+    let moved = 0; // pixels the pointer went since it was pressed: a drag is no pick
     this.svg.addEventListener("pointerdown", (event) => {
+      moved = 0;
       if (!this.view || event.button !== 0) return;
       drag = { x: event.clientX, y: event.clientY, view: [...this.view], scale: this.svg.getScreenCTM()?.a ?? 1 };
       this.svg.setPointerCapture(event.pointerId);
     });
     this.svg.addEventListener("pointermove", (event) => {
       if (!drag) return;
+      moved = Math.max(moved, Math.hypot(event.clientX - drag.x, event.clientY - drag.y));
       const [x, y, w, hh] = drag.view;
       this.#setView([x - (event.clientX - drag.x) / drag.scale, y - (event.clientY - drag.y) / drag.scale, w, hh]);
     });
@@ -160,6 +167,19 @@ export class FloorMap {
     };
     this.svg.addEventListener("pointerup", end);
     this.svg.addEventListener("pointercancel", end);
+    this.svg.addEventListener("click", (event) => {
+      const ctm = this.world.getScreenCTM();
+      if (!this.picker || moved > PICK_SLOP_PX || !ctm) return;
+      const p = new DOMPoint(event.clientX, event.clientY).matrixTransform(ctm.inverse());
+      this.picker([p.x, p.y]);
+    });
+  }
+
+  /** While `picker` is set, a click on the floor (not a drag) calls it with the point in
+   * floor metres, [x, y]; pick(null) ends that. */
+  pick(picker) {
+    this.picker = picker;
+    this.svg.classList.toggle("picking", Boolean(picker));
   }
 
   #scale() {
@@ -172,9 +192,10 @@ export class FloorMap {
 
   /** Draw a plan (GeoJSON FeatureCollection); returns counts by what was drawn. */
   setPlan(plan) {
-    const counts = { walkable: 0, walls: 0, doors: 0, beacons: 0, other: 0 };
+    const counts = { walkable: 0, walls: 0, doors: 0, beacons: 0, connectors: 0, other: 0 };
     for (const name of ["walkable", "walls", "doors", "beacons"]) this.layers[name].replaceChildren();
     const thin = [];
+    const named = []; // [layer, x, y, name, above]: stairs, lifts and places, labelled once the scale is known
     for (const feature of plan?.features ?? []) {
       const kind = feature?.properties?.kind;
       const geometry = feature?.geometry;
@@ -191,6 +212,13 @@ export class FloorMap {
       } else if (BARRIERS.has(kind) && polylines.length) {
         thin.push(...polylines);
         counts.walls += 1;
+      } else if (CONNECTORS.has(kind) && polygons.length) {
+        this.layers.doors.append(s("path", { class: `connector connector-${kind}`, d: polygonPath(polygons) }, title));
+        const ring = polygons[0][0];
+        const xs = ring.map(([x]) => x);
+        const ys = ring.map(([, y]) => y);
+        named.push([this.layers.doors, (Math.min(...xs) + Math.max(...xs)) / 2, Math.max(...ys), feature.properties?.name ?? kind, true]);
+        counts.connectors += 1;
       } else if (kind === "door") {
         const d = polygons.length ? polygonPath(polygons) : polylines.map((l) => pathOf(l, false)).join("");
         this.layers.doors.append(s("path", { class: polygons.length ? "door door-area" : "door", d }, title));
@@ -200,6 +228,7 @@ export class FloorMap {
           this.layers.beacons.append(
             s("circle", { class: `beacon kind-${String(kind ?? "none").replace(/[^a-z0-9_-]/gi, "")}`, cx: x, cy: y, r: 1 }, s("title", { text: label(feature?.properties) })),
           );
+          if (kind === "poi" && feature.properties?.name) named.push([this.layers.beacons, x, y, feature.properties.name, false]);
         }
         counts.beacons += 1;
       } else if (polygons.length || polylines.length) {
@@ -216,7 +245,12 @@ export class FloorMap {
       this.svg.style.aspectRatio = `${Math.max(1, x1 - x0)} / ${Math.max(1, y1 - y0)}`;
     }
     if (thin.length) this.layers.walls.append(s("path", { class: "wall", d: thin.map((l) => pathOf(l, false)).join("") }));
-    for (const beacon of this.layers.beacons.children) beacon.setAttribute("r", this.dot);
+    for (const beacon of this.layers.beacons.querySelectorAll("circle.beacon")) beacon.setAttribute("r", this.dot);
+    for (const [layer, x, y, name, above] of named) {
+      // upright in the y-flipped group: above a stair's or a lift's shape, beside a place
+      const at = above ? { x, y: -y - 0.5 * this.dot, "text-anchor": "middle" } : { x: x + 1.5 * this.dot, y: -y, "dominant-baseline": "central" };
+      layer.append(s("text", { class: "place-label", "font-size": 1.8 * this.dot, transform: "scale(1 -1)", ...at }, name));
+    }
     this.fit();
     return counts;
   }

@@ -1,14 +1,19 @@
 """Navigation: a walker's progress along a route, fix by fix, with re-routing and arrival.
 
-Each fix is placed on the route: on the leg it is following (or the next one, once the
-fix is on the next leg's floor: a ``floor_change`` event), at the nearest point of the
-leg's polyline. ``off_route_m`` is the distance to it. The walker is off the route when
+Each fix is placed on the route: on the nearest of the leg it is following and the next
+``LEG_LOOKAHEAD`` that lie on its floor (a leg on another floor than the last: a
+``floor_change`` event), at the nearest point of the leg's polyline. ``off_route_m`` is
+the distance to it. The walker is off the route when
 that exceeds ``Settings.off_route_m``; it is re-routed (from the fix, a ``rerouted``
 event) only once its fixes have said so without a break for ``Settings.reroute_after_s``
 and ``Settings.reroute_fixes`` fixes (a hysteresis like the zones' in ``zone_presence``:
-one wild fix, or a wobble across the threshold, re-routes nothing). It arrives (an
-``arrived`` event, and navigation ends) when a fix on the last leg is within
-``Settings.arrival_m`` of the destination, along the route or in a straight line.
+one wild fix, or a wobble across the threshold, re-routes nothing). A fix off walkable
+space is re-routed from where it snaps to: the new route counts the fix on it as far as
+that (``Progress.grace_m``) until the walker comes near it. A search that finds no route
+keeps the old one and starts the off-route run again. It arrives (an ``arrived`` event,
+and navigation ends) when a fix on the last leg is within ``Settings.arrival_m`` of the
+destination in a straight line, or along the route while near it (within
+``Settings.off_route_m``).
 
 The next instruction is withheld ("Continue") while the fix's 68 % radius is larger than
 the distance to the step it announces: until the filter is sure which side of a turn the
@@ -20,6 +25,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -56,12 +62,13 @@ class Guide:
     change_s: tuple[float, ...]
     steps: tuple[Step, ...]
     walk_speed_m_s: float
+    change_kinds: tuple[str, ...] = ()  # per floor change: stairs, elevator ...
 
-    @property
+    @cached_property
     def leg_lengths(self) -> list[float]:
         return [float(np.sum(np.linalg.norm(np.diff(xy, axis=0), axis=1))) for xy in self.legs]
 
-    @property
+    @cached_property
     def length_m(self) -> float:
         return sum(self.leg_lengths)
 
@@ -79,6 +86,7 @@ class Progress:
     off_n: int = 0
     reroutes: int = 0
     arrived: bool = False
+    grace_m: float = 0.0  # after a re-route from a fix off the route: as far is on it
 
 
 @dataclass(frozen=True)
@@ -142,33 +150,39 @@ def follow(
     reroute: Callable[[FixAt], Guide | None],
 ) -> Report:
     """Advance ``progress`` by one fix (module docstring); ``reroute`` makes a new route
-    from a fix (None when there is none: the old one is kept)."""
+    from a fix (None when there is none: the old one is kept, and the off-route run starts
+    again, so a failed search is not tried again at every fix)."""
     events: list[Event] = []
-    if progress.arrived:  # navigation is over: nothing more to say
+    if progress.arrived:  # over: nothing more to say (the service ends it at arrival)
         reroute = _no_reroute
-    leg = progress.leg
-    on_next = leg + 1 < len(guide.legs) and fix.floor == guide.floors[leg + 1]
-    if fix.floor != guide.floors[leg] and on_next:
-        events.append(Event("floor_change", fix.t_ms, {"from_leg": leg, "to_leg": leg + 1}))
-        leg += 1
+    leg, off, along_leg, at = _leg_of(guide, progress.leg, fix)
+    if guide.floors[leg] != guide.floors[progress.leg]:
+        detail = {
+            "from_floor": guide.floors[progress.leg],
+            "to_floor": guide.floors[leg],
+            "kind": guide.change_kinds[leg - 1],
+        }
+        events.append(Event("floor_change", fix.t_ms, detail))
     starts = np.concatenate([[0.0], np.cumsum(guide.leg_lengths)])
-    if fix.floor == guide.floors[leg]:
-        gap, along_leg, at = place(guide.legs[leg], (fix.x_m, fix.y_m))
-        off: float | None = gap
-    else:
-        off, along_leg, at = None, progress.along_m - starts[leg], guide.legs[leg][0]
-        along_leg = max(0.0, along_leg)
+    if off is None:  # on no leg's floor: where it was
+        along_leg = max(0.0, progress.along_m - starts[leg])
     along = float(starts[leg] + along_leg)
-    on_route = off is not None and off <= settings.off_route_m
+    near = off is not None and off <= settings.off_route_m
+    on_route = off is not None and off <= max(settings.off_route_m, progress.grace_m)
     off_since, off_n = (-1, 0) if on_route else (
         progress.off_since_ms if progress.off_since_ms >= 0 else fix.t_ms,
         progress.off_n + 1,
     )  # fmt: skip
-    state = replace(progress, leg=leg, along_m=along, off_since_ms=off_since, off_n=off_n)
+    state = replace(
+        progress, leg=leg, along_m=along, off_since_ms=off_since, off_n=off_n,
+        grace_m=0.0 if near else progress.grace_m,
+    )  # fmt: skip
     held = off_since >= 0 and (fix.t_ms - off_since) / 1000.0 >= settings.reroute_after_s
     if held and off_n >= settings.reroute_fixes:
         fresh = reroute(fix)
-        if fresh is not None:
+        if fresh is None:
+            state = replace(state, off_since_ms=-1, off_n=0)
+        else:
             events.append(
                 Event(
                     "rerouted",
@@ -176,17 +190,22 @@ def follow(
                     {"off_route_m": off, "length_m": fresh.length_m, "off_since": off_since},
                 )
             )
-            restart = Progress(reroutes=progress.reroutes + 1)
+            # a fix off walkable space starts the new route where it was snapped to: as
+            # far as that, it is on the new route (it is not re-routed again for it)
+            gap = (
+                place(fresh.legs[0], (fix.x_m, fix.y_m))[0] if fix.floor == fresh.floors[0] else 0.0
+            )
+            restart = Progress(reroutes=progress.reroutes + 1, grace_m=gap + 1.0)
             report = follow(fresh, restart, fix, settings, _no_reroute)
             return replace(report, events=(*events, *report.events))
     last = len(guide.legs) - 1
     remaining = max(0.0, guide.length_m - along)
     if progress.arrived:
-        state = replace(state, arrived=True, along_m=guide.length_m)
+        state = replace(state, along_m=guide.length_m)
         remaining = 0.0
-    elif leg == last and fix.floor == guide.floors[last]:
+    elif leg == last and off is not None:
         straight = float(np.hypot(*(guide.legs[last][-1] - (fix.x_m, fix.y_m))))
-        if min(remaining, straight) <= settings.arrival_m:
+        if straight <= settings.arrival_m or (remaining <= settings.arrival_m and near):
             state = replace(state, arrived=True, along_m=guide.length_m)
             events.append(Event("arrived", fix.t_ms, {"remaining_m": remaining}))
             remaining = 0.0
@@ -216,6 +235,26 @@ def follow(
         withheld=withheld,
         events=tuple(events),
     )
+
+
+LEG_LOOKAHEAD = 2
+"""How many legs past the one followed a fix may be placed on (a walker who took two floor
+changes between fixes, or a way through on one floor)."""
+
+
+def _leg_of(guide: Guide, leg: int, fix: FixAt) -> tuple[int, float | None, float, FloatArray]:
+    """The leg a fix is on: of the followed one and the next ``LEG_LOOKAHEAD``, the nearest
+    on the fix's floor (the earliest of equals); with its distance, how far along it the
+    fix lies and its point there. A fix on none of their floors stays on the followed leg
+    (distance None)."""
+    best: tuple[int, float | None, float, FloatArray] = (leg, None, 0.0, guide.legs[leg][0])
+    for k in range(leg, min(len(guide.legs), leg + 1 + LEG_LOOKAHEAD)):
+        if guide.floors[k] != fix.floor:
+            continue
+        gap, along, at = place(guide.legs[k], (fix.x_m, fix.y_m))
+        if best[1] is None or gap < best[1]:
+            best = (k, gap, along, at)
+    return best
 
 
 def _no_reroute(_: FixAt) -> Guide | None:

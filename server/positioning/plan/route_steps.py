@@ -132,6 +132,20 @@ def route_steps(
         corners = _corners(leg.xy)
         lengths = np.linalg.norm(np.diff(corners, axis=0), axis=1)
         headings = [bearing_rad(*d) for d in np.diff(corners, axis=0)]
+        if not headings and k == 0:  # the route leaves the floor where it starts
+            steps.append(
+                Step(
+                    "start",
+                    "Start here",
+                    0,
+                    leg.floor,
+                    float(corners[0, 0]),
+                    float(corners[0, 1]),
+                    0.0,
+                    0.0,
+                    None,
+                )
+            )
         if headings:
             if k == 0:
                 first_kind, head_text = "start", "Head"

@@ -46,7 +46,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any
@@ -67,6 +67,10 @@ from server.positioning.plan.zones import feature_name
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
+
+LAYOUT = 1
+"""The version of how a graph is built: part of its digest (``RoutingGraph.digest``), so
+that vertex ids kept by a session are read only by a graph built the same way."""
 
 SPACING_M = 1.0
 """Grid side (m). A floor of 17,000 m² (the largest of the ILC mall's) has 17,000
@@ -91,6 +95,10 @@ the length of a fine grid's shortest walk at the median, 1.025 at the 95th perce
 OVERLAP_SHARE = 0.25
 """Share of the smaller footprint two link features of adjacent levels must overlap."""
 
+SHAFT_REACH_M = 10.0
+"""How far apart (m) the features of one shaft on adjacent levels may lie when they are
+matched by id or name."""
+
 LINK_REACH_M = 2.0
 """How far from a link feature (or a place) its end vertex may lie (m)."""
 
@@ -98,7 +106,6 @@ STAIRS, ELEVATOR, ESCALATOR, RAMP, TRAVERSAL = (
     "stairs", "elevator", "escalator", "ramp", "traversal",
 )  # fmt: skip
 LINK_KINDS = (STAIRS, ELEVATOR, ESCALATOR)
-ACCESSIBLE_KINDS = frozenset({ELEVATOR, RAMP, TRAVERSAL})
 
 LINK_SECONDS: Mapping[str, tuple[float, float]] = {
     STAIRS: (5.0, 15.0),  # (fixed, per level): a flight of about 20 steps
@@ -194,6 +201,12 @@ class Link:
     b: tuple[int, int]
     seconds: float
     directed: bool = False
+    level_change: bool = True  # between two levels (a traversal may stay on one)
+
+    @property
+    def accessible(self) -> bool:
+        """Taken by accessible routes: a lift, a ramp, a way through on one level."""
+        return self.kind in (ELEVATOR, RAMP) or (self.kind == TRAVERSAL and not self.level_change)
 
 
 @dataclass(frozen=True)
@@ -425,7 +438,7 @@ def _shaft_links(
     features: Sequence[list[_Feature]],
 ) -> list[Link]:
     """Links of the same stairs, lift or escalator on several levels (module docstring)."""
-    ends: list[tuple[int, _Feature, int]] = []  # floor, feature, vertex
+    ends: list[_End] = []
     for i, found in enumerate(features):
         walk = walks[i]
         if walk is None:
@@ -435,18 +448,12 @@ def _shaft_links(
                 vertex = end_vertex(walk, f.shape)
                 if vertex is not None:
                     ends.append((i, f, vertex))
-    shafts: dict[tuple[str, str, str], list[tuple[int, _Feature, int]]] = {}
-    loose: list[tuple[int, _Feature, int]] = []
-    for end in ends:
-        i, f, _ = end
-        key = f.id if f.id is not None else f.name
-        if key is None:
-            loose.append(end)
-            continue
-        shafts.setdefault((floors[i].building_id, f.kind or "", key), []).append(end)
-    groups = [g for g in shafts.values() if len({e[0] for e in g}) > 1]
-    single = [e for g in shafts.values() if len({e[0] for e in g}) == 1 for e in g]
-    groups += _overlapping(floors, [*loose, *single])
+    groups: list[list[_End]] = []
+    left = ends
+    for key in (lambda f: f.id, lambda f: f.name):  # by id, then by name
+        shafts, left = _keyed(floors, left, key)
+        groups += shafts
+    groups += _overlapping(floors, left)
     links = []
     for group in groups:
         by_level = sorted(group, key=lambda e: floors[e[0]].level)
@@ -458,50 +465,78 @@ def _shaft_links(
             else list(itertools.pairwise(by_level))
         )
         for p, q in pairs:
-            if p[0] == q[0]:
-                continue
             levels = floors[q[0]].level - floors[p[0]].level
             links.append(Link(kind, name, (p[0], p[2]), (q[0], q[2]), link_seconds(kind, levels)))
     return links
 
 
-def _overlapping(
-    floors: Sequence[FloorInput], ends: list[tuple[int, _Feature, int]]
-) -> list[list[tuple[int, _Feature, int]]]:
-    """Shafts of features with no shared id or name: same kind, same building, adjacent
-    levels, footprints that overlap."""
-    groups: list[list[tuple[int, _Feature, int]]] = [[e] for e in ends]
-    merged = True
-    while merged:
-        merged = False
-        for gi in range(len(groups)):
-            for gj in range(gi + 1, len(groups)):
-                if _joined(floors, groups[gi], groups[gj]):
-                    groups[gi] += groups.pop(gj)
-                    merged = True
-                    break
-            if merged:
-                break
-    return [g for g in groups if len({e[0] for e in g}) > 1]
+_End = tuple[int, "_Feature", int]  # floor, feature, vertex
 
 
-def _joined(
-    floors: Sequence[FloorInput],
-    g: list[tuple[int, _Feature, int]],
-    h: list[tuple[int, _Feature, int]],
-) -> bool:
-    for i, f, _ in g:
-        for j, e, _ in h:
-            if f.kind != e.kind or floors[i].building_id != floors[j].building_id:
-                continue
-            levels = sorted({fl.level for fl in floors if fl.building_id == floors[i].building_id})
-            li, lj = levels.index(floors[i].level), levels.index(floors[j].level)
-            if abs(li - lj) != 1 or f.shape is None or e.shape is None:
-                continue
-            smaller = min(f.shape.area, e.shape.area)
-            if smaller > 0 and f.shape.intersection(e.shape).area >= OVERLAP_SHARE * smaller:
-                return True
-    return False
+def _keyed(
+    floors: Sequence[FloorInput], ends: list[_End], key: Callable[[_Feature], str | None]
+) -> tuple[list[list[_End]], list[_End]]:
+    """Shafts of features that share a ``key`` (an id, a name) in a building, one feature
+    a floor on two floors or more, each within ``SHAFT_REACH_M`` of the one a level below
+    it; and the ends left over (a generic name on several features of a floor, ids
+    numbered per floor, a name far from its namesake: matched by footprint instead)."""
+    by_key: dict[tuple[str, str, str], list[_End]] = {}
+    for end in ends:
+        value = key(end[1])
+        if value is not None:
+            by_key.setdefault((floors[end[0]].building_id, end[1].kind or "", value), []).append(
+                end
+            )
+    groups, used = [], set()
+    for group in by_key.values():
+        on = [e[0] for e in group]
+        if len(set(on)) < 2 or len(set(on)) != len(on):
+            continue
+        by_level = sorted(group, key=lambda e: floors[e[0]].level)
+        if all(
+            p[1].shape is not None and q[1].shape is not None
+            and p[1].shape.distance(q[1].shape) <= SHAFT_REACH_M
+            for p, q in itertools.pairwise(by_level)
+        ):  # fmt: skip
+            groups.append(group)
+            used |= {id(e) for e in group}
+    return groups, [e for e in ends if id(e) not in used]
+
+
+def _overlapping(floors: Sequence[FloorInput], ends: list[_End]) -> list[list[_End]]:
+    """Shafts of the features left: same kind, same building, adjacent levels of it,
+    footprints that overlap by ``OVERLAP_SHARE`` of the smaller (found with a spatial tree,
+    joined by union-find)."""
+    if len(ends) < 2:
+        return []
+    order: dict[str, list[int]] = {}
+    for floor in floors:
+        order.setdefault(floor.building_id, []).append(floor.level)
+    rank = {b: {lvl: k for k, lvl in enumerate(sorted(set(v)))} for b, v in order.items()}
+    shapes = [e[1].shape if e[1].shape is not None else shapely.Point() for e in ends]
+    parent = list(range(len(ends)))
+
+    def root(k: int) -> int:
+        while parent[k] != k:
+            parent[k] = parent[parent[k]]
+            k = parent[k]
+        return k
+
+    tree = shapely.STRtree(shapes)
+    for a, b in zip(*tree.query(shapes, predicate="intersects"), strict=True):
+        (i, f, _), (j, e, _) = ends[a], ends[b]
+        building = floors[i].building_id
+        if a >= b or f.kind != e.kind or building != floors[j].building_id:
+            continue
+        if abs(rank[building][floors[i].level] - rank[building][floors[j].level]) != 1:
+            continue
+        smaller = min(shapes[a].area, shapes[b].area)
+        if smaller > 0 and shapes[a].intersection(shapes[b]).area >= OVERLAP_SHARE * smaller:
+            parent[root(a)] = root(b)
+    groups: dict[int, list[_End]] = {}
+    for k, end in enumerate(ends):
+        groups.setdefault(root(k), []).append(end)
+    return [g for g in groups.values() if len({e[0] for e in g}) > 1]
 
 
 def _relationship_links(
@@ -537,7 +572,15 @@ def _relationship_links(
             name = rel.name or next((f.name for f in _intermediaries(rel, by_id) if f.name), None)
             directed = rel.properties.get("direction") == "directed"
             links.append(
-                Link(kind, name, (fa, va), (fb, vb), link_seconds(kind, levels, metres), directed)
+                Link(
+                    kind,
+                    name,
+                    (fa, va),
+                    (fb, vb),
+                    link_seconds(kind, levels, metres),
+                    directed,
+                    level_change=levels != 0,
+                )
             )
     return links
 

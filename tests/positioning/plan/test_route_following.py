@@ -37,6 +37,7 @@ def _guide(route: Route = ROUTE) -> Guide:
         change_s=tuple(c.seconds for c in route.changes),
         steps=tuple(steps),
         walk_speed_m_s=1.2,
+        change_kinds=tuple(c.kind for c in route.changes),
     )
 
 
@@ -122,3 +123,74 @@ def test_a_floor_change_then_one_arrival() -> None:
 def test_place_on_a_polyline() -> None:
     gap, along, at = place(np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0]]), (12.0, 4.0))
     assert (gap, along, at.tolist()) == (2.0, 14.0, [10.0, 4.0])
+
+
+def test_a_fix_far_off_the_route_past_its_end_has_not_arrived() -> None:
+    guide, settings = _guide(), Settings(arrival_m=1.0)
+    progress = Progress(leg=1, along_m=31.0, step=3)
+    report = follow(guide, progress, FixAt(0, 1, 45.0, 10.0, 1.0), settings, _never)
+    assert not report.progress.arrived  # 20 m beyond the end: clipped to it, not there
+    report = follow(guide, progress, FixAt(0, 1, 25.0, 30.0, 1.0), settings, _never)
+    assert not report.progress.arrived  # 20 m beside the end
+
+
+def test_two_legs_on_one_floor_are_followed_in_turn() -> None:
+    """A way through on one floor (a traversal): the second leg is taken up where the
+    walker is nearer it, and the walk arrives without a re-route."""
+    route = Route(
+        legs=(
+            Leg(0, np.array([[0.0, 0.0], [10.0, 0.0]])),
+            Leg(0, np.array([[10.0, 5.0], [20.0, 5.0]])),
+        ),
+        changes=(FloorChange("traversal", None, 0, 0, 5.0),),
+    )
+    guide, settings = _guide(route), Settings(off_route_m=2.0, arrival_m=1.0)
+    progress, events = Progress(), []
+    for k, (x, y) in enumerate([(2, 0), (6, 0), (10, 0), (12, 5), (16, 5), (20, 5)]):
+        report = follow(guide, progress, FixAt(1000 * k, 0, x, y, 0.5), settings, _never)
+        assert report.on_route
+        progress = report.progress
+        events += [e.kind for e in report.events]
+    assert events == ["arrived"]  # no floor change on one floor
+
+
+def test_a_floor_change_says_where_from_and_to_and_how() -> None:
+    report = follow(_guide(), Progress(along_m=29.0, step=1), FixAt(0, 1, 20.5, 10.0, 1.0),
+                    Settings(), _never)  # fmt: skip
+    assert [(e.kind, e.detail) for e in report.events] == [
+        ("floor_change", {"from_floor": 0, "to_floor": 1, "kind": "elevator"})
+    ]
+
+
+def test_a_failed_search_waits_for_another_run_before_the_next() -> None:
+    guide, settings = _guide(), Settings(off_route_m=3.0, reroute_after_s=2.0, reroute_fixes=2)
+    calls: list[int] = []
+
+    def nothing(fix: FixAt) -> Guide | None:
+        calls.append(fix.t_ms)
+        return None
+
+    progress = Progress()
+    for k in range(7):  # 10 m south of the route, a fix a second
+        progress = follow(
+            guide, progress, FixAt(1000 * k, 0, 5.0, -10.0), settings, nothing
+        ).progress
+    assert calls == [2000, 5000]  # each after a run of its own (3 s to 5 s), not every fix
+
+
+def test_a_reroute_from_off_walkable_space_is_not_repeated_for_it() -> None:
+    """The new route starts where the fix snapped to, 8 m away: the fix standing there
+    is on the new route as far as that."""
+    guide, settings = _guide(), Settings(off_route_m=3.0, reroute_after_s=2.0, reroute_fixes=2)
+    fresh = _guide(Route((Leg(0, np.array([[5.0, -2.0], [20.0, -2.0]])),), ()))
+    calls: list[int] = []
+
+    def snapped(fix: FixAt) -> Guide:
+        calls.append(fix.t_ms)
+        return fresh
+
+    progress = Progress()
+    for k in range(10):  # standing 10 m south of the old route, 8 m of the new one
+        report = follow(guide, progress, FixAt(1000 * k, 0, 5.0, -10.0), settings, snapped)
+        progress, guide = report.progress, report.guide
+    assert calls == [2000]

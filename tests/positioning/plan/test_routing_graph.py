@@ -213,3 +213,43 @@ def test_a_floor_without_plan_has_no_walk_and_no_links() -> None:
     assert graph.floors[1] is None
     assert graph.floors[0] is not None
     assert graph.links == ()
+
+
+def named_stairs_plan(*stairs: tuple[list[list[list[float]]], str | None, str | None]) -> Any:
+    """A 40 m x 10 m floor with stairs polygons (geometry, id, name)."""
+    features = [feature("walkable", "Polygon", box(0, 0, 40, 10))]
+    for geometry, feature_id, name in stairs:
+        stair = feature("stairs", "Polygon", geometry)
+        if feature_id is not None:
+            stair["id"] = feature_id
+        if name is not None:
+            stair["properties"]["name"] = name
+        features.append(stair)
+    return feature_collection(*features)
+
+
+def test_a_name_shared_by_two_stairs_of_a_floor_does_not_cross_link_them() -> None:
+    """Two staircases at each end, both named "Stairs", with ids numbered per floor (as
+    exports number them): each is joined to the one above it, not across the floor."""
+    west, east = box(1, 1, 4, 4), box(36, 1, 39, 4)
+    plans = [
+        (level, named_stairs_plan((west, "1", "Stairs"), (east, "2", "Stairs"))) for level in (0, 1)
+    ]
+    graph = routing_graph(floor_inputs(plans))
+    assert len(graph.links) == 2
+    for link in graph.links:
+        assert link.a[0] != link.b[0]
+        assert np.linalg.norm(vertex_xy(graph, link.a) - vertex_xy(graph, link.b)) < 5.0
+
+
+def test_a_traversal_between_levels_is_not_accessible() -> None:
+    levels = imdf_levels()
+    traversal = next(f for f in levels[0][1]["features"] if f.get("feature_type") == "relationship")
+    traversal["properties"]["intermediary"] = None  # a way up of no known kind
+    graph = routing_graph(floor_inputs(levels))
+    (link,) = [link for link in graph.links if link.kind == "traversal"]
+    assert link.level_change
+    assert not link.accessible
+    assert [link.kind for link in graph.links if link.accessible] == ["elevator"] * sum(
+        link.kind == "elevator" for link in graph.links
+    )
