@@ -62,6 +62,19 @@ class Tab:
         await self.page.goto(f"{self.base_url}/console/{fragment}")
         await self.page.wait_for_selector(f"main[data-page={page_name}]")
 
+    async def click_floor(self, x_m: float, y_m: float) -> None:
+        """Click the floor map at (x, y) in floor metres (where the map draws it now)."""
+        await self.page.locator("#plan").scroll_into_view_if_needed()
+        x, y = await self.page.evaluate(
+            """([x, y]) => {
+                const p = new DOMPoint(x, y).matrixTransform(
+                    document.querySelector("#plan .world").getScreenCTM());
+                return [p.x, p.y];
+            }""",
+            [x_m, y_m],
+        )
+        await self.page.mouse.click(x, y)
+
     async def screenshot(self, name: str, *, full_page: bool = True) -> Path:
         ARTIFACTS.mkdir(parents=True, exist_ok=True)
         path = ARTIFACTS / f"{name}.png"
