@@ -114,6 +114,66 @@ def bench_routes(
         console.print(f"figures written to {json_path}")
 
 
+@bench_app.command("navigation")
+def bench_navigation(
+    sessions: Annotated[
+        int, typer.Option(min=2, help="sessions per engine, half of them navigating at a time")
+    ] = 50,
+    batches: Annotated[int, typer.Option(min=1, help="batches per session in a block")] = 20,
+    blocks: Annotated[
+        int, typer.Option(min=2, help="timed blocks, an even number (the groups swap roles)")
+    ] = 6,
+    engine: Annotated[
+        list[str] | None,
+        typer.Option(help="engine of the sessions, repeat for several (default: auto and wknn)"),
+    ] = None,
+    geo: Annotated[
+        bool, typer.Option(help="geo-reference the building (every point on the wire in WGS84)")
+    ] = True,
+    seed: Annotated[int, typer.Option(help="seed of the building, survey and walkers")] = 0,
+    json_path: Annotated[Path | None, typer.Option("--json", help="write the figures here")] = None,
+) -> None:
+    """What navigation adds to a batch's CPU (the whole batch path of an embedded service,
+    in this process) and to the bytes the session store keeps, against the 5 % target;
+    navigation's part alone, per fix, and where its time goes."""
+    from lab.navigation_bench import navigation_bench
+
+    if blocks % 2:
+        raise typer.BadParameter("an even number (the groups swap roles)", param_hint="--blocks")
+    engines = engine or ["auto", "wknn"]
+    # no spinner: its refresh thread would take the GIL in the middle of the timings
+    console.print(
+        f"{sessions} sessions per engine ({', '.join(engines)}), {blocks} blocks of "
+        f"{batches} batches each, {'geo-referenced' if geo else 'local'} building ..."
+    )
+    result = navigation_bench(
+        sessions=sessions, batches=batches, blocks=blocks, engines=engines, geo=geo, seed=seed
+    )
+    target = result["target_pct"]
+    for figures in result["engines"]:
+        name = figures["engine"]
+        print_report(
+            f"navigation, {name}",
+            {k: v for k, v in figures.items() if not isinstance(v, list | dict)},
+        )
+        print_report(
+            f"where navigation's time goes, {name} (cProfile, µs per fix, inside each)",
+            {
+                row["function"]: row["cumulative_us_per_fix"]
+                for row in figures["profile_cumulative"]
+            },
+        )
+        pct, us = figures["overhead_pct"], figures["overhead_us"]
+        where = f"navigation adds at most {target:g} % to a batch's CPU ({name})"
+        if figures["target_met"]:
+            console.print(f"[green]pass[/]: {where} ({pct:.1f} %, {us:.0f} µs)")
+        else:
+            console.print(f"[red]fail[/]: {where} ({pct:.1f} %, {us:.0f} µs)")
+    if json_path is not None:
+        json_path.write_text(json.dumps(result, indent=2) + "\n")
+        console.print(f"figures written to {json_path}")
+
+
 @bench_app.command("load")
 def bench_load(
     users_max: Annotated[int, typer.Option(min=1, max=20_000, help="most users to try")] = 3000,

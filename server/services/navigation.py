@@ -18,12 +18,13 @@ import orjson
 
 from server.positioning.engines.registry import NEEDS_GRAPHS, get_engine
 from server.positioning.engines.shared.site_maps import SiteMaps
-from server.positioning.plan.route_following import FixAt, Progress, Settings
+from server.positioning.plan.route_following import FixAt, Settings
 from server.services import engine_settings
 from server.services.batches import caught_up
 from server.services.errors import Forbidden, NotFound
 from server.services.maps import site_maps, with_graphs
 from server.services.navigation_state import (
+    Course,
     Navigation,
     Unreadable,
     advance,
@@ -113,6 +114,7 @@ async def start(
     found: dict[str, Any] = {}
 
     async def begin(meta: SessionMeta, state: SessionState, maps: SiteMaps) -> Navigation:
+        """The navigation of a new course from the session's latest fix."""
         graph = await routing(maps)
         fix = orjson.loads(state.last_fix) if state.last_fix else None
         origin = fix_endpoint(maps, graph, fix, "session")
@@ -124,7 +126,7 @@ async def start(
         )
         found["fix"] = fix
         target = stop.endpoint
-        return Navigation(
+        course = Course(
             destination={k: v for k, v in asdict(destination).items() if v is not None},
             name=stop.name,
             settings=settings,
@@ -134,9 +136,9 @@ async def start(
             graph_digest=graph.digest,
             route=route,
             steps=tuple(route_steps_of(maps, route, stop.name)),
-            progress=Progress(),
             started_ms=int(fix["t"]) if fix else 0,
         )
+        return Navigation(course)
 
     maps, nav = await _write(rt, session_id, secret, begin)
     assert nav is not None

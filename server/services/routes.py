@@ -303,8 +303,8 @@ def where(ref: FloorRef, x_m: float, y_m: float) -> dict[str, Any]:
     }
 
 
-def step_to_wire(maps: SiteMaps, step: Step) -> dict[str, Any]:
-    ref = maps.floors[step.floor]
+def step_to_wire(floors: Sequence[FloorRef], step: Step) -> dict[str, Any]:
+    ref = floors[step.floor]
     bearing = (
         heading_from_north_deg(step.bearing_rad, ref.rotation_rad)
         if step.bearing_rad is not None
@@ -373,5 +373,5 @@ def route_to_wire(
         },
         "legs": legs,
         "floor_changes": changes,
-        "steps": [step_to_wire(maps, s) for s in steps],
+        "steps": [step_to_wire(maps.floors, s) for s in steps],
     }

@@ -176,8 +176,9 @@ class NavigationProgressOut(Strict):
     remaining_s: float = Field(description="seconds left: walking, and the floor changes left")
     on_route: bool
     off_route_m: float | None = Field(description="the fix's distance to the route (m)")
-    step_index: int = Field(description="the last step passed, into the route's steps")
-    current_step: StepOut
+    step_index: int = Field(
+        description="the last step passed (the current one): its index in the route's steps"
+    )
     next_step: StepOut | None
     distance_to_next_m: float | None
     instruction: str = Field(
