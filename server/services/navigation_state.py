@@ -117,7 +117,7 @@ def to_bytes(nav: Navigation | None, floor_ids: Sequence[str]) -> bytes:
     if nav is None:
         return b""
     course = _course_json(nav.course, tuple(floor_ids))
-    return orjson.dumps({"layout": LAYOUT, "course": course, "progress": asdict(nav.progress)})
+    return orjson.dumps({"layout": LAYOUT, "course": course, "progress": vars(nav.progress)})
 
 
 def from_bytes(data: bytes, floor_ids: Sequence[str]) -> Navigation | None:

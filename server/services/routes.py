@@ -10,6 +10,7 @@ import math
 from collections import OrderedDict
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Any
 
 import anyio
@@ -73,7 +74,14 @@ class Placed:
 
 
 def _key(maps: SiteMaps) -> tuple[str, ...]:
-    return (maps.plan_digest, *(f"{f.building_id}/{f.floor_id}@{f.level}" for f in maps.floors))
+    return _graph_key(maps.plan_digest, maps.floors)
+
+
+@lru_cache(maxsize=64)
+def _graph_key(plan_digest: str, floors: tuple[FloorRef, ...]) -> tuple[str, ...]:
+    """What a routing graph is built from: the plans, and the floors' buildings and levels
+    (cached: a navigating batch asks for it)."""
+    return (plan_digest, *(f"{f.building_id}/{f.floor_id}@{f.level}" for f in floors))
 
 
 def cached_graph(maps: SiteMaps) -> RoutingGraph | None:

@@ -72,6 +72,41 @@ class Guide:
     def length_m(self) -> float:
         return sum(self.leg_lengths)
 
+    @cached_property
+    def leg_starts(self) -> list[float]:
+        """How far along the route each leg starts (m)."""
+        return [sum(self.leg_lengths[:k]) for k in range(len(self.legs))]
+
+    @cached_property
+    def _segments(self) -> list[list[tuple[float, float, float, float, float, float]]]:
+        """Per leg, its segments as ``(ax, ay, dx, dy, length², along at a)``."""
+        out = []
+        for xy in self.legs:
+            rows, along = [], 0.0
+            for (ax, ay), (bx, by) in zip(xy[:-1].tolist(), xy[1:].tolist(), strict=True):
+                dx, dy = bx - ax, by - ay
+                rows.append((ax, ay, dx, dy, dx * dx + dy * dy, along))
+                along += math.hypot(dx, dy)
+            out.append(rows)
+        return out
+
+    def place(self, leg: int, x: float, y: float) -> tuple[float, float, tuple[float, float]]:
+        """``place`` on leg ``leg``, in plain floating point over its cached segments (a
+        fix a batch: numpy's calls on a few points cost more than the arithmetic)."""
+        rows = self._segments[leg]
+        if not rows:
+            px, py = (float(v) for v in self.legs[leg][0])
+            return math.hypot(x - px, y - py), 0.0, (px, py)
+        best = (math.inf, 0.0, (0.0, 0.0))
+        for ax, ay, dx, dy, length2, along in rows:
+            t = ((x - ax) * dx + (y - ay) * dy) / length2 if length2 > 0 else 0.0
+            t = min(1.0, max(0.0, t))
+            px, py = ax + t * dx, ay + t * dy
+            gap = math.hypot(x - px, y - py)
+            if gap < best[0]:
+                best = (gap, along + t * math.sqrt(length2), (px, py))
+        return best
+
 
 @dataclass(frozen=True)
 class Progress:
@@ -163,7 +198,7 @@ def follow(
             "kind": guide.change_kinds[leg - 1],
         }
         events.append(Event("floor_change", fix.t_ms, detail))
-    starts = np.concatenate([[0.0], np.cumsum(guide.leg_lengths)])
+    starts = guide.leg_starts
     if off is None:  # on no leg's floor: where it was
         along_leg = max(0.0, progress.along_m - starts[leg])
     along = float(starts[leg] + along_leg)
@@ -192,9 +227,7 @@ def follow(
             )
             # a fix off walkable space starts the new route where it was snapped to: as
             # far as that, it is on the new route (it is not re-routed again for it)
-            gap = (
-                place(fresh.legs[0], (fix.x_m, fix.y_m))[0] if fix.floor == fresh.floors[0] else 0.0
-            )
+            gap = fresh.place(0, fix.x_m, fix.y_m)[0] if fix.floor == fresh.floors[0] else 0.0
             restart = Progress(reroutes=progress.reroutes + 1, grace_m=gap + 1.0)
             report = follow(fresh, restart, fix, settings, _no_reroute)
             return replace(report, events=(*events, *report.events))
@@ -204,7 +237,8 @@ def follow(
         state = replace(state, along_m=guide.length_m)
         remaining = 0.0
     elif leg == last and off is not None:
-        straight = float(np.hypot(*(guide.legs[last][-1] - (fix.x_m, fix.y_m))))
+        end_x, end_y = guide.legs[last][-1].tolist()
+        straight = math.hypot(end_x - fix.x_m, end_y - fix.y_m)
         if straight <= settings.arrival_m or (remaining <= settings.arrival_m and near):
             state = replace(state, arrived=True, along_m=guide.length_m)
             events.append(Event("arrived", fix.t_ms, {"remaining_m": remaining}))
@@ -242,16 +276,19 @@ LEG_LOOKAHEAD = 2
 changes between fixes, or a way through on one floor)."""
 
 
-def _leg_of(guide: Guide, leg: int, fix: FixAt) -> tuple[int, float | None, float, FloatArray]:
+def _leg_of(
+    guide: Guide, leg: int, fix: FixAt
+) -> tuple[int, float | None, float, tuple[float, float]]:
     """The leg a fix is on: of the followed one and the next ``LEG_LOOKAHEAD``, the nearest
     on the fix's floor (the earliest of equals); with its distance, how far along it the
     fix lies and its point there. A fix on none of their floors stays on the followed leg
     (distance None)."""
-    best: tuple[int, float | None, float, FloatArray] = (leg, None, 0.0, guide.legs[leg][0])
+    x0, y0 = guide.legs[leg][0].tolist()
+    best: tuple[int, float | None, float, tuple[float, float]] = (leg, None, 0.0, (x0, y0))
     for k in range(leg, min(len(guide.legs), leg + 1 + LEG_LOOKAHEAD)):
         if guide.floors[k] != fix.floor:
             continue
-        gap, along, at = place(guide.legs[k], (fix.x_m, fix.y_m))
+        gap, along, at = guide.place(k, fix.x_m, fix.y_m)
         if best[1] is None or gap < best[1]:
             best = (k, gap, along, at)
     return best
