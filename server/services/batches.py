@@ -54,6 +54,7 @@ from server.services.session_records import (
     events_digest,
     fix_places,
     fix_to_wire,
+    navigation_delta,
     presence_from_bytes,
     presence_to_bytes,
 )
@@ -235,7 +236,7 @@ async def _attempt(
         each[-1] if each else b"",
         now if touch else state.touched_ms,
         presence_to_bytes(presence),
-        navigation,
+        navigation_delta(state.navigation, navigation),
     )
     # step() stepped through the logged batches: the new state holds them
     new_state = replace(state, pending=()).applied(

@@ -44,6 +44,9 @@ from server.storage.repositories import zones as zone_repo
 GRAPH_CACHE_SIZE = 8  # sites' routing graphs kept per process
 _GRAPHS: OrderedDict[tuple[str, ...], RoutingGraph] = OrderedDict()
 _LOCKS: dict[tuple[str, ...], anyio.Lock] = {}
+# the graph of the map sets asked for lately, by the map set itself (which a process keeps
+# while it is fresh): a navigating batch finds its graph without making the key again
+_BY_MAPS: OrderedDict[int, tuple[SiteMaps, RoutingGraph]] = OrderedDict()
 
 
 @dataclass(frozen=True)
@@ -86,19 +89,26 @@ def _graph_key(plan_digest: str, floors: tuple[FloorRef, ...]) -> tuple[str, ...
 
 def cached_graph(maps: SiteMaps) -> RoutingGraph | None:
     """The site's routing graph when this process has built it for these plans."""
-    found = _GRAPHS.get(_key(maps))
+    seen = _BY_MAPS.get(id(maps))
+    if seen is not None and seen[0] is maps:  # the same map set as a batch ago: no key
+        return seen[1]
+    key = _key(maps)
+    found = _GRAPHS.get(key)
     if found is not None:
-        _GRAPHS.move_to_end(_key(maps))
+        _GRAPHS.move_to_end(key)
+        _BY_MAPS[id(maps)] = (maps, found)
+        while len(_BY_MAPS) > GRAPH_CACHE_SIZE:
+            _BY_MAPS.popitem(last=False)
     return found
 
 
 async def routing(maps: SiteMaps) -> RoutingGraph:
     """The site's routing graph, built once per plan version (a new radio map or zone
     leaves it as it is), off the event loop."""
-    key = _key(maps)
     found = cached_graph(maps)
     if found is not None:
         return found
+    key = _key(maps)
     async with _LOCKS.setdefault(key, anyio.Lock()):
         found = cached_graph(maps)
         if found is None:

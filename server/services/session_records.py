@@ -200,7 +200,7 @@ class SessionState:
             last_event_ms=max([self.last_event_ms, *map(event_end_ms, entry.events)]),
             pending=(*self.pending, entry) if engine_state is None else (),
             zones=entry.zones,
-            navigation=entry.navigation,
+            navigation=navigation_after(self.navigation, entry.navigation),
         )
 
     def to_bytes(self, engine: Engine) -> bytes:
@@ -286,6 +286,34 @@ def events_digest(events: Sequence[Event]) -> bytes:
         else:
             h.update(repr(event).encode())
     return h.digest()
+
+
+_PROGRESS = b',"progress":'
+_SAME_COURSE = b'{"layout":1,"course":null'  # layout 1 of navigation_state
+
+
+def navigation_delta(previous: bytes, current: bytes) -> bytes:
+    """What a log entry keeps of the session's navigation after its batch: the whole of
+    it (``navigation_state``) when its course changed, else only its progress (the
+    course is the one before). Byte work on the encoding (``{"layout", "course",
+    "progress"}``; a course is a JSON string, in which ``,"progress":`` cannot occur
+    unescaped): a navigating batch writes a few hundred bytes, not its route."""
+    if not previous or not current:
+        return current
+    cut, was = current.find(_PROGRESS), previous.find(_PROGRESS)
+    if cut < 0 or was < 0 or current[:cut] != previous[:was]:
+        return current
+    return _SAME_COURSE + current[cut:]
+
+
+def navigation_after(previous: bytes, entry: bytes) -> bytes:
+    """The session's navigation after a log entry's (``navigation_delta``)."""
+    if not entry.startswith(_SAME_COURSE + _PROGRESS):
+        return entry
+    was = previous.find(_PROGRESS)
+    if was < 0:  # no course to go on with: the navigation ends
+        return b""
+    return previous[:was] + entry[len(_SAME_COURSE) :]
 
 
 def presence_to_bytes(presence: Mapping[str, Presence]) -> bytes:

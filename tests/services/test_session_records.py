@@ -7,6 +7,8 @@ from server.positioning.plan.zone_presence import Presence
 from server.services.session_records import (
     LogEntry,
     SessionState,
+    navigation_after,
+    navigation_delta,
     presence_from_bytes,
     presence_to_bytes,
 )
@@ -44,3 +46,20 @@ def test_zone_presence_survives_the_blob_the_log_and_older_blobs_have_none() -> 
     again = LogEntry.from_bytes(entry.to_bytes())
     assert again == entry
     assert state.applied(again, 8).zones == entry.zones
+
+
+def test_a_log_entry_keeps_a_navigations_course_only_when_it_changed() -> None:
+    """``navigation_delta`` drops the course a batch did not change, and
+    ``navigation_after`` puts it back; a new course is kept whole."""
+    old = b'{"layout":1,"course":"{\\"legs\\":[1,2]}","progress":{"leg":0,"along_m":1.0}}'
+    new = b'{"layout":1,"course":"{\\"legs\\":[1,2]}","progress":{"leg":0,"along_m":2.5}}'
+    delta = navigation_delta(old, new)
+    assert delta == b'{"layout":1,"course":null,"progress":{"leg":0,"along_m":2.5}}'
+    assert navigation_after(old, delta) == new
+    rerouted = b'{"layout":1,"course":"{\\"legs\\":[3]}","progress":{"leg":0,"along_m":0.0}}'
+    assert navigation_delta(old, rerouted) == rerouted
+    assert navigation_after(old, rerouted) == rerouted
+    assert navigation_delta(b"", new) == new  # started: whole
+    assert navigation_delta(old, b"") == b""  # ended
+    assert navigation_after(old, b"") == b""
+    assert navigation_after(b"", delta) == b""  # a course lost: the navigation ends
