@@ -208,15 +208,12 @@ def follow(
         progress.off_since_ms if progress.off_since_ms >= 0 else fix.t_ms,
         progress.off_n + 1,
     )  # fmt: skip
-    state = replace(
-        progress, leg=leg, along_m=along, off_since_ms=off_since, off_n=off_n,
-        grace_m=0.0 if near else progress.grace_m,
-    )  # fmt: skip
+    grace = 0.0 if near else progress.grace_m
     held = off_since >= 0 and (fix.t_ms - off_since) / 1000.0 >= settings.reroute_after_s
     if held and off_n >= settings.reroute_fixes:
         fresh = reroute(fix)
         if fresh is None:
-            state = replace(state, off_since_ms=-1, off_n=0)
+            off_since, off_n = -1, 0
         else:
             events.append(
                 Event(
@@ -233,18 +230,18 @@ def follow(
             return replace(report, events=(*events, *report.events))
     last = len(guide.legs) - 1
     remaining = max(0.0, guide.length_m - along)
-    if progress.arrived:
-        state = replace(state, along_m=guide.length_m)
-        remaining = 0.0
+    arrived = progress.arrived
+    if arrived:
+        along, remaining = guide.length_m, 0.0
     elif leg == last and off is not None:
         end_x, end_y = guide.legs[last][-1].tolist()
         straight = math.hypot(end_x - fix.x_m, end_y - fix.y_m)
         if straight <= settings.arrival_m or (remaining <= settings.arrival_m and near):
-            state = replace(state, arrived=True, along_m=guide.length_m)
             events.append(Event("arrived", fix.t_ms, {"remaining_m": remaining}))
-            remaining = 0.0
-    step = _passed(guide.steps, state)
-    state = replace(state, step=step)
+            arrived, along, remaining = True, guide.length_m, 0.0
+    step = _passed(guide.steps, progress.step, leg, along)
+    # one Progress made, not replaced field by field (a fix a batch: replace costs more)
+    state = Progress(leg, along, step, off_since, off_n, progress.reroutes, arrived, grace)
     nxt = guide.steps[step + 1] if step + 1 < len(guide.steps) and not state.arrived else None
     to_next = max(0.0, nxt.along_m - state.along_m) if nxt is not None else None
     withheld = bool(
@@ -298,18 +295,16 @@ def _no_reroute(_: FixAt) -> Guide | None:
     return None
 
 
-def _passed(steps: Sequence[Step], progress: Progress) -> int:
+def _passed(steps: Sequence[Step], passed: int, leg: int, along_m: float) -> int:
     """The last step the walker has passed: on an earlier leg (a floor change is passed
     once the walker is on the next leg), or on its leg at or before where it stands;
     never one before the step it had passed already."""
-    found = progress.step
-    for k in range(progress.step, len(steps)):
+    found = passed
+    for k in range(passed, len(steps)):
         s = steps[k]
         change = s.to_level is not None
-        if s.leg < progress.leg or (
-            s.leg == progress.leg and not change and s.along_m <= progress.along_m + 1e-9
-        ):
+        if s.leg < leg or (s.leg == leg and not change and s.along_m <= along_m + 1e-9):
             found = k
-        elif s.leg > progress.leg or change:
+        elif s.leg > leg or change:
             break
     return found
