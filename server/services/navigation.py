@@ -48,7 +48,7 @@ from server.services.sessions import authorize_reader, load_state, site_key
 Change = Callable[[SessionMeta, SessionState, SiteMaps], Awaitable[Navigation | None]]
 
 
-async def _token_or_admin(rt: Runtime, session_id: str, secret: str) -> str | None:
+async def authorize_driver(rt: Runtime, session_id: str, secret: str) -> str | None:
     """The token to read the session with: ``secret`` when it is the session's token, None
     for an admin key of the session's site; Forbidden (NotFound) otherwise."""
     try:
@@ -64,7 +64,7 @@ async def _write(
 ) -> tuple[SiteMaps, Navigation | None]:
     """Set the session's navigation to what ``change`` makes of it, as one snapshot
     written by compare-and-set (read again when another writer got there first)."""
-    token = await _token_or_admin(rt, session_id, secret)
+    token = await authorize_driver(rt, session_id, secret)
     while True:
         version, meta, state = await load_state(rt, session_id, token)
         async with rt.transaction() as s:
